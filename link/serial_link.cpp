@@ -1,0 +1,296 @@
+#include "link/serial_link.hpp"
+
+#include <fcntl.h>
+#include <linux/serial.h>
+#include <sys/ioctl.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+
+#include <fmt/format.h>
+
+namespace ioport {
+namespace {
+
+using asio::redirect_error;
+using asio::use_awaitable;
+
+std::optional<speed_t> speed_for(int baud) {
+    switch (baud) {
+        case 9600:
+            return B9600;
+        case 19200:
+            return B19200;
+        case 38400:
+            return B38400;
+        case 57600:
+            return B57600;
+        case 115200:
+            return B115200;
+        default:
+            return std::nullopt;
+    }
+}
+
+long long as_ms(std::chrono::microseconds d) {
+    return std::chrono::duration_cast<std::chrono::milliseconds>(d).count();
+}
+
+Error open_error(const std::string& device, int err) {
+    switch (err) {
+        case ENOENT:
+        case ENODEV:
+        case ENXIO:
+            return {Errc::port_not_found,
+                    fmt::format("{} does not exist: check that the adapter is plugged in and the "
+                                "path is right (ls /dev/serial/by-id/)",
+                                device)};
+        case EACCES:
+        case EPERM:
+            return {Errc::permission_denied,
+                    fmt::format("{}: permission denied: add this user to the dialout group "
+                                "(sudo usermod -aG dialout $USER, then log in again)",
+                                device)};
+        case EBUSY:
+            return {Errc::port_busy,
+                    fmt::format("{} is in use by another program (find it with: fuser -v {})",
+                                device, device)};
+        default:
+            return {Errc::io_error, fmt::format("cannot open {}: {}", device, std::strerror(err))};
+    }
+}
+
+// Raw 8N1, no flow control, reads never wait on the line discipline.
+bool configure_tty(int fd, speed_t speed) {
+    termios tio{};
+    if (::tcgetattr(fd, &tio) != 0) return false;
+    ::cfmakeraw(&tio);
+    tio.c_cflag &= ~static_cast<tcflag_t>(CSIZE | CSTOPB | PARENB | CRTSCTS);
+    tio.c_cflag |= CS8 | CLOCAL | CREAD;
+    tio.c_iflag &= ~static_cast<tcflag_t>(IXON | IXOFF | IXANY);
+    tio.c_cc[VMIN] = 1;
+    tio.c_cc[VTIME] = 0;
+    if (::cfsetispeed(&tio, speed) != 0 || ::cfsetospeed(&tio, speed) != 0) return false;
+    return ::tcsetattr(fd, TCSANOW, &tio) == 0;
+}
+
+// FTDI adapters otherwise hold a short reply for their 16 ms latency timer.
+bool request_low_latency(int fd) {
+    serial_struct serial{};
+    if (::ioctl(fd, TIOCGSERIAL, &serial) != 0) return false;
+    serial.flags |= ASYNC_LOW_LATENCY;
+    return ::ioctl(fd, TIOCSSERIAL, &serial) == 0;
+}
+
+bool retryable(Errc code) {
+    return code == Errc::timeout || code == Errc::malformed || code == Errc::line_noisy;
+}
+
+}  // namespace
+
+SerialLink::SerialLink(const asio::any_io_executor& executor, LinkSettings settings)
+    : settings_(std::move(settings)), port_(executor), timer_(executor) {}
+
+SerialLink::~SerialLink() {
+    close();
+}
+
+Result<> SerialLink::open() {
+    close();
+    const auto speed = speed_for(settings_.baud);
+    if (!speed)
+        return fail(Errc::invalid_argument,
+                    fmt::format("{}: baud {} is not supported: use 9600, 38400 or 115200",
+                                settings_.device, settings_.baud));
+    const int fd = ::open(settings_.device.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0) return Unexpected(open_error(settings_.device, errno));
+    if (!configure_tty(fd, *speed)) {
+        const int err = errno;
+        ::close(fd);
+        return fail(Errc::io_error, fmt::format("{} is not a usable serial port: {}",
+                                                settings_.device, std::strerror(err)));
+    }
+    // Exclusive: a second program on the same bus would interleave transactions.
+    ::ioctl(fd, TIOCEXCL);
+    low_latency_ = request_low_latency(fd);
+    ::tcflush(fd, TCIOFLUSH);
+    boost::system::error_code ec;
+    port_.assign(fd, ec);
+    if (ec) {
+        ::close(fd);
+        return fail(Errc::io_error,
+                    fmt::format("cannot use {}: {}", settings_.device, ec.message()));
+    }
+    needs_silence_ = false;
+    ++counters_.opens;
+    return {};
+}
+
+void SerialLink::close() {
+    disarm_timeout();
+    boost::system::error_code ignored;
+    port_.close(ignored);
+}
+
+void SerialLink::arm_timeout(std::chrono::microseconds after) {
+    timed_out_ = false;
+    const auto generation = ++timer_generation_;
+    timer_.expires_after(after);
+    timer_.async_wait([this, generation](const boost::system::error_code& ec) {
+        if (ec || generation != timer_generation_) return;
+        timed_out_ = true;
+        boost::system::error_code ignored;
+        port_.cancel(ignored);
+    });
+}
+
+void SerialLink::disarm_timeout() {
+    ++timer_generation_;
+    timer_.cancel();
+}
+
+Error SerialLink::port_error(const boost::system::error_code& ec, std::string_view during) {
+    if (ec == asio::error::operation_aborted)
+        return {Errc::cancelled, fmt::format("{}: {} cancelled", settings_.device, during)};
+    close();
+    const bool lost = ec == asio::error::eof || ec.value() == EIO || ec.value() == ENXIO ||
+                      ec.value() == ENODEV || ec.value() == EBADF;
+    if (lost)
+        return {Errc::port_lost,
+                fmt::format("{} was lost while {} ({}): the adapter was unplugged or the device "
+                            "went away; the port has been closed",
+                            settings_.device, during, ec.message())};
+    return {Errc::io_error, fmt::format("{}: {} failed: {}; the port has been closed",
+                                        settings_.device, during, ec.message())};
+}
+
+asio::awaitable<Result<Reading>> SerialLink::transact(const Exchange& exchange) {
+    for (int attempt = 0;; ++attempt) {
+        auto reading = co_await transact_once(exchange);
+        if (reading || attempt >= settings_.retries || !retryable(reading.error().code))
+            co_return reading;
+    }
+}
+
+asio::awaitable<Result<Reading>> SerialLink::transact_once(const Exchange& exchange) {
+    if (!is_open())
+        co_return fail(Errc::port_closed, fmt::format("{} is not open", settings_.device));
+    if (busy_)
+        co_return fail(Errc::invalid_argument,
+                       fmt::format("{}: a transaction is already in flight", settings_.device));
+    busy_ = true;
+    struct Release {
+        bool& busy;
+        ~Release() { busy = false; }
+    } release{busy_};
+
+    if (needs_silence_) {
+        if (auto quiet = co_await wait_for_silence(); !quiet) {
+            ++counters_.transactions_failed;
+            co_return Unexpected(quiet.error());
+        }
+    }
+    ::tcflush(port_.native_handle(), TCIFLUSH);
+
+    arm_timeout(settings_.timeout);
+    const auto sent = std::chrono::steady_clock::now();
+    boost::system::error_code ec;
+    co_await asio::async_write(port_, asio::buffer(exchange.request),
+                               redirect_error(use_awaitable, ec));
+    if (ec) {
+        disarm_timeout();
+        co_return Unexpected(
+            timed_out_
+                ? Error{Errc::timeout,
+                        fmt::format("{}: could not send to {} within {} ms", settings_.device,
+                                    describe(exchange.target), as_ms(settings_.timeout))}
+                : port_error(ec, "sending"));
+    }
+    auto frame = co_await read_frame(exchange);
+    Result<Reading> reading = frame ? decode(exchange, *frame) : Unexpected(frame.error());
+    if (frame)
+        last_round_trip_ = std::chrono::duration_cast<std::chrono::microseconds>(
+            std::chrono::steady_clock::now() - sent);
+    if (reading) {
+        ++counters_.transactions_ok;
+    } else {
+        ++counters_.transactions_failed;
+        // Whatever else is on its way belongs to this failed request: let it pass first.
+        const auto code = reading.error().code;
+        needs_silence_ = code == Errc::timeout || code == Errc::malformed;
+        if (code == Errc::malformed)
+            reading.error().message = fmt::format("{} on {}: {}", describe(exchange.target),
+                                                  settings_.device, reading.error().message);
+    }
+    co_return reading;
+}
+
+asio::awaitable<Result<std::string>> SerialLink::read_frame(const Exchange& exchange) {
+    LineFramer framer(exchange.terminator, exchange.reply_length);
+    std::optional<Result<std::string>> reply;
+    std::string received;  // for the error message of an incomplete answer
+    const auto no_answer = [&] {
+        return fail(
+            Errc::timeout,
+            received.empty()
+                ? fmt::format("{} on {} did not answer within {} ms: check its address "
+                              "switch, its power and the bus cable",
+                              describe(exchange.target), settings_.device, as_ms(settings_.timeout))
+                : fmt::format("{} on {} sent an incomplete answer \"{}\" within {} ms",
+                              describe(exchange.target), settings_.device, printable(received),
+                              as_ms(settings_.timeout)));
+    };
+    while (!reply) {
+        // The timer may have fired while the previous read was already complete.
+        if (timed_out_) co_return no_answer();
+        boost::system::error_code ec;
+        const std::size_t n = co_await port_.async_read_some(asio::buffer(read_buffer_),
+                                                             redirect_error(use_awaitable, ec));
+        if (ec) {
+            disarm_timeout();
+            if (timed_out_) co_return no_answer();
+            co_return Unexpected(port_error(ec, "reading"));
+        }
+        const std::string_view bytes(read_buffer_.data(), n);
+        if (received.size() < 64) received.append(bytes.substr(0, 64 - received.size()));
+        framer.feed(bytes, [&](const Frame& frame) {
+            if (reply) return;
+            if (frame.overflowed)
+                reply = fail(Errc::malformed,
+                             fmt::format("answer \"{}…\" is too long: expected {} character(s)",
+                                         printable(frame.bytes), exchange.reply_length));
+            else
+                reply = std::string(frame.bytes);
+        });
+    }
+    disarm_timeout();
+    co_return std::move(*reply);
+}
+
+asio::awaitable<Result<>> SerialLink::wait_for_silence() {
+    // Bounded: a line that chatters for ten timeouts in a row is reported, not waited on forever.
+    const auto deadline = std::chrono::steady_clock::now() + 10 * settings_.timeout;
+    for (;;) {
+        arm_timeout(settings_.timeout);
+        boost::system::error_code ec;
+        co_await port_.async_read_some(asio::buffer(read_buffer_),
+                                       redirect_error(use_awaitable, ec));
+        if (ec) {
+            disarm_timeout();
+            if (!timed_out_) co_return Unexpected(port_error(ec, "waiting for silence"));
+            needs_silence_ = false;
+            co_return Result<>{};
+        }
+        if (std::chrono::steady_clock::now() >= deadline) {
+            disarm_timeout();
+            co_return fail(Errc::line_noisy,
+                           fmt::format("{}: the line never stayed silent for {} ms: check for "
+                                       "noise, a wrong baud rate or another device talking",
+                                       settings_.device, as_ms(settings_.timeout)));
+        }
+    }
+}
+
+}  // namespace ioport

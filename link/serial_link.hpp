@@ -1,0 +1,81 @@
+// A serial link to an ioport hub or an ID-2: the one place that touches the tty.
+//
+// Exactly one transaction is in flight. Each one flushes stale input, sends the request and
+// frames the reply with a timeout; after any failure the link waits for the line to be silent
+// for a full timeout before the next request, so a late answer is never taken for another
+// module's. Port loss is an error value, the fd is closed, and open() may be called again.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <string>
+
+#include "link/asio.hpp"
+#include "protocol/error.hpp"
+#include "protocol/exchange.hpp"
+#include "protocol/framer.hpp"
+
+namespace ioport {
+
+using namespace std::chrono_literals;
+
+struct LinkSettings {
+    std::string device;                         // /dev/ttyUSB0, /dev/serial/by-id/…, a pty link
+    int baud = 115200;                          // 9600, 38400 or 115200
+    std::chrono::microseconds timeout = 100ms;  // per attempt, and the silence that ends noise
+    int retries = 1;                            // extra attempts after no answer or a bad answer
+};
+
+struct LinkCounters {
+    std::uint64_t transactions_ok = 0;
+    std::uint64_t transactions_failed = 0;  // attempts: timeouts, malformed answers, error acks
+    std::uint64_t opens = 0;                // successful opens of the port
+};
+
+class SerialLink {
+  public:
+    SerialLink(const asio::any_io_executor& executor, LinkSettings settings);
+    SerialLink(const SerialLink&) = delete;
+    SerialLink& operator=(const SerialLink&) = delete;
+    ~SerialLink();
+
+    // Opens the device raw 8N1 at the configured baud, exclusive, low latency where the driver
+    // allows it. Fails with port_not_found, permission_denied, port_busy, io_error.
+    Result<> open();
+    void close();
+    bool is_open() const { return port_.is_open(); }
+    // The driver accepted ASYNC_LOW_LATENCY (real UARTs and FTDI; a pty does not).
+    bool low_latency() const { return low_latency_; }
+
+    // One transaction with up to `retries` extra attempts after a timeout or malformed reply.
+    // An error ack is final at once; so is a port error (the port is closed then).
+    asio::awaitable<Result<Reading>> transact(const Exchange& exchange);
+    // One attempt, no retry.
+    asio::awaitable<Result<Reading>> transact_once(const Exchange& exchange);
+
+    const LinkSettings& settings() const { return settings_; }
+    const LinkCounters& counters() const { return counters_; }
+    // Request sent → reply framed, of the last attempt that got a reply (no silence wait).
+    std::chrono::microseconds last_round_trip() const { return last_round_trip_; }
+
+  private:
+    asio::awaitable<Result<>> wait_for_silence();
+    asio::awaitable<Result<std::string>> read_frame(const Exchange& exchange);
+    void arm_timeout(std::chrono::microseconds after);
+    void disarm_timeout();
+    Error port_error(const boost::system::error_code& ec, std::string_view during);
+
+    LinkSettings settings_;
+    asio::serial_port port_;
+    asio::steady_timer timer_;
+    std::uint64_t timer_generation_ = 0;  // a stale timer handler must not cancel a later read
+    bool timed_out_ = false;
+    bool needs_silence_ = false;
+    bool busy_ = false;
+    bool low_latency_ = false;
+    std::array<char, 64> read_buffer_{};
+    LinkCounters counters_;
+    std::chrono::microseconds last_round_trip_{};
+};
+
+}  // namespace ioport

@@ -1,0 +1,47 @@
+// Errors are values at module boundaries: every fallible call returns Result<T>.
+#pragma once
+
+#include <string>
+#include <string_view>
+
+#include "protocol/expected.hpp"
+
+namespace ioport {
+
+enum class Errc {
+    invalid_argument,   // a caller passed a value the protocol cannot carry
+    malformed,          // bytes that are not a valid frame: wrong length, non-hex digit, noise
+    error_ack,          // the module answered "0": it refused the command
+    timeout,            // no complete answer within the transaction timeout
+    line_noisy,         // the line never went quiet, so no request could be sent safely
+    port_not_found,     // the device path does not exist
+    permission_denied,  // the device exists but this user may not open it
+    port_busy,          // another process holds the port exclusively
+    port_lost,          // the port vanished while open (USB unplugged, pty closed)
+    port_closed,        // an operation needed an open port and there is none
+    io_error,           // any other operating-system error
+    cancelled,          // the operation was abandoned because the owner shut down
+};
+
+std::string_view to_string(Errc code);
+
+struct Error {
+    Errc code;
+    std::string message;
+};
+
+template <class T = void>
+using Result = Expected<T, Error>;
+
+inline Unexpected<Error> fail(Errc code, std::string message) {
+    return Unexpected(Error{code, std::move(message)});
+}
+
+}  // namespace ioport
+
+namespace ioport {
+
+// Bytes as a person can read them in a log line: "a0\r" → "a0\\r", control bytes as \xNN.
+std::string printable(std::string_view bytes);
+
+}  // namespace ioport

@@ -1,0 +1,193 @@
+#include "sim/control.hpp"
+
+#include <cctype>
+#include <charconv>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include "config/duration.hpp"
+
+namespace ioport::sim {
+namespace {
+
+std::vector<std::string_view> split(std::string_view line) {
+    std::vector<std::string_view> words;
+    std::size_t i = 0;
+    while (i < line.size()) {
+        while (i < line.size() && (line[i] == ' ' || line[i] == '\t' || line[i] == '\r'))
+            ++i;
+        const auto start = i;
+        while (i < line.size() && line[i] != ' ' && line[i] != '\t' && line[i] != '\r')
+            ++i;
+        if (i > start) words.push_back(line.substr(start, i - start));
+    }
+    return words;
+}
+
+std::optional<unsigned long> parse_number(std::string_view text, unsigned long max) {
+    int base = 10;
+    if (text.starts_with("0x") || text.starts_with("0X")) {
+        text.remove_prefix(2);
+        base = 16;
+    }
+    unsigned long value = 0;
+    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value, base);
+    if (text.empty() || ec != std::errc{} || end != text.data() + text.size() || value > max)
+        return std::nullopt;
+    return value;
+}
+
+ControlReply ok(const std::string& text = {}) {
+    return {text + "ok\n", std::nullopt};
+}
+ControlReply error(std::string_view why) {
+    return {fmt::format("error {}\n", why), std::nullopt};
+}
+ControlReply from(const Result<>& result) {
+    return result ? ok() : error(result.error().message);
+}
+
+ControlReply set_id2(DeviceModel& model, std::string_view what, std::string_view value) {
+    if (what == "stop") {
+        const auto high = parse_number(value, 1);
+        if (!high) return error("set stop takes 0 or 1");
+        model.set_stop_input(*high == 1);
+        return ok();
+    }
+    const auto count = parse_number(value, 65535);
+    if (!count) return error("set count takes 0-65535");
+    model.set_counter(static_cast<std::uint16_t>(*count));
+    return ok();
+}
+
+ControlReply set(DeviceModel& model, const std::vector<std::string_view>& words) {
+    if (words.size() < 3) return error("set needs a target and a value");
+    if (model.protocol() == Protocol::id2) {
+        if (words.size() != 3 || (words[1] != "stop" && words[1] != "count"))
+            return error("an ID-2 takes: set stop 0|1, set count N");
+        return set_id2(model, words[1], words[2]);
+    }
+    const auto module = parse_module_address(words[1]);
+    if (!module) return error(module.error().message);
+    std::vector<std::uint16_t> raw;
+    for (std::size_t i = 2; i < words.size(); ++i) {
+        const auto value = parse_number(words[i], 0xFFFF);
+        if (!value) return error(fmt::format("'{}' is not a value 0-65535", words[i]));
+        raw.push_back(static_cast<std::uint16_t>(*value));
+    }
+    return from(model.set_inputs(*module, raw));
+}
+
+ControlReply get(DeviceModel& model, std::string_view target) {
+    if (model.protocol() == Protocol::id2) {
+        if (target == "stop") return ok(fmt::format("{}\n", model.stop_input() ? 1 : 0));
+        if (target == "count") return ok(fmt::format("{}\n", model.counter()));
+        return error("an ID-2 takes: get stop, get count");
+    }
+    const auto module = parse_module_address(target);
+    if (!module) return error(module.error().message);
+    const auto values = model.values(*module);
+    if (!values) return error(values.error().message);
+    return ok(fmt::format("{}\n", fmt::join(*values, " ")));
+}
+
+ControlReply fault(DeviceModel& model, const std::vector<std::string_view>& words) {
+    if (words.size() < 3) return error("fault needs a target and a kind");
+    const auto kind = fault_kind_from_name(words[2]);
+    if (!kind)
+        return error(
+            fmt::format("unknown fault '{}': none silent error-ack garbage short long "
+                        "delay",
+                        words[2]));
+    Fault spec{*kind, 1.0, {}};
+    for (std::size_t i = 3; i < words.size(); ++i) {
+        // A duration has a unit ("150ms"); a bare number is a probability.
+        if (std::isalpha(static_cast<unsigned char>(words[i].back()))) {
+            const auto delay = parse_duration(words[i]);
+            if (!delay) return error(delay.error().message);
+            spec.delay = *delay;
+            continue;
+        }
+        double probability = -1;
+        const auto [end, ec] =
+            std::from_chars(words[i].data(), words[i].data() + words[i].size(), probability);
+        if (ec != std::errc{} || end != words[i].data() + words[i].size() || probability < 0 ||
+            probability > 1)
+            return error(fmt::format("'{}' is neither a probability 0-1 nor a duration", words[i]));
+        spec.probability = probability;
+    }
+    if (spec.kind == FaultKind::delay && spec.delay.count() == 0)
+        return error("a delay fault needs a duration, e.g. fault dim16:0 delay 150ms");
+    if (words[1] == "all" || words[1] == "device") {
+        model.set_fault_all(spec);
+        return ok();
+    }
+    const auto module = parse_module_address(words[1]);
+    if (!module) return error(module.error().message);
+    return from(model.set_fault(*module, spec));
+}
+
+ControlReply log(DeviceModel& model, const std::vector<std::string_view>& words) {
+    if (words.size() == 2 && words[1] == "clear") {
+        model.clear_log();
+        return ok();
+    }
+    if (words.size() != 1) return error("log takes nothing or 'clear'");
+    std::string text;
+    for (const auto& entry : model.log())
+        text += fmt::format("{} {} {}\n", entry.at.count(), printable(entry.request),
+                            entry.answer.empty() ? "-" : printable(entry.answer));
+    return {text + fmt::format("ok {}\n", model.log().size()), std::nullopt};
+}
+
+ControlReply module_command(DeviceModel& model, const std::vector<std::string_view>& words) {
+    if (words.size() != 2) return error(fmt::format("{} takes one module", words[0]));
+    const auto module = parse_module_address(words[1]);
+    if (!module) return error(module.error().message);
+    return from(words[0] == "add" ? model.add(*module) : model.remove(*module));
+}
+
+}  // namespace
+
+ControlReply execute(DeviceModel& model, std::string_view line) {
+    const auto words = split(line);
+    if (words.empty()) return error("empty command: try help");
+    const auto verb = words[0];
+    if (verb == "help") return ok(std::string(control_help));
+    if (verb == "modules") {
+        std::string text;
+        for (const auto module : model.modules())
+            text += fmt::format("{}:{}\n", name(module.type), module.number);
+        return ok(text);
+    }
+    if (verb == "add" || verb == "remove") return module_command(model, words);
+    if (verb == "set") return set(model, words);
+    if (verb == "get") {
+        if (words.size() != 2) return error("get takes one target");
+        return get(model, words[1]);
+    }
+    if (verb == "pulse") {
+        const auto count = words.size() == 2 ? parse_number(words[1], 65535) : std::nullopt;
+        if (!count) return error("pulse takes a count 0-65535");
+        model.pulse(static_cast<unsigned>(*count));
+        return ok();
+    }
+    if (verb == "fault") return fault(model, words);
+    if (verb == "log") return log(model, words);
+    if (verb == "unplug") {
+        PortAction action{PortAction::Kind::unplug, std::nullopt};
+        if (words.size() == 2) {
+            const auto after = parse_duration(words[1]);
+            if (!after) return error(after.error().message);
+            action.replug_after = *after;
+        } else if (words.size() != 1) {
+            return error("unplug takes an optional duration");
+        }
+        return {"ok\n", action};
+    }
+    if (verb == "replug") return {"ok\n", PortAction{PortAction::Kind::replug, std::nullopt}};
+    return error(fmt::format("unknown command '{}': try help", verb));
+}
+
+}  // namespace ioport::sim

@@ -1,0 +1,45 @@
+// The simulator's control language, one command a line, as tests and people type it:
+//
+//   modules | add MODULE | remove MODULE
+//   set MODULE VALUE...       inputs' raw words (decimal or 0x hex); set dim16:0 0x8000
+//   get MODULE                inputs' raw words, or an output's value (dom16 word, colour, mux)
+//   set stop 0|1 | set count N | get stop | get count | pulse N       (ID-2)
+//   fault MODULE|all|device KIND [PROBABILITY] [DELAY]   KIND: none silent error-ack garbage
+//                                                        short long delay
+//   log | log clear           the request log: "<µs since start> <request> <answer>"
+//   unplug [DURATION] | replug
+//   help
+//
+// Every reply ends with one line starting "ok" or "error"; data lines come before it.
+#pragma once
+
+#include <chrono>
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "sim/model.hpp"
+
+namespace ioport::sim {
+
+struct PortAction {
+    enum class Kind { unplug, replug } kind;
+    std::optional<std::chrono::microseconds> replug_after;  // unplug only
+};
+
+struct ControlReply {
+    std::string text;  // lines, each ending in '\n', the last one "ok…" or "error…"
+    std::optional<PortAction> action;
+};
+
+ControlReply execute(DeviceModel& model, std::string_view line);
+
+inline constexpr std::string_view control_help =
+    "modules | add MODULE | remove MODULE\n"
+    "set MODULE VALUE... | get MODULE            (MODULE as dim16:0; values decimal or 0x hex)\n"
+    "set stop 0|1 | set count N | get stop | get count | pulse N      (ID-2)\n"
+    "fault MODULE|all|device KIND [PROBABILITY] [DELAY]\n"
+    "      KIND: none silent error-ack garbage short long delay\n"
+    "log | log clear | unplug [DURATION] | replug | help\n";
+
+}  // namespace ioport::sim

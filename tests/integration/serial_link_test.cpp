@@ -1,0 +1,207 @@
+// The serial link against a device the test scripts byte for byte on a pty.
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <functional>
+
+#include "link/serial_link.hpp"
+#include "tests/support/pty_pair.hpp"
+
+namespace ioport {
+namespace {
+
+using namespace std::chrono_literals;
+using test::PtyDevice;
+using test::Reply;
+using test::run_until_done;
+using Clock = std::chrono::steady_clock;
+
+const ModuleAddress dim0{ModuleType::dim16, 0};
+const ModuleAddress dim1{ModuleType::dim16, 1};
+const ModuleAddress dom0{ModuleType::dom16, 0};
+
+Exchange read(ModuleAddress module) {
+    return *make_exchange(module);
+}
+
+class SerialLinkTest : public ::testing::Test {
+  protected:
+    void SetUp() override { ASSERT_TRUE(link.open()) << link.open().error().message; }
+    LinkSettings settings(std::chrono::microseconds timeout, int retries) {
+        return {device.path(), 115200, timeout, retries};
+    }
+    asio::io_context io;
+    PtyDevice device{io};
+    SerialLink link{io.get_executor(), settings(50ms, 0)};
+};
+
+// Runs transactions in order on the test's io_context and returns every outcome with its
+// duration. `between` runs before transaction i (for scripted line noise and the like).
+struct Outcome {
+    Result<Reading> result;
+    Clock::duration elapsed;
+};
+std::vector<Outcome> transact_all(asio::io_context& io, SerialLink& link,
+                                  const std::vector<Exchange>& exchanges,
+                                  const std::function<void(std::size_t)>& between = {}) {
+    std::vector<Outcome> outcomes;
+    run_until_done(io, [&]() -> asio::awaitable<void> {
+        for (std::size_t i = 0; i < exchanges.size(); ++i) {
+            if (between) between(i);
+            const auto start = Clock::now();
+            auto result = co_await link.transact(exchanges[i]);
+            outcomes.push_back({std::move(result), Clock::now() - start});
+        }
+    });
+    return outcomes;
+}
+
+TEST_F(SerialLinkTest, ReadsAReplySplitAcrossWrites) {
+    device.serve([](const std::string&) { return std::vector<Reply>{{0ms, "80"}, {5ms, "00\r"}}; });
+    const auto outcomes = transact_all(io, link, {read(dim0)});
+    ASSERT_EQ(outcomes.size(), 1u);
+    ASSERT_TRUE(outcomes[0].result) << outcomes[0].result.error().message;
+    EXPECT_EQ(outcomes[0].result->raw[0], 0x8000);
+    EXPECT_EQ(device.requests(), std::vector<std::string>{"a0"});
+    EXPECT_EQ(link.counters().transactions_ok, 1u);
+    EXPECT_FALSE(link.low_latency());  // a pty has no ASYNC_LOW_LATENCY
+}
+
+TEST_F(SerialLinkTest, TimesOutAfterTheConfiguredTimeout) {
+    device.serve([](const std::string&) { return std::vector<Reply>{}; });
+    const auto outcomes = transact_all(io, link, {read(dim0)});
+    ASSERT_EQ(outcomes.size(), 1u);
+    const auto& [reading, elapsed] = outcomes[0];
+    ASSERT_FALSE(reading);
+    EXPECT_EQ(reading.error().code, Errc::timeout);
+    EXPECT_NE(reading.error().message.find("dim16 0 on " + device.path() +
+                                           " did not answer within 50 ms"),
+              std::string::npos)
+        << reading.error().message;
+    EXPECT_GE(elapsed, 50ms);
+    EXPECT_LT(elapsed, 2s);
+    EXPECT_EQ(link.counters().transactions_failed, 1u);
+}
+
+TEST_F(SerialLinkTest, ALateAnswerIsNeverTakenForTheNextModule) {
+    device.serve([](const std::string& request) {
+        if (request == "a0") return std::vector<Reply>{{80ms, "1111\r"}};  // after the timeout
+        return std::vector<Reply>{{0ms, "2222\r"}};
+    });
+    const auto outcomes = transact_all(io, link, {read(dim0), read(dim1)});
+    ASSERT_EQ(outcomes.size(), 2u);
+    EXPECT_EQ(outcomes[0].result.error().code, Errc::timeout);
+    ASSERT_TRUE(outcomes[1].result) << outcomes[1].result.error().message;
+    EXPECT_EQ(outcomes[1].result->raw[0], 0x2222);
+}
+
+TEST_F(SerialLinkTest, StaleInputIsFlushedBeforeARequest) {
+    device.serve([](const std::string&) { return std::vector<Reply>{{0ms, "0001\r"}}; });
+    device.send("FFFF\r");  // unasked: must not be the answer
+    const auto outcomes = transact_all(io, link, {read(dim0)});
+    ASSERT_TRUE(outcomes.at(0).result) << outcomes[0].result.error().message;
+    EXPECT_EQ(outcomes[0].result->raw[0], 0x0001);
+}
+
+TEST_F(SerialLinkTest, MalformedAndOverlongAnswersAreErrorsAndTheLinkRecovers) {
+    int n = 0;
+    device.serve([&](const std::string&) {
+        switch (n++) {
+            case 0:
+                return std::vector<Reply>{{0ms, "12G4\r"}};
+            case 1:
+                return std::vector<Reply>{{0ms, "FFFFFFFFFFFFFFFFFFFF\r"}};
+            case 2:
+                return std::vector<Reply>{{0ms, "123\r"}};
+            default:
+                return std::vector<Reply>{{0ms, "ABCD\r"}};
+        }
+    });
+    const auto outcomes = transact_all(io, link, {read(dim0), read(dim0), read(dim0), read(dim0)});
+    ASSERT_EQ(outcomes.size(), 4u);
+    for (int i = 0; i < 3; ++i) {
+        ASSERT_FALSE(outcomes[i].result) << i;
+        EXPECT_EQ(outcomes[i].result.error().code, Errc::malformed) << i;
+    }
+    ASSERT_TRUE(outcomes[3].result) << outcomes[3].result.error().message;
+    EXPECT_EQ(outcomes[3].result->raw[0], 0xABCD);
+    EXPECT_EQ(link.counters().transactions_failed, 3u);
+    EXPECT_EQ(link.counters().transactions_ok, 1u);
+}
+
+TEST_F(SerialLinkTest, RetriesAMissingAnswerButNotAnErrorAck) {
+    SerialLink retrying(io.get_executor(), settings(30ms, 2));
+    link.close();
+    ASSERT_TRUE(retrying.open());
+    int reads = 0;
+    device.serve([&](const std::string& request) {
+        if (request.starts_with("b")) return std::vector<Reply>{{0ms, "0\r"}};
+        if (++reads < 3) return std::vector<Reply>{};  // silent twice, then answers
+        return std::vector<Reply>{{0ms, "0042\r"}};
+    });
+    const auto outcomes = transact_all(io, retrying, {read(dim0), *make_exchange(dom0, 0x00FF)});
+    ASSERT_EQ(outcomes.size(), 2u);
+    ASSERT_TRUE(outcomes[0].result) << outcomes[0].result.error().message;
+    EXPECT_EQ(outcomes[0].result->raw[0], 0x0042);
+    ASSERT_FALSE(outcomes[1].result);
+    EXPECT_EQ(outcomes[1].result.error().code, Errc::error_ack);
+    EXPECT_EQ(device.requests(), (std::vector<std::string>{"a0", "a0", "a0", "b000FF"}));
+    EXPECT_EQ(retrying.counters().transactions_failed, 3u);  // two timeouts, one error ack
+}
+
+TEST_F(SerialLinkTest, ALineThatNeverFallsSilentIsReportedNotWaitedOnForever) {
+    device.serve([](const std::string&) { return std::vector<Reply>{}; });
+    // After the first timeout, a byte of noise every 10 ms: the line is never quiet for 50 ms.
+    asio::steady_timer noise(io);
+    std::function<void(const boost::system::error_code&)> chatter = [&](const auto& ec) {
+        if (ec) return;
+        device.send("~");
+        noise.expires_after(10ms);
+        noise.async_wait(chatter);
+    };
+    const auto outcomes = transact_all(io, link, {read(dim0), read(dim0)}, [&](std::size_t i) {
+        if (i == 1) chatter({});
+    });
+    noise.cancel();
+    ASSERT_EQ(outcomes.size(), 2u);
+    EXPECT_EQ(outcomes[0].result.error().code, Errc::timeout);
+    ASSERT_FALSE(outcomes[1].result);
+    EXPECT_EQ(outcomes[1].result.error().code, Errc::line_noisy);
+    EXPECT_GE(outcomes[1].elapsed, 500ms);  // ten timeouts
+    EXPECT_LT(outcomes[1].elapsed, 3s);
+}
+
+TEST_F(SerialLinkTest, PortLossIsAnErrorValueAndClosesThePort) {
+    device.serve([](const std::string&) { return std::vector<Reply>{}; });
+    device.hang_up();
+    const auto outcomes = transact_all(io, link, {read(dim0), read(dim0)});
+    ASSERT_EQ(outcomes.size(), 2u);
+    ASSERT_FALSE(outcomes[0].result);
+    EXPECT_EQ(outcomes[0].result.error().code, Errc::port_lost)
+        << outcomes[0].result.error().message;
+    EXPECT_FALSE(link.is_open());
+    EXPECT_EQ(outcomes[1].result.error().code, Errc::port_closed);
+}
+
+TEST(SerialLinkOpen, ErrorsSayWhatToDo) {
+    asio::io_context io;
+    SerialLink missing(io.get_executor(), {"/dev/serial/by-id/no-such-adapter", 115200, 100ms, 1});
+    const auto not_found = missing.open();
+    ASSERT_FALSE(not_found);
+    EXPECT_EQ(not_found.error().code, Errc::port_not_found);
+    EXPECT_NE(not_found.error().message.find("ls /dev/serial/by-id/"), std::string::npos);
+
+    const std::string file = ::testing::TempDir() + "/not-a-tty";
+    std::ofstream(file) << "x";
+    SerialLink regular(io.get_executor(), {file, 115200, 100ms, 1});
+    const auto not_tty = regular.open();
+    ASSERT_FALSE(not_tty);
+    EXPECT_EQ(not_tty.error().code, Errc::io_error);
+    EXPECT_NE(not_tty.error().message.find("not a usable serial port"), std::string::npos);
+
+    SerialLink odd_baud(io.get_executor(), {file, 12345, 100ms, 1});
+    EXPECT_EQ(odd_baud.open().error().code, Errc::invalid_argument);
+}
+
+}  // namespace
+}  // namespace ioport

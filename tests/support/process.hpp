@@ -1,0 +1,77 @@
+// Child processes for integration tests: the real binaries, with bounded waits only.
+#pragma once
+
+#include <sys/types.h>
+
+#include <chrono>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "sim/control_client.hpp"
+
+namespace ioport::test {
+
+using namespace std::chrono_literals;
+
+struct Outcome {
+    int exit_code = -1;  // -1: killed at the deadline
+    std::string out;
+    std::string err;
+};
+
+// Runs a program to completion; kills it if it outlives `deadline`.
+Outcome run(const std::vector<std::string>& argv, std::chrono::milliseconds deadline = 20s);
+
+// A started program whose stdout can be waited on line by line; SIGTERM and reaped on destruction.
+class Child {
+  public:
+    explicit Child(const std::vector<std::string>& argv);
+    ~Child();
+    Child(const Child&) = delete;
+    Child& operator=(const Child&) = delete;
+
+    // The next line of stdout, or "" if none came within `deadline`.
+    std::string read_line(std::chrono::milliseconds deadline);
+    // Sends `signal` and waits up to `deadline` for the exit status (-1 if it did not exit).
+    int stop(int signal, std::chrono::milliseconds deadline);
+    pid_t pid() const { return pid_; }
+
+  private:
+    pid_t pid_ = -1;
+    int out_fd_ = -1;
+    std::string buffered_;
+};
+
+// A temporary directory, removed with everything in it.
+class TempDir {
+  public:
+    TempDir();
+    ~TempDir();
+    const std::filesystem::path& path() const { return path_; }
+    std::string operator/(std::string_view name) const { return (path_ / name).string(); }
+
+  private:
+    std::filesystem::path path_;
+};
+
+// ioport-sim running in its own process, ready when constructed.
+class SimProcess {
+  public:
+    // `device`: "--hub" with a module list, or "--id2" with "".
+    SimProcess(const std::string& device_flag, const std::string& modules,
+               std::vector<std::string> extra = {});
+    const std::string& link() const { return link_; }
+    // Sends a control command; fails the test on an error reply.
+    std::string ctl(std::string_view command);
+    Result<std::string> try_ctl(std::string_view command);
+
+  private:
+    TempDir dir_;
+    std::string link_;
+    std::string control_;
+    Child child_;
+    sim::ControlClient client_;
+};
+
+}  // namespace ioport::test

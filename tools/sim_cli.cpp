@@ -1,0 +1,192 @@
+#include "tools/sim_cli.hpp"
+
+#include <charconv>
+#include <cstdio>
+
+#include <fmt/format.h>
+
+#include "config/duration.hpp"
+#include "sim/control_client.hpp"
+
+namespace ioport::sim_cli {
+
+const std::string_view usage = R"(Usage: ioport-sim --link PATH (--hub MODULES | --id2) [OPTIONS]
+       ioport-sim ctl SOCKET COMMAND...
+
+Simulates an ioport hub (hub8u/hub8r) with the given modules, or an ID-2 interface, on a
+pseudo-terminal reachable at PATH (a symlink, like /dev/serial/by-id/...). Runs until SIGINT or
+SIGTERM.
+
+  --link PATH          where to put the symlink to the pty (replaced if it exists)
+  --hub MODULES        modules on the hub, e.g. dim16:0,dom16:0-1,acm3p:0
+  --id2                an ID-2 stop/counter interface instead of a hub
+  --control PATH       Unix socket for the control language (see: ioport-sim ctl SOCKET help)
+  --baud N             modelled line speed: 9600, 38400 or 115200 (default 115200; id2 9600)
+  --turnaround DUR     from request received to answer start (default 500us)
+  --no-line-timing     answer at once, without modelling 10 bits per byte
+  --seed N             seed of the random faults (default 1), so a run can be replayed
+  -h, --help           this text
+
+ctl sends one control command to a running simulator and prints its reply; exit 0 on ok.
+)";
+
+namespace {
+
+Error usage_error(const std::string& message) {
+    return {Errc::invalid_argument, message + "\n(ioport-sim --help for usage)"};
+}
+
+template <class T>
+std::optional<T> parse_int(std::string_view text) {
+    T value{};
+    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+    if (text.empty() || ec != std::errc{} || end != text.data() + text.size()) return std::nullopt;
+    return value;
+}
+
+int serve(const Serve& serve, std::ostream& out, std::ostream& err) {
+    sim::DeviceModel model(serve.protocol, serve.seed);
+    for (const auto module : serve.modules)
+        (void)model.add(module);
+    asio::io_context io;
+    sim::Simulator simulator(io, model, serve.settings);
+    if (auto started = simulator.start(); !started) {
+        err << "ioport-sim: " << started.error().message << "\n";
+        return 1;
+    }
+    asio::signal_set signals(io, SIGINT, SIGTERM);
+    signals.async_wait([&](const boost::system::error_code&, int) {
+        simulator.stop();
+        io.stop();
+    });
+    const auto what = serve.protocol == sim::Protocol::id2
+                          ? std::string("ID-2")
+                          : fmt::format("hub with {} module(s)", serve.modules.size());
+    out << fmt::format(
+        "ioport-sim: {} on {} -> {}, {} baud{}{}\n", what, serve.settings.link_path,
+        simulator.pty_name(), serve.settings.baud,
+        serve.settings.line_timing ? "" : " (no line timing)",
+        serve.settings.control_path ? ", control " + *serve.settings.control_path : std::string{});
+    out.flush();
+    io.run();
+    return 0;
+}
+
+int control(const Control& control, std::ostream& out, std::ostream& err) {
+    sim::ControlClient client;
+    if (auto connected = client.connect(control.socket); !connected) {
+        err << "ioport-sim: " << connected.error().message << "\n";
+        return 1;
+    }
+    const auto reply = client.command(control.command);
+    if (!reply) {
+        err << "ioport-sim: " << reply.error().message << "\n";
+        return 1;
+    }
+    out << *reply;
+    if (!reply->empty() && reply->back() != '\n') out << "\n";
+    return 0;
+}
+
+}  // namespace
+
+Result<std::vector<ModuleAddress>> parse_module_list(std::string_view text) {
+    std::vector<ModuleAddress> modules;
+    while (!text.empty()) {
+        const auto comma = text.find(',');
+        auto item = text.substr(0, comma);
+        text = comma == std::string_view::npos ? std::string_view{} : text.substr(comma + 1);
+        // TYPE:N-M is shorthand for TYPE:N … TYPE:M.
+        const auto dash = item.find('-');
+        const auto first = parse_module_address(item.substr(0, dash));
+        if (!first) return Unexpected(usage_error(first.error().message));
+        int last = first->number;
+        if (dash != std::string_view::npos) {
+            const auto upper = parse_int<int>(item.substr(dash + 1));
+            if (!upper || *upper < first->number || *upper >= modules_per_type)
+                return Unexpected(
+                    usage_error(fmt::format("'{}': a range is TYPE:N-M with N <= M <= 7", item)));
+            last = *upper;
+        }
+        for (int n = first->number; n <= last; ++n)
+            modules.push_back({first->type, static_cast<std::uint8_t>(n)});
+    }
+    if (modules.empty()) return Unexpected(usage_error("--hub needs at least one module"));
+    return modules;
+}
+
+Result<Invocation> parse_arguments(std::span<const std::string_view> args) {
+    if (!args.empty() && args[0] == "ctl") {
+        if (args.size() < 3) return Unexpected(usage_error("ctl takes SOCKET COMMAND..."));
+        std::string command;
+        for (std::size_t i = 2; i < args.size(); ++i)
+            command += (i > 2 ? " " : "") + std::string(args[i]);
+        return Control{std::string(args[1]), command};
+    }
+    Serve serve;
+    bool hub = false, id2 = false;
+    std::optional<int> baud;
+    for (std::size_t i = 0; i < args.size(); ++i) {
+        const auto arg = args[i];
+        if (arg == "-h" || arg == "--help") return Help{};
+        if (arg == "--id2") {
+            id2 = true;
+            continue;
+        }
+        if (arg == "--no-line-timing") {
+            serve.settings.line_timing = false;
+            continue;
+        }
+        if (i + 1 >= args.size())
+            return Unexpected(
+                usage_error(fmt::format("unknown option or missing value: '{}'", arg)));
+        const auto value = args[++i];
+        if (arg == "--link") {
+            serve.settings.link_path = value;
+        } else if (arg == "--control") {
+            serve.settings.control_path = std::string(value);
+        } else if (arg == "--hub") {
+            auto modules = parse_module_list(value);
+            if (!modules) return Unexpected(modules.error());
+            serve.modules = std::move(*modules);
+            hub = true;
+        } else if (arg == "--baud") {
+            baud = parse_int<int>(value);
+            if (!baud || (*baud != 9600 && *baud != 38400 && *baud != 115200))
+                return Unexpected(
+                    usage_error(fmt::format("baud '{}': 9600, 38400 or 115200", value)));
+        } else if (arg == "--turnaround") {
+            const auto turnaround = parse_duration(value);
+            if (!turnaround) return Unexpected(usage_error(turnaround.error().message));
+            serve.settings.turnaround = *turnaround;
+        } else if (arg == "--seed") {
+            const auto seed = parse_int<std::uint64_t>(value);
+            if (!seed)
+                return Unexpected(usage_error(fmt::format("seed '{}': a whole number", value)));
+            serve.seed = *seed;
+        } else {
+            return Unexpected(usage_error(fmt::format("unknown option '{}'", arg)));
+        }
+    }
+    if (serve.settings.link_path.empty()) return Unexpected(usage_error("--link PATH is required"));
+    if (hub == id2) return Unexpected(usage_error("give either --hub MODULES or --id2"));
+    serve.protocol = id2 ? sim::Protocol::id2 : sim::Protocol::ioport;
+    serve.settings.baud = baud.value_or(id2 ? 9600 : 115200);
+    return serve;
+}
+
+int run_command_line(std::span<const std::string_view> args, std::ostream& out, std::ostream& err) {
+    const auto invocation = parse_arguments(args);
+    if (!invocation) {
+        err << "ioport-sim: " << invocation.error().message << "\n";
+        return 2;
+    }
+    if (std::holds_alternative<Help>(*invocation)) {
+        out << usage;
+        return 0;
+    }
+    if (const auto* c = std::get_if<Control>(&*invocation)) return control(*c, out, err);
+    return serve(std::get<Serve>(*invocation), out, err);
+}
+
+}  // namespace ioport::sim_cli
