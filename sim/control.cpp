@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 
 #include "config/duration.hpp"
+#include "config/number.hpp"
 
 namespace ioport::sim {
 namespace {
@@ -25,19 +26,6 @@ std::vector<std::string_view> split(std::string_view line) {
     return words;
 }
 
-std::optional<unsigned long> parse_number(std::string_view text, unsigned long max) {
-    int base = 10;
-    if (text.starts_with("0x") || text.starts_with("0X")) {
-        text.remove_prefix(2);
-        base = 16;
-    }
-    unsigned long value = 0;
-    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value, base);
-    if (text.empty() || ec != std::errc{} || end != text.data() + text.size() || value > max)
-        return std::nullopt;
-    return value;
-}
-
 ControlReply ok(const std::string& text = {}) {
     return {text + "ok\n", std::nullopt};
 }
@@ -50,12 +38,12 @@ ControlReply from(const Result<>& result) {
 
 ControlReply set_id2(DeviceModel& model, std::string_view what, std::string_view value) {
     if (what == "stop") {
-        const auto high = parse_number(value, 1);
+        const auto high = parse_unsigned(value, 1);
         if (!high) return error("set stop takes 0 or 1");
         model.set_stop_input(*high == 1);
         return ok();
     }
-    const auto count = parse_number(value, 65535);
+    const auto count = parse_unsigned(value, 65535);
     if (!count) return error("set count takes 0-65535");
     model.set_counter(static_cast<std::uint16_t>(*count));
     return ok();
@@ -72,7 +60,7 @@ ControlReply set(DeviceModel& model, const std::vector<std::string_view>& words)
     if (!module) return error(module.error().message);
     std::vector<std::uint16_t> raw;
     for (std::size_t i = 2; i < words.size(); ++i) {
-        const auto value = parse_number(words[i], 0xFFFF);
+        const auto value = parse_unsigned(words[i], 0xFFFF);
         if (!value) return error(fmt::format("'{}' is not a value 0-65535", words[i]));
         raw.push_back(static_cast<std::uint16_t>(*value));
     }
@@ -168,7 +156,7 @@ ControlReply execute(DeviceModel& model, std::string_view line) {
         return get(model, words[1]);
     }
     if (verb == "pulse") {
-        const auto count = words.size() == 2 ? parse_number(words[1], 65535) : std::nullopt;
+        const auto count = words.size() == 2 ? parse_unsigned(words[1], 65535) : std::nullopt;
         if (!count) return error("pulse takes a count 0-65535");
         model.pulse(static_cast<unsigned>(*count));
         return ok();

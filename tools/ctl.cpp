@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include "config/duration.hpp"
+#include "config/number.hpp"
 #include "link/blocking_link.hpp"
 #include "protocol/exchange.hpp"
 
@@ -55,24 +56,8 @@ Error usage_error(const std::string& message) {
     return {Errc::invalid_argument, message + "\n(ioportctl --help lists the commands)"};
 }
 
-std::optional<unsigned long> parse_number(std::string_view text, unsigned long max) {
-    int base = 10;
-    if (text.starts_with("0x") || text.starts_with("0X")) {
-        base = 16;
-        text.remove_prefix(2);
-    } else if (text.starts_with("0b") || text.starts_with("0B")) {
-        base = 2;
-        text.remove_prefix(2);
-    }
-    unsigned long value = 0;
-    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value, base);
-    if (text.empty() || ec != std::errc{} || end != text.data() + text.size() || value > max)
-        return std::nullopt;
-    return value;
-}
-
 Result<std::uint8_t> module_number(std::string_view text, std::string_view type) {
-    const auto n = parse_number(text, modules_per_type - 1);
+    const auto n = parse_unsigned(text, modules_per_type - 1);
     if (!n)
         return Unexpected(
             usage_error(fmt::format("'{}' is not a {} module number: use 0-7", text, type)));
@@ -95,13 +80,13 @@ Result<Command> parse_write(const std::vector<std::string_view>& words) {
                                  [](ModuleType t) { return t == ModuleType::dom16; });
     if (!module) return Unexpected(module.error());
     if (words.size() == 3) {
-        const auto word = parse_number(words[2], 0xFFFF);
+        const auto word = parse_unsigned(words[2], 0xFFFF);
         if (!word)
             return Unexpected(usage_error(fmt::format(
                 "'{}' is not a 16-bit word: use 0x93D1, 37841 or 0b1001001111010001", words[2])));
         return Write{*module, static_cast<std::uint16_t>(*word), std::nullopt};
     }
-    const auto output = parse_number(words[2], 15);
+    const auto output = parse_unsigned(words[2], 15);
     if (!output)
         return Unexpected(
             usage_error(fmt::format("'{}' is not a dom16 output: use 0-15", words[2])));
@@ -117,7 +102,7 @@ Result<Command> parse_rgb(const std::vector<std::string_view>& words) {
     const auto number = module_number(words[1], "rgbdm");
     if (!number) return Unexpected(number.error());
     auto colour = colour_from_name(words[2]);
-    if (const auto code = parse_number(words[2], colour_count - 1); !colour && code)
+    if (const auto code = parse_unsigned(words[2], colour_count - 1); !colour && code)
         colour = static_cast<Colour>(*code);
     if (!colour)
         return Unexpected(usage_error(fmt::format(
@@ -135,8 +120,8 @@ Result<Command> parse_mux(const std::vector<std::string_view>& words) {
         if (words[2] != "off") return Unexpected(usage_error("mux takes N POS NEG, or N off"));
         return Write{{ModuleType::mux8m, *number}, 0, std::nullopt};
     }
-    const auto pos = parse_number(words[2], mux_test_points - 1);
-    const auto neg = parse_number(words[3], mux_test_points - 1);
+    const auto pos = parse_unsigned(words[2], mux_test_points - 1);
+    const auto neg = parse_unsigned(words[3], mux_test_points - 1);
     if (!pos || !neg)
         return Unexpected(usage_error(
             fmt::format("mux test points '{}' '{}': each must be 0-7", words[2], words[3])));
@@ -396,7 +381,7 @@ Result<Invocation> parse_arguments(std::span<const std::string_view> args,
         } else if (arg == "-b" || arg == "--baud") {
             const auto v = value(arg);
             if (!v) return Unexpected(v.error());
-            const auto baud = parse_number(*v, 115200);
+            const auto baud = parse_unsigned(*v, 115200);
             if (!baud || (*baud != 9600 && *baud != 38400 && *baud != 115200))
                 return Unexpected(
                     usage_error(fmt::format("baud '{}': use 115200 or 38400 (9600 for id2)", *v)));
@@ -412,7 +397,7 @@ Result<Invocation> parse_arguments(std::span<const std::string_view> args,
         } else if (arg == "-r" || arg == "--retries") {
             const auto v = value(arg);
             if (!v) return Unexpected(v.error());
-            const auto retries = parse_number(*v, 10);
+            const auto retries = parse_unsigned(*v, 10);
             if (!retries) return Unexpected(usage_error(fmt::format("retries '{}': use 0-10", *v)));
             options.retries = static_cast<int>(*retries);
         } else if (arg.starts_with("-") && arg.size() > 1 && !(arg[1] >= '0' && arg[1] <= '9')) {

@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include "config/duration.hpp"
+#include "config/number.hpp"
 #include "sim/control_client.hpp"
 
 namespace ioport::sim_cli {
@@ -34,14 +35,6 @@ namespace {
 
 Error usage_error(const std::string& message) {
     return {Errc::invalid_argument, message + "\n(ioport-sim --help for usage)"};
-}
-
-template <class T>
-std::optional<T> parse_int(std::string_view text) {
-    T value{};
-    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
-    if (text.empty() || ec != std::errc{} || end != text.data() + text.size()) return std::nullopt;
-    return value;
 }
 
 int serve(const Serve& serve, std::ostream& out, std::ostream& err) {
@@ -102,11 +95,11 @@ Result<std::vector<ModuleAddress>> parse_module_list(std::string_view text) {
         if (!first) return Unexpected(usage_error(first.error().message));
         int last = first->number;
         if (dash != std::string_view::npos) {
-            const auto upper = parse_int<int>(item.substr(dash + 1));
-            if (!upper || *upper < first->number || *upper >= modules_per_type)
+            const auto upper = parse_unsigned(item.substr(dash + 1), modules_per_type - 1);
+            if (!upper || *upper < first->number)
                 return Unexpected(
                     usage_error(fmt::format("'{}': a range is TYPE:N-M with N <= M <= 7", item)));
-            last = *upper;
+            last = static_cast<int>(*upper);
         }
         for (int n = first->number; n <= last; ++n)
             modules.push_back({first->type, static_cast<std::uint8_t>(n)});
@@ -151,16 +144,17 @@ Result<Invocation> parse_arguments(std::span<const std::string_view> args) {
             serve.modules = std::move(*modules);
             hub = true;
         } else if (arg == "--baud") {
-            baud = parse_int<int>(value);
-            if (!baud || (*baud != 9600 && *baud != 38400 && *baud != 115200))
+            const auto speed = parse_unsigned(value, 115200);
+            if (!speed || (*speed != 9600 && *speed != 38400 && *speed != 115200))
                 return Unexpected(
                     usage_error(fmt::format("baud '{}': 9600, 38400 or 115200", value)));
+            baud = static_cast<int>(*speed);
         } else if (arg == "--turnaround") {
             const auto turnaround = parse_duration(value);
             if (!turnaround) return Unexpected(usage_error(turnaround.error().message));
             serve.settings.turnaround = *turnaround;
         } else if (arg == "--seed") {
-            const auto seed = parse_int<std::uint64_t>(value);
+            const auto seed = parse_unsigned(value, ~0UL);
             if (!seed)
                 return Unexpected(usage_error(fmt::format("seed '{}': a whole number", value)));
             serve.seed = *seed;
