@@ -1,0 +1,102 @@
+// The gateway's configuration (../shared/spec/gateway.md §1 and §4): what the YAML file says,
+// validated into plain values. Loading reports every error it finds, each with file, line and
+// key, so an operator fixes the file in one pass.
+#pragma once
+
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "protocol/expected.hpp"
+#include "protocol/gateway_map.hpp"
+#include "protocol/ioport.hpp"
+
+namespace ioport::config {
+
+using namespace std::chrono_literals;
+
+using gateway::Stale;
+using gateway::WordOrder;
+enum class Protocol { ioport, id2 };
+
+// An IPv4 or IPv6 network, as written in `allow`: "10.0.0.0/8", "::1/128", "127.0.0.1"
+// (a bare address is a /32 or /128).
+struct Network {
+    std::array<std::uint8_t, 16> address{};  // IPv4 as the first 4 bytes
+    bool v6 = false;
+    int prefix = 0;    // 0..32 or 0..128
+    std::string text;  // as written, for logs
+    friend bool operator==(const Network&, const Network&) = default;
+};
+
+struct ModbusSettings {
+    std::string listen_host = "0.0.0.0";  // an IPv4 or IPv6 literal, without brackets
+    std::uint16_t listen_port = 502;
+    int max_connections = 32;                       // 1..
+    std::chrono::microseconds idle_timeout = 5min;  // 0 = never
+    std::vector<Network> allow;                     // empty: anyone
+    bool read_only = false;
+    WordOrder word_order = WordOrder::big;
+    Stale stale = Stale::exception;
+};
+
+struct ModuleConfig {
+    ModuleAddress address;
+    std::chrono::microseconds poll{0};       // input modules: at most this often; 0 = every cycle
+    std::uint16_t initial = 0;               // output modules: the register value sent at start-up
+    std::chrono::microseconds refresh = 1s;  // output modules: re-send the desired state
+    int line = 0;                            // in the file, for messages
+};
+
+struct LinkConfig {
+    std::string name;
+    Protocol protocol = Protocol::ioport;
+    std::string device;
+    int baud = 115200;
+    int unit_id = 1;
+    std::chrono::microseconds timeout = 100ms;
+    int retries = 1;
+    std::vector<ModuleConfig> modules;  // ioport only, in file order
+    int line = 0;
+};
+
+struct GatewayConfig {
+    std::string file;  // as given, for messages
+    ModbusSettings modbus;
+    std::vector<LinkConfig> links;
+};
+
+struct ConfigError {
+    std::string file;
+    int line = 0;     // 1-based; 0 when the whole file is concerned
+    std::string key;  // dotted path: "links[1].modules[2].type"
+    std::string message;
+};
+// "ioportd.yaml:12: links[0].baud: 9600 is not allowed for protocol ioport: use 38400 or 115200"
+std::string to_string(const ConfigError& error);
+
+using ConfigResult = Expected<GatewayConfig, std::vector<ConfigError>>;
+
+// Resolves a device path to the file it names (symlinks followed), so that two spellings of one
+// port are found out as duplicates. The default uses std::filesystem::weakly_canonical.
+using DeviceResolver = std::function<std::string(const std::string&)>;
+std::string resolve_device(const std::string& device);
+
+// Parses and validates YAML text; `file` is used in messages only.
+ConfigResult parse_config(std::string_view yaml, const std::string& file,
+                          const DeviceResolver& resolve = resolve_device);
+// Reads the file and parses it; a missing or unreadable file is one error.
+ConfigResult load_config(const std::filesystem::path& path,
+                         const DeviceResolver& resolve = resolve_device);
+
+// Whether `address` (16 bytes; IPv4 as ::ffff:a.b.c.d or in the first 4 bytes with v6 false)
+// lies in `network`. IPv4-mapped IPv6 addresses match IPv4 networks.
+bool contains(const Network& network, const std::array<std::uint8_t, 16>& address, bool v6);
+
+}  // namespace ioport::config

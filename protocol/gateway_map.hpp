@@ -1,0 +1,163 @@
+// The gateway's Modbus map (../shared/spec/gateway.md §2–§4) as pure functions: where each
+// module's data lives in the four tables of its unit, which request is allowed and what it
+// asks of the devices, how readings and diagnostics are written into the tables, and the
+// printable map. No I/O: the daemon owns the tables and the clock and calls in here.
+#pragma once
+
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "protocol/id2.hpp"
+#include "protocol/ioport.hpp"
+#include "protocol/modbus.hpp"
+
+namespace ioport::gateway {
+
+enum class UnitKind : std::uint8_t { ioport, id2 };
+enum class WordOrder : std::uint8_t { big, little };  // 32-bit values: high word first or last
+enum class Stale : std::uint8_t { exception, hold };  // reads of modules that are not online
+
+// Table sizes of every unit: the highest address of any block + 1.
+inline constexpr std::size_t coil_count = 128;
+inline constexpr std::size_t discrete_input_count = 1072;
+inline constexpr std::size_t holding_register_count = 24;
+inline constexpr std::size_t input_register_count = 1272;
+
+// Value of input register 1100 + slot.
+enum class ModuleStatus : std::uint16_t {
+    not_configured = 0,
+    online = 1,
+    no_answer = 2,
+    bad_answer = 3,  // a malformed answer or an error ack
+    not_polled = 4,
+};
+
+// Value of input register 1000.
+enum class LinkState : std::uint16_t { port_not_open = 0, all_online = 1, some_offline = 2 };
+
+// A unit's four tables. The daemon keeps them in a libmodbus mapping; tests in vectors.
+struct Tables {
+    std::span<std::uint8_t> coils;               // coil_count, one byte per bit (0/1)
+    std::span<std::uint8_t> discrete_inputs;     // discrete_input_count
+    std::span<std::uint16_t> holding_registers;  // holding_register_count
+    std::span<std::uint16_t> input_registers;    // input_register_count
+};
+
+// --- 32-bit values --------------------------------------------------------------------------
+
+std::array<std::uint16_t, 2> words(std::uint32_t value, WordOrder order);
+std::array<std::uint16_t, 2> words(float value, WordOrder order);  // IEEE 754 bits
+std::uint32_t u32_from_words(std::array<std::uint16_t, 2> words, WordOrder order);
+float float_from_words(std::array<std::uint16_t, 2> words, WordOrder order);
+// The vendor formula raw / 65535 × full scale, rounded once to single precision.
+float engineering_float(ModuleType type, std::uint16_t raw);
+
+// --- Requests -------------------------------------------------------------------------------
+
+// What the planner needs to know of a unit at the moment a request arrives.
+struct UnitState {
+    UnitKind kind = UnitKind::ioport;
+    bool port_open = false;
+    std::array<ModuleStatus, slot_count> status{};  // not_configured where no module is
+};
+
+struct Policy {
+    bool read_only = false;
+    Stale stale = Stale::exception;
+};
+
+// One output module's new state: new = (desired & ~mask) | (value & mask), applied to the
+// desired state when the command is sent, so that two clients writing different coils of one
+// dom16 do not undo each other.
+struct OutputChange {
+    ModuleAddress module;
+    std::uint16_t mask = 0xFFFF;
+    std::uint16_t value = 0;
+    friend bool operator==(const OutputChange&, const OutputChange&) = default;
+};
+
+// Answer from the tables as they are. `diagnostics`: the request touches the diagnostics
+// blocks, whose time-dependent values must be brought up to date first.
+struct ReadPlan {
+    bool diagnostics = false;
+    friend bool operator==(const ReadPlan&, const ReadPlan&) = default;
+};
+// Send these commands, in order, and answer after the device acknowledged them all.
+// Empty changes and no reset: nothing to send (ID-2 coil 0 written with 0).
+struct WritePlan {
+    std::vector<OutputChange> changes;
+    bool reset_counter = false;  // ID-2 coil 0 written with 1
+    friend bool operator==(const WritePlan&, const WritePlan&) = default;
+};
+using Plan = std::variant<modbus::Exception, ReadPlan, WritePlan>;
+
+// Decides a request PDU for a unit that exists (unknown units answer 0A before this), with the
+// precedence of gateway.md §4: unsupported function 01 → read_only and a write 01 → limits 03 →
+// outside a block or running past its end 02 → unconfigured module on a write 02 → bad value
+// (colour or mux byte over 7) 03 → port closed on a write, or a data address of a configured
+// module that is not online on a read with Stale::exception 0B.
+Plan plan(const UnitState& unit, const Policy& policy, std::span<const std::uint8_t> pdu);
+
+// --- The tables -----------------------------------------------------------------------------
+
+// Raw words and float32 values of an ioport input module (dim16, lim16, acm3p, acm3c, dccim,
+// dcvim) from a good reading.
+void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
+                   WordOrder order);
+// A confirmed output state: dom16 holding register n and coils 16n…16n+15; rgbdm 8 + n;
+// mux8m 16 + n.
+void store_output(const Tables& tables, ModuleAddress module, std::uint16_t value);
+// ID-2: the stop input (discrete input 0) or the counter (input register 0).
+void store_id2(const Tables& tables, id2::Command command, std::uint16_t value);
+
+struct Diagnostics {
+    LinkState link_state = LinkState::port_not_open;
+    std::chrono::microseconds last_cycle{};  // between the last two cycle completions
+    std::uint64_t cycles = 0;
+    std::uint64_t transactions_ok = 0;
+    std::uint64_t transactions_failed = 0;
+    std::uint64_t opens = 0;
+    std::array<ModuleStatus, slot_count> status{};
+    // ms since each module's last good transaction; values over 65535 (and "never") saturate.
+    std::array<std::uint32_t, slot_count> age_ms{};
+};
+// Input registers 1000–1009, 1100–1171, 1200–1271 and discrete inputs 1000–1071. Counters are
+// reported modulo 2^32; 1001 in 0.1 ms saturating at 65535; 1200 + slot reads 65535 for
+// unconfigured slots.
+void store_diagnostics(const Tables& tables, const Diagnostics& diagnostics, WordOrder order);
+
+// --- The printable map (ioportd --print-map) ------------------------------------------------
+
+struct MapRow {
+    modbus::Table table;
+    std::uint16_t address;  // PDU address, 0-based
+    int unit_id;
+    std::string module;       // "dim16 0", "ID-2", "link hub0"
+    std::string channel;      // "i3", "c1", "" when the row is the whole module
+    std::string data_type;    // bit, uint16, uint32, float32
+    std::string units;        // %, A, V, ms, 0.1 ms, or ""
+    std::string access;       // read, read/write, write
+    std::string description;  // "input 3", "colour: 0 off … 7 white", …
+};
+// "000001", "100001", "300001", "400001" + address.
+std::string modicon_number(modbus::Table table, std::uint16_t address);
+
+struct UnitMap {
+    UnitKind kind;
+    int unit_id;
+    std::string link_name;
+    std::vector<ModuleAddress> modules;  // ioport only
+};
+// Every address of the unit's configured modules and its diagnostics (32-bit values one row at
+// their first address), ordered by table (coils, discrete inputs, holding registers, input
+// registers) then address.
+std::vector<MapRow> map_rows(const UnitMap& unit);
+std::string format_markdown(std::span<const MapRow> rows);
+std::string format_csv(std::span<const MapRow> rows);  // RFC 4180, header line first
+
+}  // namespace ioport::gateway
