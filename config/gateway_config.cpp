@@ -1,0 +1,739 @@
+#include "config/gateway_config.hpp"
+
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <limits>
+#include <map>
+#include <span>
+#include <system_error>
+#include <utility>
+
+#include <fmt/format.h>
+#include <yaml-cpp/yaml.h>
+
+#include "config/duration.hpp"
+#include "config/number.hpp"
+
+namespace ioport::config {
+namespace {
+
+using std::chrono::microseconds;
+using Bytes = std::array<std::uint8_t, 16>;
+// A parsed value, or the message that says what is allowed instead.
+template <class T>
+using Parsed = Expected<T, std::string>;
+
+// --- IP addresses ---------------------------------------------------------------------------
+
+struct Ip {
+    Bytes bytes{};  // IPv4 in the first 4 bytes
+    bool v6 = false;
+};
+
+std::optional<Ip> parse_ip(const std::string& text) {
+    Ip ip;
+    if (inet_pton(AF_INET, text.c_str(), ip.bytes.data()) == 1) return ip;
+    ip.v6 = true;
+    if (inet_pton(AF_INET6, text.c_str(), ip.bytes.data()) == 1) return ip;
+    return std::nullopt;
+}
+
+std::string format_ip(const Ip& ip) {
+    std::array<char, INET6_ADDRSTRLEN> text{};
+    if (inet_ntop(ip.v6 ? AF_INET6 : AF_INET, ip.bytes.data(), text.data(), text.size()) == nullptr)
+        return "?";
+    return text.data();
+}
+
+// The first `prefix` bits of `bytes`, the rest cleared.
+Bytes masked(Bytes bytes, int prefix) {
+    for (std::size_t i = 0; i < bytes.size(); ++i) {
+        const int keep = std::clamp(prefix - static_cast<int>(i) * 8, 0, 8);
+        bytes[i] = static_cast<std::uint8_t>(bytes[i] & (0xFF00 >> keep));
+    }
+    return bytes;
+}
+
+// IPv4 as ::ffff:a.b.c.d, so that one comparison serves both families and IPv4 clients of an
+// IPv6 socket match IPv4 networks.
+Bytes as_v6(const Bytes& bytes, bool v6) {
+    if (v6) return bytes;
+    Bytes mapped{};
+    mapped[10] = 0xFF;
+    mapped[11] = 0xFF;
+    std::copy_n(bytes.begin(), 4, mapped.begin() + 12);
+    return mapped;
+}
+
+// Digits only: a port or a prefix length is never written in hex.
+std::optional<unsigned long> parse_decimal(std::string_view text, unsigned long max) {
+    if (text.empty() || !std::ranges::all_of(text, [](char c) { return c >= '0' && c <= '9'; }))
+        return std::nullopt;
+    return parse_unsigned(text, max);
+}
+
+Parsed<Network> parse_network(const std::string& text) {
+    const auto slash = text.find('/');
+    const auto ip = parse_ip(text.substr(0, slash));
+    if (!ip)
+        return Unexpected(
+            fmt::format("'{}' is not an IP network: write a.b.c.d/n, an IPv6 network "
+                        "such as fd00::/8, or a bare address",
+                        text));
+    const int max_prefix = ip->v6 ? 128 : 32;
+    int prefix = max_prefix;
+    if (slash != std::string::npos) {
+        const auto length = parse_decimal(std::string_view(text).substr(slash + 1),
+                                          static_cast<unsigned>(max_prefix));
+        if (!length)
+            return Unexpected(
+                fmt::format("'{}': the prefix length after / must be 0..{}", text, max_prefix));
+        prefix = static_cast<int>(*length);
+    }
+    const Ip network{masked(ip->bytes, prefix), ip->v6};
+    if (network.bytes != ip->bytes)
+        return Unexpected(fmt::format("'{}' has host bits set: did you mean {}/{}?", text,
+                                      format_ip(network), prefix));
+    return Network{ip->bytes, ip->v6, prefix, text};
+}
+
+struct Endpoint {
+    std::string host;
+    std::uint16_t port = 0;
+};
+
+constexpr std::string_view listen_help = "write host:port, e.g. 0.0.0.0:502 or [::]:502";
+
+Parsed<std::string> parse_listen_host(const std::string& host) {
+    if (host.starts_with('[')) {
+        const auto inner = host.substr(1, host.size() - 2);
+        if (host.ends_with(']') && host.size() > 2 && parse_ip(inner) && parse_ip(inner)->v6)
+            return inner;
+        return Unexpected(
+            fmt::format("'{}' is not an IPv6 address in brackets: {}", host, listen_help));
+    }
+    // Resolving names would make the address depend on DNS at start-up; localhost is certain.
+    if (host == "localhost") return std::string("127.0.0.1");
+    if (host.find(':') != std::string::npos)
+        return Unexpected(fmt::format("IPv6 addresses go in brackets: [{}]:502", host));
+    if (const auto ip = parse_ip(host); ip && !ip->v6) return host;
+    return Unexpected(
+        fmt::format("'{}' is not an IP address: use an IP address such as 0.0.0.0 "
+                    "(every IPv4 interface), 127.0.0.1 or [::]; names are not "
+                    "looked up",
+                    host));
+}
+
+Parsed<Endpoint> parse_listen(const std::string& text) {
+    // The port follows the last colon, after the closing bracket of an IPv6 address.
+    const auto colon = text.rfind(':');
+    if (colon == std::string::npos || text.find(']', colon) != std::string::npos)
+        return Unexpected(fmt::format("'{}' has no port: {}", text, listen_help));
+    const auto port = parse_decimal(std::string_view(text).substr(colon + 1), 65535);
+    if (!port || *port == 0)
+        return Unexpected(fmt::format("'{}': the port must be 1..65535", text));
+    auto host = parse_listen_host(text.substr(0, colon));
+    if (!host) return Unexpected(std::move(host).error());
+    return Endpoint{*std::move(host), static_cast<std::uint16_t>(*port)};
+}
+
+// --- Scalars --------------------------------------------------------------------------------
+
+// Quoted scalars are strings in YAML: `unit_id: "1"` is a wrong type, not a number.
+bool quoted(const YAML::Node& value) {
+    return value.Tag() == "!";
+}
+
+template <class Int>
+auto integer(Int min, Int max) {
+    return [=](const YAML::Node& value) -> Parsed<Int> {
+        const std::string& text = value.Scalar();
+        if (quoted(value))
+            return Unexpected(
+                fmt::format("\"{}\" is quoted, so it is text: write a number {}..{} without quotes",
+                            text, min, max));
+        const bool negative = text.starts_with('-');
+        const auto number = parse_unsigned(std::string_view(text).substr(negative ? 1 : 0),
+                                           std::numeric_limits<unsigned long>::max());
+        if (!number)
+            return Unexpected(
+                fmt::format("'{}' is not a whole number: use {}..{}", text, min, max));
+        if (negative || *number < static_cast<unsigned long>(min) ||
+            *number > static_cast<unsigned long>(max))
+            return Unexpected(fmt::format("{} is out of range: use {}..{}", text, min, max));
+        return static_cast<Int>(*number);
+    };
+}
+
+// `max` of microseconds::max() means no upper bound.
+auto duration(microseconds min, microseconds max = microseconds::max()) {
+    return [=](const YAML::Node& value) -> Parsed<microseconds> {
+        const auto parsed = parse_duration(value.Scalar());
+        if (!parsed) return Unexpected(parsed.error().message);
+        if (max == microseconds::max() && *parsed < min)
+            return Unexpected(fmt::format("{} is too short: use at least {}", value.Scalar(),
+                                          format_duration(min)));
+        if (*parsed < min || *parsed > max)
+            return Unexpected(fmt::format("{} is out of range: use {}..{}", value.Scalar(),
+                                          format_duration(min), format_duration(max)));
+        return *parsed;
+    };
+}
+
+Parsed<bool> boolean(const YAML::Node& value) {
+    const std::string& text = value.Scalar();
+    if (!quoted(value)) {
+        if (text == "true" || text == "True" || text == "TRUE") return true;
+        if (text == "false" || text == "False" || text == "FALSE") return false;
+    }
+    return Unexpected(fmt::format("'{}' is not allowed: use true or false, without quotes", text));
+}
+
+template <class E>
+using Choices = std::span<const std::pair<std::string_view, E>>;
+
+template <class E>
+auto choice(Choices<E> choices) {
+    return [=](const YAML::Node& value) -> Parsed<E> {
+        for (const auto& [text, e] : choices)
+            if (text == value.Scalar()) return e;
+        std::string names;
+        for (const auto& [text, e] : choices)
+            names += fmt::format("{}{}", names.empty() ? "" : " or ", text);
+        return Unexpected(fmt::format("'{}' is not allowed: use {}", value.Scalar(), names));
+    };
+}
+
+constexpr std::array<std::pair<std::string_view, WordOrder>, 2> word_orders{
+    {{"big", WordOrder::big}, {"little", WordOrder::little}}};
+constexpr std::array<std::pair<std::string_view, Stale>, 2> stale_choices{
+    {{"exception", Stale::exception}, {"hold", Stale::hold}}};
+constexpr std::array<std::pair<std::string_view, Protocol>, 2> protocols{
+    {{"ioport", Protocol::ioport}, {"id2", Protocol::id2}}};
+
+Parsed<std::string> non_empty(const YAML::Node& value) {
+    if (value.Scalar().empty()) return Unexpected(std::string("must not be empty"));
+    return value.Scalar();
+}
+
+Parsed<ModuleType> module_type(const YAML::Node& value) {
+    if (const auto type = module_type_from_name(value.Scalar())) return *type;
+    return Unexpected(
+        fmt::format("'{}' is not a module type: use dim16, dom16, acm3p, acm3c, "
+                    "lim16, rgbdm, dccim, dcvim or mux8m",
+                    value.Scalar()));
+}
+
+std::string output_value_help(ModuleType type) {
+    switch (type) {
+        case ModuleType::rgbdm:
+            return "use a colour 0-7 or off, red, green, blue, cyan, magenta, yellow, white";
+        case ModuleType::mux8m:
+            return "use (pos << 8) | neg with pos and neg 0-7, e.g. 0x0102; 0x0707 = all "
+                   "disconnected";
+        default:
+            return "use the 16 outputs as one word 0..0xFFFF (bit k = output k), e.g. 0x00FF";
+    }
+}
+
+// `initial`: the module's holding register value; an rgbdm also takes a colour name.
+auto output_value(ModuleType type) {
+    return [=](const YAML::Node& value) -> Parsed<std::uint16_t> {
+        const std::string& text = value.Scalar();
+        if (type == ModuleType::rgbdm)
+            if (const auto colour = colour_from_name(text))
+                return static_cast<std::uint16_t>(*colour);
+        const auto number = parse_unsigned(text, 0xFFFF);
+        if (number && quoted(value))
+            return Unexpected(fmt::format(
+                "\"{}\" is quoted, so it is text: write the number without quotes", text));
+        if (!number)
+            return Unexpected(fmt::format("'{}' is not an initial value for {}: {}", text,
+                                          name(type), output_value_help(type)));
+        const auto register_value = static_cast<std::uint16_t>(*number);
+        if (auto ok = validate_output_value(type, register_value); !ok)
+            return Unexpected(std::move(ok).error().message);
+        return register_value;
+    };
+}
+
+auto baud(std::optional<Protocol> protocol) {
+    return [=](const YAML::Node& value) -> Parsed<int> {
+        auto rate = integer(1, std::numeric_limits<int>::max())(value);
+        if (!rate || !protocol) return rate;
+        if (*protocol == Protocol::id2 && *rate != 9600)
+            return Unexpected(fmt::format("{} is not allowed for protocol id2: use 9600", *rate));
+        if (*protocol == Protocol::ioport && *rate != 38400 && *rate != 115200)
+            return Unexpected(
+                fmt::format("{} is not allowed for protocol ioport: use 38400 or 115200", *rate));
+        return rate;
+    };
+}
+
+// --- Walking the tree -----------------------------------------------------------------------
+
+// yaml-cpp's lines are 0-based and -1 where unknown: this gives 1-based, 0 for unknown.
+int line_of(const YAML::Node& node) {
+    return node.Mark().line + 1;
+}
+
+std::string_view kind(const YAML::Node& node) {
+    if (node.IsSequence()) return "a list";
+    if (node.IsMap()) return "a mapping";
+    if (node.IsNull()) return "no value";
+    return "a single value";
+}
+
+struct Entry {
+    YAML::Node value;
+    // Of the key: an empty value or a block collection is marked on a later line.
+    int line = 0;
+};
+
+// The keys of one mapping, checked against the ones allowed there.
+struct Fields {
+    std::string path;  // dotted, "" at the top
+    int line = 0;      // of the mapping, for keys that are missing
+    std::vector<std::pair<std::string, Entry>> entries;
+
+    std::string key(std::string_view name) const {
+        return path.empty() ? std::string(name) : fmt::format("{}.{}", path, name);
+    }
+    const Entry* find(std::string_view name) const {
+        const auto it = std::ranges::find(entries, name, &std::pair<std::string, Entry>::first);
+        return it == entries.end() ? nullptr : &it->second;
+    }
+    // Where a key is, or where it is missing from.
+    int line_of(std::string_view name) const {
+        const Entry* entry = find(name);
+        return entry ? entry->line : line;
+    }
+};
+
+using Keys = std::span<const std::string_view>;
+constexpr std::array<std::string_view, 2> top_keys{"modbus", "links"};
+constexpr std::array<std::string_view, 7> modbus_keys{
+    "listen", "max_connections", "idle_timeout", "allow", "read_only", "word_order", "stale"};
+constexpr std::array<std::string_view, 8> link_keys{"name",    "protocol", "device",  "baud",
+                                                    "unit_id", "timeout",  "retries", "modules"};
+constexpr std::array<std::string_view, 5> module_keys{"type", "number", "poll", "initial",
+                                                      "refresh"};
+
+constexpr std::string_view module_needed =
+    "an ioport link needs at least one module, e.g. modules: [{ type: dim16, number: 0 }]";
+constexpr int max_unit_id = 247;  // Modbus: 248..255 are reserved
+// A refresh is one serial transaction per output module; faster than this it would crowd out
+// the poll reads.
+constexpr microseconds min_refresh = 10ms;
+
+// Where something was first used, for the message at its second use.
+struct FirstUse {
+    std::string link;
+    int line = 0;
+};
+
+class Loader {
+  public:
+    Loader(std::string file, const DeviceResolver& resolve)
+        : file_(std::move(file)), resolve_(resolve) {}
+
+    void add(int line, std::string key, std::string message) {
+        errors_.push_back({file_, line, std::move(key), std::move(message)});
+    }
+
+    ConfigResult load(const YAML::Node& root) {
+        GatewayConfig config;
+        config.file = file_;
+        read_root(root, config);
+        if (errors_.empty()) return config;
+        // Checks run per key, not in file order; the operator reads the file top to bottom.
+        std::ranges::stable_sort(errors_, {}, &ConfigError::line);
+        return Unexpected(std::move(errors_));
+    }
+
+  private:
+    Fields fields(const YAML::Node& map, std::string path, Keys allowed);
+    std::optional<Fields> mapping(const Entry& entry, std::string path, Keys allowed,
+                                  std::string_view example);
+    template <class T, class Parse>
+    bool read(const Fields& fields, std::string_view name, std::string_view expected, T& out,
+              Parse parse);
+    void require(const Fields& fields, std::string_view name, std::string_view help);
+
+    void read_root(const YAML::Node& root, GatewayConfig& config);
+    void read_modbus(const Entry& entry, ModbusSettings& modbus);
+    void read_allow(const Fields& fields, std::vector<Network>& allow);
+    void read_links(const Entry& entry, std::vector<LinkConfig>& links);
+    void read_link(const YAML::Node& node, std::size_t index, std::vector<LinkConfig>& links);
+    struct LinkOutcome {
+        std::optional<Protocol> protocol;  // nullopt: missing or not valid
+        bool unit_id_valid = true;         // else it is not checked for duplicates
+    };
+    LinkOutcome read_link_settings(const Fields& fields, std::size_t index, LinkConfig& link);
+    void read_modules(const Fields& fields, std::optional<Protocol> protocol, LinkConfig& link);
+    std::optional<ModuleConfig> read_module(const YAML::Node& node, const std::string& path);
+    void read_module_role(const Fields& fields, ModuleConfig& module);
+    void check_unique(const Fields& fields, const LinkConfig& link, bool unit_id_valid);
+
+    std::string file_;
+    const DeviceResolver& resolve_;
+    std::vector<ConfigError> errors_;
+    std::map<std::string, FirstUse> names_;
+    std::map<int, FirstUse> unit_ids_;
+    std::map<std::string, FirstUse> devices_;  // by resolved path
+};
+
+Fields Loader::fields(const YAML::Node& map, std::string path, Keys allowed) {
+    Fields result{std::move(path), line_of(map), {}};
+    for (const auto& pair : map) {
+        const int line = line_of(pair.first);
+        const std::string name = pair.first.IsScalar() ? pair.first.Scalar() : "";
+        const std::string key = result.key(name);
+        if (!pair.first.IsScalar())
+            add(line, result.path, fmt::format("a key must be a name, found {}", kind(pair.first)));
+        else if (std::ranges::find(allowed, name) == allowed.end())
+            add(line, key,
+                fmt::format("unknown key: allowed here are {}", fmt::join(allowed, ", ")));
+        else if (const Entry* first = result.find(name))
+            add(line, key, fmt::format("duplicate key: already given at line {}", first->line));
+        else
+            result.entries.emplace_back(name, Entry{pair.second, line});
+    }
+    return result;
+}
+
+std::optional<Fields> Loader::mapping(const Entry& entry, std::string path, Keys allowed,
+                                      std::string_view example) {
+    if (entry.value.IsMap()) return fields(entry.value, std::move(path), allowed);
+    add(entry.line, std::move(path),
+        fmt::format("expected a mapping such as {}, found {}", example, kind(entry.value)));
+    return std::nullopt;
+}
+
+// Reads key `name` into `out` if it is there: a missing key keeps the default.
+template <class T, class Parse>
+bool Loader::read(const Fields& fields, std::string_view name, std::string_view expected, T& out,
+                  Parse parse) {
+    const Entry* entry = fields.find(name);
+    if (entry == nullptr) return false;
+    if (!entry->value.IsScalar()) {
+        add(entry->line, fields.key(name),
+            fmt::format("expected {}, found {}", expected, kind(entry->value)));
+        return false;
+    }
+    auto parsed = parse(entry->value);
+    if (!parsed) {
+        add(entry->line, fields.key(name), std::move(parsed).error());
+        return false;
+    }
+    out = *std::move(parsed);
+    return true;
+}
+
+void Loader::require(const Fields& fields, std::string_view name, std::string_view help) {
+    if (fields.find(name) == nullptr)
+        add(fields.line, fields.key(name), fmt::format("missing: {}", help));
+}
+
+void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
+    if (root.IsNull()) {
+        add(0, "links", "the file is empty: it needs at least one link under links");
+        return;
+    }
+    if (!root.IsMap()) {
+        add(line_of(root), "", "expected a mapping with the keys modbus and links");
+        return;
+    }
+    const Fields top = fields(root, "", top_keys);
+    if (const Entry* modbus = top.find("modbus")) read_modbus(*modbus, config.modbus);
+    require(top, "links", "the gateway needs at least one link");
+    if (const Entry* links = top.find("links")) read_links(*links, config.links);
+}
+
+void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
+    if (entry.value.IsNull()) return;  // "modbus:" alone: every default
+    const auto settings = mapping(entry, "modbus", modbus_keys, "{ listen: \"0.0.0.0:502\" }");
+    if (!settings) return;
+    const Fields& f = *settings;
+    Endpoint listen{modbus.listen_host, modbus.listen_port};
+    if (read(f, "listen", "host:port", listen,
+             [](const YAML::Node& value) { return parse_listen(value.Scalar()); })) {
+        modbus.listen_host = listen.host;
+        modbus.listen_port = listen.port;
+    }
+    read(f, "max_connections", "a number 1..65535", modbus.max_connections, integer(1, 65535));
+    read(f, "idle_timeout", "a duration such as 5m, or 0 for never", modbus.idle_timeout,
+         duration(microseconds{0}));
+    read_allow(f, modbus.allow);
+    read(f, "read_only", "true or false", modbus.read_only, boolean);
+    read(f, "word_order", "big or little", modbus.word_order, choice<WordOrder>(word_orders));
+    read(f, "stale", "exception or hold", modbus.stale, choice<Stale>(stale_choices));
+}
+
+void Loader::read_allow(const Fields& f, std::vector<Network>& allow) {
+    const Entry* entry = f.find("allow");
+    if (entry == nullptr || entry->value.IsNull()) return;  // "allow:" alone is the empty list
+    const std::string key = f.key("allow");
+    if (!entry->value.IsSequence()) {
+        add(entry->line, key,
+            fmt::format("expected a list of networks such as [\"10.0.0.0/8\", \"127.0.0.1\"], "
+                        "found {}",
+                        kind(entry->value)));
+        return;
+    }
+    std::size_t index = 0;
+    for (const auto& item : entry->value) {
+        const std::string item_key = fmt::format("{}[{}]", key, index++);
+        const int line = std::max(line_of(item), entry->line);
+        if (!item.IsScalar()) {
+            add(line, item_key,
+                fmt::format("expected a network such as 10.0.0.0/8, found {}", kind(item)));
+            continue;
+        }
+        auto network = parse_network(item.Scalar());
+        if (network)
+            allow.push_back(*std::move(network));
+        else
+            add(line, item_key, std::move(network).error());
+    }
+}
+
+void Loader::read_links(const Entry& entry, std::vector<LinkConfig>& links) {
+    if (!entry.value.IsSequence() || entry.value.size() == 0) {
+        add(entry.line, "links",
+            fmt::format("expected a list of at least one link, found {}",
+                        entry.value.IsSequence() ? "an empty list" : kind(entry.value)));
+        return;
+    }
+    std::size_t index = 0;
+    for (const auto& node : entry.value)
+        read_link(node, index++, links);
+}
+
+void Loader::read_link(const YAML::Node& node, std::size_t index, std::vector<LinkConfig>& links) {
+    const std::string path = fmt::format("links[{}]", index);
+    if (!node.IsMap()) {
+        add(line_of(node), path,
+            fmt::format("expected a mapping with name, protocol and device, found {}", kind(node)));
+        return;
+    }
+    const Fields f = fields(node, path, link_keys);
+    LinkConfig link;
+    link.line = f.line;
+    const LinkOutcome outcome = read_link_settings(f, index, link);
+    read_modules(f, outcome.protocol, link);
+    check_unique(f, link, outcome.unit_id_valid);
+    links.push_back(std::move(link));
+}
+
+Loader::LinkOutcome Loader::read_link_settings(const Fields& f, std::size_t index,
+                                               LinkConfig& link) {
+    LinkOutcome outcome;
+    require(f, "name", "every link needs a name, e.g. name: hub0");
+    read(f, "name", "a name such as hub0", link.name, non_empty);
+    require(f, "protocol", "use protocol: ioport (hub8u/hub8r) or protocol: id2");
+    read(f, "protocol", "ioport or id2", outcome.protocol, choice<Protocol>(protocols));
+    // Defaults that depend on the protocol, before the keys that may override them.
+    const bool id2 = outcome.protocol == Protocol::id2;
+    link.protocol = outcome.protocol.value_or(Protocol::ioport);
+    link.baud = id2 ? 9600 : 115200;
+    link.timeout = id2 ? microseconds{200ms} : microseconds{100ms};
+    link.unit_id = static_cast<int>(index) + 1;
+    require(f, "device", "the serial port, e.g. device: /dev/ttyUSB0");
+    read(f, "device", "a path such as /dev/ttyUSB0", link.device, non_empty);
+    read(f, "baud", "a baud rate", link.baud, baud(outcome.protocol));
+    if (f.find("unit_id") == nullptr && link.unit_id > max_unit_id) {
+        add(f.line, f.key("unit_id"),
+            fmt::format("missing: the default {} (1 + the link's index) is over {}: set unit_id",
+                        link.unit_id, max_unit_id));
+        outcome.unit_id_valid = false;
+    }
+    if (f.find("unit_id") != nullptr)
+        outcome.unit_id_valid =
+            read(f, "unit_id", "a unit id 1..247", link.unit_id, integer(1, max_unit_id));
+    read(f, "timeout", "a duration such as 100ms", link.timeout,
+         duration(microseconds{1ms}, microseconds{10s}));
+    read(f, "retries", "a number 0..10", link.retries, integer(0, 10));
+    return outcome;
+}
+
+void Loader::read_modules(const Fields& f, std::optional<Protocol> protocol, LinkConfig& link) {
+    const Entry* entry = f.find("modules");
+    const std::string key = f.key("modules");
+    if (protocol == Protocol::id2) {
+        if (entry != nullptr)
+            add(entry->line, key,
+                "an id2 link takes no modules (its Modbus map is fixed): remove "
+                "the key");
+        return;
+    }
+    if (entry == nullptr) {
+        if (protocol) require(f, "modules", module_needed);
+        return;
+    }
+    if (!entry->value.IsSequence() || entry->value.size() == 0) {
+        add(entry->line, key,
+            fmt::format("expected a list of at least one module, found {}: {}",
+                        entry->value.IsSequence() ? "an empty list" : kind(entry->value),
+                        module_needed));
+        return;
+    }
+    std::map<int, int> first_line;  // slot → line: a duplicate is reported at its second use
+    std::size_t index = 0;
+    for (const auto& node : entry->value) {
+        const std::string path = fmt::format("{}[{}]", key, index++);
+        const auto module = read_module(node, path);
+        if (!module) continue;
+        const auto [first, fresh] = first_line.try_emplace(slot(module->address), module->line);
+        if (fresh)
+            link.modules.push_back(*module);
+        else
+            add(module->line, path,
+                fmt::format("{} is already configured on this link at line {}",
+                            to_string(module->address), first->second));
+    }
+}
+
+std::optional<ModuleConfig> Loader::read_module(const YAML::Node& node, const std::string& path) {
+    if (!node.IsMap()) {
+        add(line_of(node), path,
+            fmt::format("expected a mapping such as {{ type: dim16, number: 0 }}, found {}",
+                        kind(node)));
+        return std::nullopt;
+    }
+    const Fields f = fields(node, path, module_keys);
+    require(f, "type", "the module type, e.g. type: dim16");
+    require(f, "number", "the module's address switch 0..7, e.g. number: 0");
+    std::optional<ModuleType> type;
+    std::optional<std::uint8_t> number;
+    read(f, "type", "a module type such as dim16", type, module_type);
+    read(f, "number", "a number 0..7", number, integer<std::uint8_t>(0, 7));
+    if (!type) return std::nullopt;  // which keys belong depends on the type
+    ModuleConfig module{.address = {*type, number.value_or(0)}, .line = f.line};
+    read_module_role(f, module);
+    if (!number) return std::nullopt;
+    return module;
+}
+
+void Loader::read_module_role(const Fields& f, ModuleConfig& module) {
+    const ModuleType type = module.address.type;
+    const auto misplaced = [&](std::string_view key, std::string_view why) {
+        if (const Entry* entry = f.find(key)) add(entry->line, f.key(key), std::string(why));
+    };
+    if (is_output(type)) {
+        misplaced("poll", fmt::format("poll is for input modules only: {} is an output module, "
+                                      "its state is re-sent every refresh",
+                                      name(type)));
+        read(f, "initial", "a register value", module.initial, output_value(type));
+        read(f, "refresh", "a duration such as 1s", module.refresh, duration(min_refresh));
+        return;
+    }
+    for (const std::string_view key : {"initial", "refresh"})
+        misplaced(key, fmt::format("{} is for output modules only (dom16, rgbdm, mux8m): {} is "
+                                   "an input module",
+                                   key, name(type)));
+    read(f, "poll", "a duration such as 200ms, or 0 for every cycle", module.poll,
+         duration(microseconds{0}));
+}
+
+void Loader::check_unique(const Fields& f, const LinkConfig& link, bool unit_id_valid) {
+    const FirstUse me{link.name.empty() ? f.path : fmt::format("link '{}'", link.name), f.line};
+    if (!link.name.empty()) {
+        const auto [first, fresh] = names_.try_emplace(link.name, me);
+        if (!fresh)
+            add(f.line_of("name"), f.key("name"),
+                fmt::format("link name '{}' is already used at line {}: names must be unique",
+                            link.name, first->second.line));
+    }
+    if (unit_id_valid) {
+        const auto [first, fresh] = unit_ids_.try_emplace(link.unit_id, me);
+        if (!fresh)
+            add(f.line_of("unit_id"), f.key("unit_id"),
+                fmt::format("unit id {}{} is already used by {} (line {}): each link needs its "
+                            "own",
+                            link.unit_id,
+                            f.find("unit_id") ? "" : " (the default: 1 + the link's index)",
+                            first->second.link, first->second.line));
+    }
+    if (!link.device.empty()) {
+        // Two spellings of one port (a by-id symlink and /dev/ttyUSB0) are one port.
+        const std::string resolved = resolve_(link.device);
+        const auto [first, fresh] = devices_.try_emplace(resolved, me);
+        if (!fresh)
+            add(f.line_of("device"), f.key("device"),
+                fmt::format("device {} is already used by {} (line {}){}", link.device,
+                            first->second.link, first->second.line,
+                            resolved == link.device ? "" : fmt::format(": both are {}", resolved)));
+    }
+}
+
+Parsed<std::string> read_file(const std::filesystem::path& path) {
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) return Unexpected(std::generic_category().message(errno));
+    std::string text;
+    std::array<char, 4096> buffer{};
+    for (;;) {
+        const ssize_t count = ::read(fd, buffer.data(), buffer.size());
+        if (count < 0 && errno == EINTR) continue;
+        if (count <= 0) {
+            const int error = count < 0 ? errno : 0;
+            ::close(fd);
+            if (error != 0) return Unexpected(std::generic_category().message(error));
+            return text;
+        }
+        text.append(buffer.data(), static_cast<std::size_t>(count));
+    }
+}
+
+}  // namespace
+
+std::string to_string(const ConfigError& error) {
+    std::string text = error.file;
+    if (error.line > 0) text += fmt::format(":{}", error.line);
+    text += ": ";
+    if (!error.key.empty()) text += error.key + ": ";
+    return text + error.message;
+}
+
+std::string resolve_device(const std::string& device) {
+    std::error_code error;
+    const auto resolved = std::filesystem::weakly_canonical(device, error);
+    return error ? device : resolved.string();
+}
+
+ConfigResult parse_config(std::string_view yaml, const std::string& file,
+                          const DeviceResolver& resolve) {
+    Loader loader(file, resolve);
+    // yaml-cpp reports syntax errors by throwing; from here on they are values.
+    try {
+        const auto documents = YAML::LoadAll(std::string(yaml));
+        if (documents.size() > 1)
+            loader.add(line_of(documents[1]), "",
+                       "one YAML document only: remove the second '---' and what follows");
+        return loader.load(documents.empty() ? YAML::Node() : documents.front());
+    } catch (const YAML::Exception& e) {
+        return Unexpected(std::vector{
+            ConfigError{file, e.mark.line + 1, "", fmt::format("YAML syntax error: {}", e.msg)}});
+    }
+}
+
+ConfigResult load_config(const std::filesystem::path& path, const DeviceResolver& resolve) {
+    auto text = read_file(path);
+    if (!text)
+        return Unexpected(std::vector{ConfigError{
+            path.string(), 0, "", fmt::format("cannot read the file: {}", text.error())}});
+    return parse_config(*text, path.string(), resolve);
+}
+
+bool contains(const Network& network, const std::array<std::uint8_t, 16>& address, bool v6) {
+    // Compared as IPv6: an IPv4 network a.b.c.d/n is ::ffff:a.b.c.d/(96 + n).
+    const int prefix =
+        network.v6 ? std::clamp(network.prefix, 0, 128) : 96 + std::clamp(network.prefix, 0, 32);
+    return masked(as_v6(network.address, network.v6), prefix) == masked(as_v6(address, v6), prefix);
+}
+
+}  // namespace ioport::config
