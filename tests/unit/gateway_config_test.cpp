@@ -1,0 +1,625 @@
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "config/gateway_config.hpp"
+
+namespace ioport::config {
+namespace {
+
+using namespace std::chrono_literals;
+using std::chrono::microseconds;
+
+// Tests must not depend on what /dev holds on the machine that runs them.
+std::string identity(const std::string& device) {
+    return device;
+}
+
+ConfigResult parse(const std::string& yaml) {
+    return parse_config(yaml, "test.yaml", identity);
+}
+
+std::string describe(const std::vector<ConfigError>& errors) {
+    std::string text;
+    for (const auto& error : errors)
+        text += "\n  " + to_string(error);
+    return text;
+}
+
+// The example of gateway.md §1, verbatim.
+constexpr const char* spec_example = R"(modbus:
+  listen: "0.0.0.0:502"       # host:port; "[::]:502" for IPv6
+  max_connections: 32         # further clients are refused, the server stays up
+  idle_timeout: 5m            # close a client that sent nothing for this long
+  allow: []                   # CIDR list, e.g. ["10.0.0.0/8", "127.0.0.1/32"]; empty = anyone
+  read_only: false            # true: every write answers exception 01
+  word_order: big             # 32-bit values: big = high word first, little = low word first
+  stale: exception            # exception | hold (see 3.3)
+
+links:
+  - name: hub0
+    protocol: ioport          # ioport (hub8u/hub8r) | id2
+    device: /dev/ttyUSB0
+    baud: 115200              # ioport: 38400 | 115200; id2: 9600
+    unit_id: 1                # 1..247, unique
+    timeout: 100ms            # per transaction
+    retries: 1                # extra tries before a module counts as offline
+    modules:
+      - { type: dim16, number: 0 }
+      - { type: dom16, number: 0, initial: 0x0000, refresh: 1s }
+      - { type: acm3p, number: 0, poll: 200ms }   # poll: 0 (default) = every cycle
+      - { type: rgbdm, number: 0, initial: 0 }
+      - { type: mux8m, number: 0 }
+  - name: press
+    protocol: id2
+    device: /dev/ttyUSB1
+    baud: 9600
+    unit_id: 2
+)";
+
+TEST(GatewayConfig, ParsesTheExampleOfTheSpec) {
+    const auto config = parse(spec_example);
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->file, "test.yaml");
+    const ModbusSettings& modbus = config->modbus;
+    EXPECT_EQ(modbus.listen_host, "0.0.0.0");
+    EXPECT_EQ(modbus.listen_port, 502);
+    EXPECT_EQ(modbus.max_connections, 32);
+    EXPECT_EQ(modbus.idle_timeout, 5min);
+    EXPECT_TRUE(modbus.allow.empty());
+    EXPECT_FALSE(modbus.read_only);
+    EXPECT_EQ(modbus.word_order, WordOrder::big);
+    EXPECT_EQ(modbus.stale, Stale::exception);
+
+    ASSERT_EQ(config->links.size(), 2u);
+    const LinkConfig& hub = config->links[0];
+    EXPECT_EQ(hub.name, "hub0");
+    EXPECT_EQ(hub.protocol, Protocol::ioport);
+    EXPECT_EQ(hub.device, "/dev/ttyUSB0");
+    EXPECT_EQ(hub.baud, 115200);
+    EXPECT_EQ(hub.unit_id, 1);
+    EXPECT_EQ(hub.timeout, 100ms);
+    EXPECT_EQ(hub.retries, 1);
+    EXPECT_EQ(hub.line, 11);
+    ASSERT_EQ(hub.modules.size(), 5u);
+    const std::vector<ModuleAddress> addresses{{ModuleType::dim16, 0},
+                                               {ModuleType::dom16, 0},
+                                               {ModuleType::acm3p, 0},
+                                               {ModuleType::rgbdm, 0},
+                                               {ModuleType::mux8m, 0}};
+    for (std::size_t i = 0; i < addresses.size(); ++i) {
+        EXPECT_EQ(hub.modules[i].address, addresses[i]) << i;
+        EXPECT_EQ(hub.modules[i].line, 19 + static_cast<int>(i)) << i;
+    }
+    EXPECT_EQ(hub.modules[1].initial, 0);
+    EXPECT_EQ(hub.modules[1].refresh, 1s);
+    EXPECT_EQ(hub.modules[2].poll, 200ms);
+    EXPECT_EQ(hub.modules[0].poll, 0us);
+
+    const LinkConfig& press = config->links[1];
+    EXPECT_EQ(press.name, "press");
+    EXPECT_EQ(press.protocol, Protocol::id2);
+    EXPECT_EQ(press.device, "/dev/ttyUSB1");
+    EXPECT_EQ(press.baud, 9600);
+    EXPECT_EQ(press.unit_id, 2);
+    EXPECT_EQ(press.timeout, 200ms);
+    EXPECT_TRUE(press.modules.empty());
+    EXPECT_EQ(press.line, 24);
+}
+
+TEST(GatewayConfig, KeysLeftOutTakeTheDefaultsOfTheSpec) {
+    const auto config = parse(R"(links:
+  - name: press
+    protocol: id2
+    device: /dev/ttyS0
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    modules:
+      - type: dom16
+        number: 3
+      - type: dim16
+        number: 7
+)");
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->modbus.listen_host, "0.0.0.0");
+    EXPECT_EQ(config->modbus.listen_port, 502);
+    EXPECT_EQ(config->modbus.max_connections, 32);
+    EXPECT_EQ(config->modbus.idle_timeout, 5min);
+
+    const LinkConfig& press = config->links[0];
+    EXPECT_EQ(press.baud, 9600);
+    EXPECT_EQ(press.unit_id, 1);  // 1 + index
+    EXPECT_EQ(press.timeout, 200ms);
+    EXPECT_EQ(press.retries, 1);
+
+    const LinkConfig& hub = config->links[1];
+    EXPECT_EQ(hub.baud, 115200);
+    EXPECT_EQ(hub.unit_id, 2);
+    EXPECT_EQ(hub.timeout, 100ms);
+    EXPECT_EQ(hub.retries, 1);
+    ASSERT_EQ(hub.modules.size(), 2u);
+    EXPECT_EQ(hub.modules[0].address, (ModuleAddress{ModuleType::dom16, 3}));
+    EXPECT_EQ(hub.modules[0].initial, 0);
+    EXPECT_EQ(hub.modules[0].refresh, 1s);
+    EXPECT_EQ(hub.modules[0].line, 9);
+    EXPECT_EQ(hub.modules[1].address, (ModuleAddress{ModuleType::dim16, 7}));
+    EXPECT_EQ(hub.modules[1].poll, 0us);
+    EXPECT_EQ(hub.modules[1].line, 11);
+}
+
+TEST(GatewayConfig, ReadsEveryModbusSetting) {
+    const auto config = parse(R"(modbus: { listen: "[::]:1502", max_connections: 4, idle_timeout: 0,
+  allow: ["10.0.0.0/8", 192.168.1.7, "fd00::/8", "::1"], read_only: true, word_order: little,
+  stale: hold }
+links: [{ name: a, protocol: id2, device: /dev/ttyS0, unit_id: 247, timeout: 1ms, retries: 0 }]
+)");
+    ASSERT_TRUE(config) << describe(config.error());
+    const ModbusSettings& modbus = config->modbus;
+    EXPECT_EQ(modbus.listen_host, "::");
+    EXPECT_EQ(modbus.listen_port, 1502);
+    EXPECT_EQ(modbus.max_connections, 4);
+    EXPECT_EQ(modbus.idle_timeout, 0us);
+    EXPECT_TRUE(modbus.read_only);
+    EXPECT_EQ(modbus.word_order, WordOrder::little);
+    EXPECT_EQ(modbus.stale, Stale::hold);
+    ASSERT_EQ(modbus.allow.size(), 4u);
+    EXPECT_EQ(modbus.allow[0], (Network{{10}, false, 8, "10.0.0.0/8"}));
+    EXPECT_EQ(modbus.allow[1], (Network{{192, 168, 1, 7}, false, 32, "192.168.1.7"}));
+    EXPECT_EQ(modbus.allow[2], (Network{{0xfd}, true, 8, "fd00::/8"}));
+    std::array<std::uint8_t, 16> loopback{};
+    loopback[15] = 1;
+    EXPECT_EQ(modbus.allow[3], (Network{loopback, true, 128, "::1"}));
+    EXPECT_EQ(config->links[0].unit_id, 247);
+    EXPECT_EQ(config->links[0].timeout, 1ms);
+    EXPECT_EQ(config->links[0].retries, 0);
+}
+
+TEST(GatewayConfig, ListenTakesIpLiteralsAndLocalhost) {
+    const auto listen = [](const std::string& text) {
+        const auto config = parse("modbus: { listen: \"" + text +
+                                  "\" }\nlinks: [{ name: a, protocol: id2, device: /d }]\n");
+        EXPECT_TRUE(config) << text << (config ? "" : describe(config.error()));
+        return config
+                   ? config->modbus.listen_host + " " + std::to_string(config->modbus.listen_port)
+                   : "";
+    };
+    EXPECT_EQ(listen("127.0.0.1:1502"), "127.0.0.1 1502");
+    EXPECT_EQ(listen("localhost:502"), "127.0.0.1 502");
+    EXPECT_EQ(listen("[::1]:65535"), "::1 65535");
+}
+
+TEST(GatewayConfig, OutputModulesTakeInitialAsTheRegisterValue) {
+    const auto config = parse(R"(links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    baud: 38400
+    modules:
+      - { type: dom16, number: 1, initial: 0b1010, refresh: 10ms }
+      - { type: dom16, number: 2, initial: 65535 }
+      - { type: rgbdm, number: 1, initial: magenta }
+      - { type: rgbdm, number: 2, initial: 7 }
+      - { type: mux8m, number: 1, initial: 0x0102 }
+      - { type: mux8m, number: 2, initial: 0x0707 }
+)");
+    ASSERT_TRUE(config) << describe(config.error());
+    const auto& modules = config->links[0].modules;
+    ASSERT_EQ(modules.size(), 6u);
+    EXPECT_EQ(config->links[0].baud, 38400);
+    EXPECT_EQ(modules[0].initial, 0b1010);
+    EXPECT_EQ(modules[0].refresh, 10ms);
+    EXPECT_EQ(modules[1].initial, 0xFFFF);
+    EXPECT_EQ(modules[2].initial, static_cast<std::uint16_t>(Colour::magenta));
+    EXPECT_EQ(modules[3].initial, 7);
+    EXPECT_EQ(modules[4].initial, 0x0102);
+    EXPECT_EQ(modules[5].initial, 0x0707);
+}
+
+// --- Errors ---------------------------------------------------------------------------------
+
+// Lines 1-6: a valid ioport link. Cases append a key of link 0 or a module at line 7.
+const std::string hub = R"(links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    modules:
+      - { type: dim16, number: 0 }
+)";
+// Lines 7-9 when appended to `hub`: a valid id2 link.
+const std::string press = R"(  - name: press
+    protocol: id2
+    device: /dev/ttyS0
+)";
+// Puts a modbus section of one key before `hub`: the key is on line 2.
+std::string modbus(const std::string& line) {
+    return "modbus:\n  " + line + "\n" + hub;
+}
+
+struct Case {
+    std::string yaml;
+    int line;
+    std::string key;
+    std::string fragment;  // of the message: what is allowed
+};
+
+void expect_one_error(const Case& c) {
+    SCOPED_TRACE(c.yaml);
+    const auto config = parse(c.yaml);
+    ASSERT_FALSE(config);
+    ASSERT_EQ(config.error().size(), 1u) << describe(config.error());
+    const ConfigError& error = config.error()[0];
+    EXPECT_EQ(error.file, "test.yaml");
+    EXPECT_EQ(error.line, c.line) << to_string(error);
+    EXPECT_EQ(error.key, c.key) << to_string(error);
+    EXPECT_NE(error.message.find(c.fragment), std::string::npos)
+        << to_string(error) << "\n  should contain: " << c.fragment;
+}
+
+TEST(GatewayConfigErrors, AYamlSyntaxErrorIsOneErrorWithItsLine) {
+    expect_one_error({"links:\n  - { name: hub0,\n    protocol: [ioport\n", 4, "", "YAML syntax"});
+    expect_one_error({"links:\n  - name: a\n\tprotocol: id2\n", 3, "", "tab"});
+}
+
+TEST(GatewayConfigErrors, TheFileAsAWhole) {
+    expect_one_error({"", 0, "links", "empty"});
+    expect_one_error({"# only a comment\n", 0, "links", "empty"});
+    expect_one_error({"- a\n- b\n", 1, "", "mapping with the keys modbus and links"});
+    expect_one_error({"modbus: {}\n", 1, "links", "at least one link"});
+    expect_one_error({"links: []\n", 1, "links", "at least one link, found an empty list"});
+    expect_one_error({"links: hub0\n", 1, "links", "at least one link, found a single value"});
+    expect_one_error({hub + "---\n" + hub, 8, "", "one YAML document"});
+    expect_one_error({"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, links"});
+}
+
+TEST(GatewayConfigErrors, UnknownAndDuplicateKeys) {
+    expect_one_error({modbus("port: 502"), 2, "modbus.port",
+                      "unknown key: allowed here are "
+                      "listen, max_connections"});
+    expect_one_error({hub + "    baudrate: 9600\n", 7, "links[0].baudrate",
+                      "allowed here are name, protocol, device, baud, unit_id, timeout, "
+                      "retries, modules"});
+    expect_one_error({hub + "      - { type: dim16, number: 1, mode: fast }\n", 7,
+                      "links[0].modules[1].mode", "allowed here are type, number, poll"});
+    expect_one_error({hub + "    name: hub1\n", 7, "links[0].name", "already given at line 2"});
+    expect_one_error(
+        {"modbus:\n  stale: hold\n  stale: exception\n" + hub, 3, "modbus.stale", "duplicate key"});
+}
+
+TEST(GatewayConfigErrors, WrongTypes) {
+    expect_one_error({modbus("max_connections: [1]"), 2, "modbus.max_connections",
+                      "expected a number 1..65535, found a list"});
+    expect_one_error({modbus("max_connections: \"8\""), 2, "modbus.max_connections", "quoted"});
+    expect_one_error({modbus("max_connections: eight"), 2, "modbus.max_connections",
+                      "not a whole number: use 1..65535"});
+    expect_one_error({modbus("read_only: yes"), 2, "modbus.read_only", "use true or false"});
+    expect_one_error({modbus("read_only: \"true\""), 2, "modbus.read_only", "use true or false"});
+    expect_one_error({modbus("read_only:"), 2, "modbus.read_only", "found no value"});
+    expect_one_error({modbus("listen: { host: 0.0.0.0 }"), 2, "modbus.listen",
+                      "expected host:port, found a mapping"});
+    expect_one_error({"modbus: [listen]\n" + hub, 1, "modbus", "expected a mapping"});
+    expect_one_error({hub + "    unit_id: \"3\"\n", 7, "links[0].unit_id", "quoted"});
+    expect_one_error(
+        {hub + "    modules: { type: dim16 }\n", 7, "links[0].modules", "duplicate key"});
+    expect_one_error({"links:\n  - hub0\n", 2, "links[0]", "expected a mapping"});
+    expect_one_error({"modbus: { [listen]: x }\n" + hub, 1, "modbus", "a key must be a name"});
+}
+
+TEST(GatewayConfigErrors, ModbusSettingsOutOfRange) {
+    expect_one_error(
+        {modbus("listen: \"plc.local:502\""), 2, "modbus.listen", "use an IP address"});
+    expect_one_error({modbus("listen: 0.0.0.0"), 2, "modbus.listen", "no port"});
+    expect_one_error({modbus("listen: \"[::1]\""), 2, "modbus.listen", "no port"});
+    expect_one_error({modbus("listen: 0.0.0.0:0"), 2, "modbus.listen", "port must be 1..65535"});
+    expect_one_error(
+        {modbus("listen: 0.0.0.0:65536"), 2, "modbus.listen", "port must be 1..65535"});
+    expect_one_error({modbus("listen: 0.0.0.0:0x1f6"), 2, "modbus.listen", "1..65535"});
+    expect_one_error({modbus("listen: \"::1:502\""), 2, "modbus.listen", "go in brackets"});
+    expect_one_error({modbus("listen: \"[10.0.0.1]:502\""), 2, "modbus.listen", "IPv6"});
+    expect_one_error({modbus("listen: 10.0.0:502"), 2, "modbus.listen", "use an IP address"});
+    expect_one_error({modbus("listen: \"[fe80::1%eth0]:502\""), 2, "modbus.listen",
+                      "not an IPv6 address in brackets"});
+    expect_one_error({modbus("max_connections: 0"), 2, "modbus.max_connections",
+                      "0 is out of range: use 1..65535"});
+    expect_one_error(
+        {modbus("max_connections: 65536"), 2, "modbus.max_connections", "use 1..65535"});
+    expect_one_error(
+        {modbus("max_connections: -1"), 2, "modbus.max_connections", "-1 is out of range"});
+    expect_one_error({modbus("idle_timeout: 5"), 2, "modbus.idle_timeout", "e.g. 500us"});
+    expect_one_error({modbus("word_order: middle"), 2, "modbus.word_order", "use big or little"});
+    expect_one_error({modbus("stale: zero"), 2, "modbus.stale", "use exception or hold"});
+}
+
+TEST(GatewayConfigErrors, AllowListEntries) {
+    expect_one_error({modbus("allow: [10.1.0.0/8]"), 2, "modbus.allow[0]",
+                      "host bits set: did you mean 10.0.0.0/8?"});
+    expect_one_error(
+        {modbus("allow: [\"fd00::1/8\"]"), 2, "modbus.allow[0]", "did you mean fd00::/8?"});
+    expect_one_error({modbus("allow: [\"127.0.0.1\", 10.0.0.0/33]"), 2, "modbus.allow[1]",
+                      "prefix length after / must be 0..32"});
+    expect_one_error({modbus("allow: [\"::/129\"]"), 2, "modbus.allow[0]", "must be 0..128"});
+    expect_one_error({modbus("allow: [10.0.0.0/]"), 2, "modbus.allow[0]", "0..32"});
+    expect_one_error({modbus("allow: [plc.local]"), 2, "modbus.allow[0]", "not an IP network"});
+    expect_one_error({modbus("allow: 10.0.0.0/8"), 2, "modbus.allow", "expected a list"});
+    expect_one_error({"modbus:\n  allow:\n    - 10.0.0.0/8\n    - [1]\n" + hub, 4,
+                      "modbus.allow[1]", "found a list"});
+}
+
+TEST(GatewayConfigErrors, LinkSettings) {
+    expect_one_error({hub + "    baud: 9600\n", 7, "links[0].baud",
+                      "9600 is not allowed for protocol ioport: use 38400 or 115200"});
+    expect_one_error({hub + press + "    baud: 115200\n", 10, "links[1].baud",
+                      "115200 is not allowed for protocol id2: use 9600"});
+    expect_one_error({hub + "    unit_id: 0\n", 7, "links[0].unit_id", "use 1..247"});
+    expect_one_error({hub + "    unit_id: 248\n", 7, "links[0].unit_id", "use 1..247"});
+    expect_one_error({hub + "    timeout: 0\n", 7, "links[0].timeout", "use 1ms..10s"});
+    expect_one_error({hub + "    timeout: 11s\n", 7, "links[0].timeout", "use 1ms..10s"});
+    expect_one_error({hub + "    timeout: 100\n", 7, "links[0].timeout", "e.g. 500us"});
+    expect_one_error({hub + "    retries: 11\n", 7, "links[0].retries", "use 0..10"});
+    expect_one_error({hub + "    protocol: modbus\n", 7, "links[0].protocol", "duplicate key"});
+    expect_one_error({"links:\n  - name: x\n    protocol: modbus\n    device: /d\n", 3,
+                      "links[0].protocol", "use ioport or id2"});
+    expect_one_error({"links:\n  - name: x\n    device: /d\n", 2, "links[0].protocol",
+                      "missing: use protocol: ioport"});
+    expect_one_error({"links:\n  - protocol: id2\n    device: /d\n", 2, "links[0].name",
+                      "missing: every link needs a name"});
+    expect_one_error({"links:\n  - name: \"\"\n    protocol: id2\n    device: /d\n", 2,
+                      "links[0].name", "must not be empty"});
+    expect_one_error({"links:\n  - name: x\n    protocol: id2\n", 2, "links[0].device",
+                      "missing: the serial port"});
+    expect_one_error({"links:\n  - name: x\n    protocol: id2\n    device:\n", 4, "links[0].device",
+                      "found no value"});
+}
+
+TEST(GatewayConfigErrors, ADuplicateIsReportedAtItsSecondOccurrence) {
+    expect_one_error({hub + "  - { name: hub0, protocol: id2, device: /dev/ttyS0 }\n", 7,
+                      "links[1].name", "'hub0' is already used at line 2"});
+    expect_one_error({hub + "  - { name: b, protocol: id2, device: /dev/ttyUSB0 }\n", 7,
+                      "links[1].device", "already used by link 'hub0' (line 2)"});
+    expect_one_error({hub + press + "    unit_id: 1\n", 10, "links[1].unit_id",
+                      "unit id 1 is already used by link 'hub0' (line 2)"});
+    // Link 1 takes unit id 2 by default, which link 2 already has: reported at link 1.
+    expect_one_error(
+        {"links:\n"
+         "  - { name: a, protocol: id2, device: /a, unit_id: 2 }\n"
+         "  - { name: b, protocol: id2, device: /b }\n",
+         3, "links[1].unit_id", "(the default: 1 + the link's index)"});
+    expect_one_error({hub + "      - { type: dim16, number: 0 }\n", 7, "links[0].modules[1]",
+                      "dim16 0 is already configured on this link at line 6"});
+}
+
+TEST(GatewayConfigErrors, TheDefaultUnitIdMustBeAValidOne) {
+    std::string yaml = "links:\n";
+    for (int i = 0; i < 248; ++i)
+        yaml += "  - { name: l" + std::to_string(i) + ", protocol: id2, device: /d" +
+                std::to_string(i) + " }\n";
+    expect_one_error({yaml, 249, "links[247].unit_id", "the default 248 (1 + the link's index)"});
+}
+
+TEST(GatewayConfigErrors, NoDuplicateIsClaimedForAValueThatIsAlreadyWrong) {
+    // unit_id 300 is an error; its default (2) must not be reported as a duplicate too.
+    expect_one_error(
+        {"links:\n"
+         "  - { name: a, protocol: id2, device: /a, unit_id: 2 }\n"
+         "  - { name: b, protocol: id2, device: /b, unit_id: 300 }\n",
+         3, "links[1].unit_id", "use 1..247"});
+}
+
+TEST(GatewayConfigErrors, DevicesAreDuplicatesWhenTheyResolveToTheSameFile) {
+    const auto by_id = [](const std::string& device) {
+        return device.starts_with("/dev/serial/by-id/") ? std::string("/dev/ttyUSB0") : device;
+    };
+    const auto config =
+        parse_config(hub + "  - { name: b, protocol: id2, device: /dev/serial/by-id/usb-x }\n",
+                     "test.yaml", by_id);
+    ASSERT_FALSE(config);
+    ASSERT_EQ(config.error().size(), 1u) << describe(config.error());
+    EXPECT_EQ(to_string(config.error()[0]),
+              "test.yaml:7: links[1].device: device /dev/serial/by-id/usb-x is already used by "
+              "link 'hub0' (line 2): both are /dev/ttyUSB0");
+    EXPECT_TRUE(parse_config(hub + press, "test.yaml", by_id));
+}
+
+TEST(GatewayConfigErrors, ModulesOfALink) {
+    expect_one_error({"links:\n  - { name: a, protocol: ioport, device: /d }\n", 2,
+                      "links[0].modules", "missing: an ioport link needs at least one module"});
+    expect_one_error({"links:\n  - { name: a, protocol: ioport, device: /d, modules: [] }\n", 2,
+                      "links[0].modules", "at least one module, found an empty list"});
+    expect_one_error({hub + press + "    modules: [{ type: dim16, number: 0 }]\n", 10,
+                      "links[1].modules", "an id2 link takes no modules"});
+    expect_one_error({hub + "      - dim16\n", 7, "links[0].modules[1]",
+                      "expected a mapping such as { type: dim16, number: 0 }"});
+}
+
+TEST(GatewayConfigErrors, ModuleKeys) {
+    const auto module = [](const std::string& text, const std::string& key,
+                           const std::string& fragment) {
+        expect_one_error(
+            {hub + "      - " + text + "\n", 7, "links[0].modules[1]" + key, fragment});
+    };
+    module("{ type: dim17, number: 0 }", ".type",
+           "use dim16, dom16, acm3p, acm3c, lim16, rgbdm, dccim, dcvim or mux8m");
+    module("{ number: 1 }", ".type", "missing: the module type");
+    module("{ type: dim16 }", ".number", "missing: the module's address switch 0..7");
+    module("{ type: dim16, number: 8 }", ".number", "8 is out of range: use 0..7");
+    module("{ type: dim16, number: -1 }", ".number", "use 0..7");
+    module("{ type: dom16, number: 0, poll: 1s }", ".poll", "poll is for input modules only");
+    module("{ type: dim16, number: 1, initial: 0 }", ".initial",
+           "initial is for output modules only (dom16, rgbdm, mux8m): dim16 is an input module");
+    module("{ type: acm3c, number: 1, refresh: 1s }", ".refresh",
+           "refresh is for output modules only");
+    module("{ type: lim16, number: 1, poll: fast }", ".poll", "e.g. 500us");
+    module("{ type: dom16, number: 0, initial: 0x10000 }", ".initial",
+           "use the 16 outputs as one word 0..0xFFFF");
+    module("{ type: dom16, number: 0, initial: red }", ".initial",
+           "not an initial value for dom16");
+    module("{ type: rgbdm, number: 0, initial: 8 }", ".initial", "use 0-7");
+    module("{ type: rgbdm, number: 0, initial: pink }", ".initial",
+           "or off, red, green, blue, cyan, magenta, yellow, white");
+    module("{ type: mux8m, number: 0, initial: 0x0808 }", ".initial", "pos and neg 0-7");
+    module("{ type: mux8m, number: 0, initial: \"0x0102\" }", ".initial",
+           "\"0x0102\" is quoted, so it is text");
+    module("{ type: dom16, number: 0, refresh: 0 }", ".refresh",
+           "0 is too short: use at least 10ms");
+    module("{ type: dom16, number: 0, refresh: 5ms }", ".refresh", "use at least 10ms");
+}
+
+TEST(GatewayConfigErrors, EveryErrorOfAFileIsReportedInLineOrder) {
+    const auto config = parse(R"(modbus:
+  listen: "0.0.0.0:70000"
+  colour: blue
+links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    baud: 9600
+    modules:
+      - { type: dom16, number: 9 }
+      - { type: dim16, number: 0, initial: 1 }
+      - type: dim16
+        number: 0
+  - name: hub0
+    protocol: id2
+    device: /dev/ttyUSB0
+    unit_id: 1
+    modules: []
+)");
+    ASSERT_FALSE(config);
+    std::vector<std::pair<int, std::string>> found;
+    for (const auto& error : config.error())
+        found.emplace_back(error.line, error.key);
+    const std::vector<std::pair<int, std::string>> expected{
+        {2, "modbus.listen"},
+        {3, "modbus.colour"},
+        {8, "links[0].baud"},
+        {10, "links[0].modules[0].number"},
+        {11, "links[0].modules[1].initial"},
+        {12, "links[0].modules[2]"},
+        {14, "links[1].name"},
+        {16, "links[1].device"},
+        {17, "links[1].unit_id"},
+        {18, "links[1].modules"},
+    };
+    EXPECT_EQ(found, expected) << describe(config.error());
+}
+
+TEST(GatewayConfigErrors, ToStringNamesFileLineAndKey) {
+    EXPECT_EQ(to_string({"ioportd.yaml", 12, "links[0].baud", "9600 is not allowed"}),
+              "ioportd.yaml:12: links[0].baud: 9600 is not allowed");
+    EXPECT_EQ(to_string({"ioportd.yaml", 0, "links", "the file is empty"}),
+              "ioportd.yaml: links: the file is empty");
+    EXPECT_EQ(to_string({"ioportd.yaml", 3, "", "YAML syntax error: x"}),
+              "ioportd.yaml:3: YAML syntax error: x");
+}
+
+TEST(GatewayConfigErrors, AFileThatCannotBeReadIsOneError) {
+    const auto config = load_config("/nonexistent/ioportd.yaml", identity);
+    ASSERT_FALSE(config);
+    ASSERT_EQ(config.error().size(), 1u);
+    EXPECT_EQ(to_string(config.error()[0]),
+              "/nonexistent/ioportd.yaml: cannot read the file: No such file or directory");
+    const auto directory = load_config("/", identity);
+    ASSERT_FALSE(directory);
+    EXPECT_NE(directory.error()[0].message.find("Is a directory"), std::string::npos);
+}
+
+TEST(GatewayConfig, LoadsAFile) {
+    char path[] = "/tmp/gateway_config_test_XXXXXX";
+    const int fd = mkstemp(path);
+    ASSERT_GE(fd, 0);
+    close(fd);
+    std::ofstream(path) << hub;
+    const auto config = load_config(path, identity);
+    std::filesystem::remove(path);
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->file, path);
+    EXPECT_EQ(config->links[0].name, "hub0");
+}
+
+TEST(GatewayConfig, ResolveDeviceFollowsSymlinksAndKeepsPathsItCannotResolve) {
+    EXPECT_EQ(resolve_device("/dev/../dev/null"), "/dev/null");
+    EXPECT_EQ(resolve_device("/nonexistent/ttyUSB9"), "/nonexistent/ttyUSB9");
+}
+
+// --- Networks -------------------------------------------------------------------------------
+
+std::array<std::uint8_t, 16> v4(std::uint8_t a, std::uint8_t b, std::uint8_t c, std::uint8_t d) {
+    return {a, b, c, d};
+}
+std::array<std::uint8_t, 16> mapped(std::uint8_t a, std::uint8_t b, std::uint8_t c,
+                                    std::uint8_t d) {
+    return {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xFF, 0xFF, a, b, c, d};
+}
+Network network(const std::string& text) {
+    const auto config = parse("modbus: { allow: [\"" + text + "\"] }\n" + hub);
+    EXPECT_TRUE(config) << text << (config ? "" : describe(config.error()));
+    return config ? config->modbus.allow.at(0) : Network{};
+}
+
+TEST(Network, ContainsIpv4) {
+    const Network ten = network("10.0.0.0/8");
+    EXPECT_TRUE(contains(ten, v4(10, 0, 0, 0), false));
+    EXPECT_TRUE(contains(ten, v4(10, 255, 1, 2), false));
+    EXPECT_FALSE(contains(ten, v4(11, 0, 0, 1), false));
+    const Network odd = network("192.168.1.128/25");
+    EXPECT_TRUE(contains(odd, v4(192, 168, 1, 200), false));
+    EXPECT_FALSE(contains(odd, v4(192, 168, 1, 127), false));
+}
+
+TEST(Network, ABareAddressIsASingleHost) {
+    const Network host = network("127.0.0.1");
+    EXPECT_EQ(host.prefix, 32);
+    EXPECT_TRUE(contains(host, v4(127, 0, 0, 1), false));
+    EXPECT_FALSE(contains(host, v4(127, 0, 0, 2), false));
+    const Network host32 = network("127.0.0.1/32");
+    EXPECT_TRUE(contains(host32, v4(127, 0, 0, 1), false));
+    EXPECT_FALSE(contains(host32, v4(127, 0, 0, 0), false));
+    const Network v6host = network("::1");
+    EXPECT_EQ(v6host.prefix, 128);
+    std::array<std::uint8_t, 16> loopback{};
+    loopback[15] = 1;
+    EXPECT_TRUE(contains(v6host, loopback, true));
+    loopback[15] = 2;
+    EXPECT_FALSE(contains(v6host, loopback, true));
+}
+
+TEST(Network, ContainsIpv6) {
+    const Network ula = network("fd00::/8");
+    std::array<std::uint8_t, 16> address{0xfd, 0x12};
+    EXPECT_TRUE(contains(ula, address, true));
+    address[0] = 0xfe;
+    EXPECT_FALSE(contains(ula, address, true));
+    const Network doc = network("2001:db8:1::/48");
+    EXPECT_TRUE(contains(doc, {0x20, 0x01, 0x0d, 0xb8, 0, 1, 0xff}, true));
+    EXPECT_FALSE(contains(doc, {0x20, 0x01, 0x0d, 0xb8, 0, 2}, true));
+    // An IPv6 address whose first bytes look like an IPv4 network is not in it.
+    EXPECT_FALSE(contains(network("10.0.0.0/8"), {10}, true));
+}
+
+TEST(Network, Ipv4MappedAddressesMatchIpv4Networks) {
+    EXPECT_TRUE(contains(network("10.0.0.0/8"), mapped(10, 1, 2, 3), true));
+    EXPECT_FALSE(contains(network("10.0.0.0/8"), mapped(11, 1, 2, 3), true));
+    EXPECT_TRUE(contains(network("127.0.0.1"), mapped(127, 0, 0, 1), true));
+    EXPECT_TRUE(contains(network("::ffff:10.0.0.0/104"), v4(10, 9, 9, 9), false));
+    EXPECT_FALSE(contains(network("::ffff:10.0.0.0/104"), v4(12, 9, 9, 9), false));
+}
+
+TEST(Network, PrefixZeroIsEveryoneOfItsFamily) {
+    const Network any4 = network("0.0.0.0/0");
+    EXPECT_TRUE(contains(any4, v4(1, 2, 3, 4), false));
+    EXPECT_TRUE(contains(any4, v4(255, 255, 255, 255), false));
+    EXPECT_TRUE(contains(any4, mapped(8, 8, 8, 8), true));
+    EXPECT_FALSE(contains(any4, {0x20, 0x01}, true));
+    const Network any6 = network("::/0");
+    EXPECT_TRUE(contains(any6, {0x20, 0x01}, true));
+    // IPv4 clients of an IPv6 socket are IPv6 addresses too (::ffff:a.b.c.d).
+    EXPECT_TRUE(contains(any6, v4(1, 2, 3, 4), false));
+}
+
+}  // namespace
+}  // namespace ioport::config
