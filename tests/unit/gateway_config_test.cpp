@@ -621,5 +621,45 @@ TEST(Network, PrefixZeroIsEveryoneOfItsFamily) {
     EXPECT_TRUE(contains(any6, v4(1, 2, 3, 4), false));
 }
 
+// --- The example files ----------------------------------------------------------------------
+
+TEST(GatewayConfig, TheExampleFilesAreValid) {
+    for (const char* name : {"ioportd.yaml", "ioportd-sim.yaml"}) {
+        const auto config =
+            load_config(std::string(IOPORTD_SOURCE_DIR) + "/config/" + name, identity);
+        ASSERT_TRUE(config) << name << describe(config.error());
+        EXPECT_EQ(config->links.size(), 2u) << name;
+    }
+}
+
+TEST(GatewayConfig, TheProductionExampleServesEveryoneOnPort502) {
+    const auto config =
+        load_config(std::string(IOPORTD_SOURCE_DIR) + "/config/ioportd.yaml", identity);
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->modbus.listen_host, "0.0.0.0");
+    EXPECT_EQ(config->modbus.listen_port, 502);
+    EXPECT_TRUE(config->modbus.allow.empty());
+    EXPECT_TRUE(config->links.at(0).device.starts_with("/dev/serial/by-id/"));
+    EXPECT_EQ(config->links.at(1).protocol, Protocol::id2);
+}
+
+TEST(GatewayConfig, TheSimulatorExampleIsWhatTheDemoExpects) {
+    const auto config =
+        load_config(std::string(IOPORTD_SOURCE_DIR) + "/config/ioportd-sim.yaml", identity);
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->modbus.listen_host, "127.0.0.1");
+    EXPECT_EQ(config->modbus.listen_port, 1502);
+    const LinkConfig& hub0 = config->links.at(0);
+    EXPECT_EQ(hub0.name, "hub0");
+    EXPECT_EQ(hub0.device, "/tmp/ioportd-sim/ttyIOPORT0");
+    EXPECT_EQ(hub0.unit_id, 1);
+    EXPECT_EQ(hub0.modules.size(), 8u);
+    const LinkConfig& id2 = config->links.at(1);
+    EXPECT_EQ(id2.name, "press");
+    EXPECT_EQ(id2.protocol, Protocol::id2);
+    EXPECT_EQ(id2.device, "/tmp/ioportd-sim/ttyID2");
+    EXPECT_EQ(id2.unit_id, 2);
+}
+
 }  // namespace
 }  // namespace ioport::config
