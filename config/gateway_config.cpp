@@ -134,8 +134,8 @@ Parsed<Endpoint> parse_listen(const std::string& text) {
     if (colon == std::string::npos || text.find(']', colon) != std::string::npos)
         return Unexpected(fmt::format("'{}' has no port: {}", text, listen_help));
     const auto port = parse_decimal(std::string_view(text).substr(colon + 1), 65535);
-    if (!port || *port == 0)
-        return Unexpected(fmt::format("'{}': the port must be 1..65535", text));
+    // Port 0 lets the system pick a free port, which the start-up log names (for tests).
+    if (!port) return Unexpected(fmt::format("'{}': the port must be 0..65535", text));
     auto host = parse_listen_host(text.substr(0, colon));
     if (!host) return Unexpected(std::move(host).error());
     return Endpoint{*std::move(host), static_cast<std::uint16_t>(*port)};

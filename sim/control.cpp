@@ -64,7 +64,7 @@ ControlReply set(DeviceModel& model, const std::vector<std::string_view>& words)
         if (!value) return error(fmt::format("'{}' is not a value 0-65535", words[i]));
         raw.push_back(static_cast<std::uint16_t>(*value));
     }
-    return from(model.set_inputs(*module, raw));
+    return from(model.set_values(*module, raw));
 }
 
 ControlReply get(DeviceModel& model, std::string_view target) {

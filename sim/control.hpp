@@ -1,7 +1,8 @@
 // The simulator's control language, one command a line, as tests and people type it:
 //
 //   modules | add MODULE | remove MODULE
-//   set MODULE VALUE...       inputs' raw words (decimal or 0x hex); set dim16:0 0x8000
+//   set MODULE VALUE...       inputs' raw words (decimal or 0x hex); set dim16:0 0x8000;
+//                             an output's state as if the module had been reset
 //   get MODULE                inputs' raw words, or an output's value (dom16 word, colour, mux)
 //   set stop 0|1 | set count N | get stop | get count | pulse N       (ID-2)
 //   fault MODULE|all|device KIND [PROBABILITY] [DELAY]   KIND: none silent error-ack garbage

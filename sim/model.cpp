@@ -74,16 +74,20 @@ std::vector<ModuleAddress> DeviceModel::modules() const {
     return list;
 }
 
-Result<> DeviceModel::set_inputs(ModuleAddress module, std::span<const std::uint16_t> raw) {
+Result<> DeviceModel::set_values(ModuleAddress module, std::span<const std::uint16_t> raw) {
     auto state = present(module);
     if (!state) return Unexpected(state.error());
-    if (is_output(module.type))
-        return fail(Errc::invalid_argument,
-                    fmt::format("{} is an output module: the master sets it", to_string(module)));
-    if (raw.size() != static_cast<std::size_t>(reply_words(module.type)))
-        return fail(Errc::invalid_argument,
-                    fmt::format("{} takes {} value(s), got {}", to_string(module),
-                                reply_words(module.type), raw.size()));
+    // An output's state is normally the master's to set; setting it here stands for a module
+    // that lost power or was reset behind the master's back.
+    const auto words = is_output(module.type) ? std::size_t{1}
+                                              : static_cast<std::size_t>(reply_words(module.type));
+    if (raw.size() != words)
+        return fail(Errc::invalid_argument, fmt::format("{} takes {} value(s), got {}",
+                                                        to_string(module), words, raw.size()));
+    if (is_output(module.type)) {
+        if (auto valid = validate_output_value(module.type, raw[0]); !valid)
+            return Unexpected(valid.error());
+    }
     std::copy(raw.begin(), raw.end(), (*state)->raw.begin());
     return {};
 }

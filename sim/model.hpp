@@ -70,7 +70,8 @@ class DeviceModel {
     Result<> add(ModuleAddress module);
     Result<> remove(ModuleAddress module);
     std::vector<ModuleAddress> modules() const;
-    Result<> set_inputs(ModuleAddress module, std::span<const std::uint16_t> raw);
+    // Inputs' raw words, or an output's value (as after a reset of the module).
+    Result<> set_values(ModuleAddress module, std::span<const std::uint16_t> raw);
     Result<std::vector<std::uint16_t>> values(ModuleAddress module) const;
     Result<> set_fault(ModuleAddress module, Fault fault);
 

@@ -153,6 +153,14 @@ TEST(GatewayConfig, KeysLeftOutTakeTheDefaultsOfTheSpec) {
     EXPECT_EQ(hub.modules[1].line, 11);
 }
 
+TEST(GatewayConfig, PortZeroLetsTheSystemPick) {
+    const auto config = parse(R"(modbus: { listen: "127.0.0.1:0" }
+links: [{ name: a, protocol: id2, device: /dev/ttyS0 }]
+)");
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->modbus.listen_port, 0);
+}
+
 TEST(GatewayConfig, ReadsEveryModbusSetting) {
     const auto config = parse(R"(modbus: { listen: "[::]:1502", max_connections: 4, idle_timeout: 0,
   allow: ["10.0.0.0/8", 192.168.1.7, "fd00::/8", "::1"], read_only: true, word_order: little,
@@ -315,10 +323,9 @@ TEST(GatewayConfigErrors, ModbusSettingsOutOfRange) {
         {modbus("listen: \"plc.local:502\""), 2, "modbus.listen", "use an IP address"});
     expect_one_error({modbus("listen: 0.0.0.0"), 2, "modbus.listen", "no port"});
     expect_one_error({modbus("listen: \"[::1]\""), 2, "modbus.listen", "no port"});
-    expect_one_error({modbus("listen: 0.0.0.0:0"), 2, "modbus.listen", "port must be 1..65535"});
     expect_one_error(
-        {modbus("listen: 0.0.0.0:65536"), 2, "modbus.listen", "port must be 1..65535"});
-    expect_one_error({modbus("listen: 0.0.0.0:0x1f6"), 2, "modbus.listen", "1..65535"});
+        {modbus("listen: 0.0.0.0:65536"), 2, "modbus.listen", "port must be 0..65535"});
+    expect_one_error({modbus("listen: 0.0.0.0:0x1f6"), 2, "modbus.listen", "0..65535"});
     expect_one_error({modbus("listen: \"::1:502\""), 2, "modbus.listen", "go in brackets"});
     expect_one_error({modbus("listen: \"[10.0.0.1]:502\""), 2, "modbus.listen", "IPv6"});
     expect_one_error({modbus("listen: 10.0.0:502"), 2, "modbus.listen", "use an IP address"});

@@ -27,8 +27,8 @@ using Replies = std::vector<std::string>;
 
 TEST_F(HubModelTest, AnswersReadsWithTheInputsSet) {
     const std::array<std::uint16_t, 3> acm{13208, 41203, 4095};
-    ASSERT_TRUE(hub.set_inputs({ModuleType::acm3p, 1}, acm));
-    ASSERT_TRUE(hub.set_inputs({ModuleType::dim16, 0}, std::array<std::uint16_t, 1>{0x8000}));
+    ASSERT_TRUE(hub.set_values({ModuleType::acm3p, 1}, acm));
+    ASSERT_TRUE(hub.set_values({ModuleType::dim16, 0}, std::array<std::uint16_t, 1>{0x8000}));
     EXPECT_EQ(send("c1\ra0\r"), (Replies{"3398A0F30FFF\r", "8000\r"}));
 }
 
@@ -60,7 +60,7 @@ TEST_F(HubModelTest, ErrorAckLeavesTheOutputUnchanged) {
 
 TEST_F(HubModelTest, EachFaultKind) {
     const ModuleAddress dim{ModuleType::dim16, 0};
-    ASSERT_TRUE(hub.set_inputs(dim, std::array<std::uint16_t, 1>{0x1234}));
+    ASSERT_TRUE(hub.set_values(dim, std::array<std::uint16_t, 1>{0x1234}));
     ASSERT_TRUE(hub.set_fault(dim, {FaultKind::silent, 1.0, {}}));
     EXPECT_TRUE(send("a0\r").empty());
     ASSERT_TRUE(hub.set_fault(dim, {FaultKind::short_reply, 1.0, {}}));
@@ -101,10 +101,17 @@ TEST_F(HubModelTest, LogsRequestsAndAnswers) {
 }
 
 TEST_F(HubModelTest, RejectsControlOnAbsentModulesAndWrongArity) {
-    EXPECT_FALSE(hub.set_inputs({ModuleType::dim16, 5}, std::array<std::uint16_t, 1>{1}));
-    EXPECT_FALSE(hub.set_inputs({ModuleType::dim16, 0}, std::array<std::uint16_t, 3>{1, 2, 3}));
-    EXPECT_FALSE(hub.set_inputs({ModuleType::dom16, 0}, std::array<std::uint16_t, 1>{1}));
+    EXPECT_FALSE(hub.set_values({ModuleType::dim16, 5}, std::array<std::uint16_t, 1>{1}));
+    EXPECT_FALSE(hub.set_values({ModuleType::dim16, 0}, std::array<std::uint16_t, 3>{1, 2, 3}));
     EXPECT_FALSE(hub.values({ModuleType::dcvim, 0}));
+}
+
+TEST_F(HubModelTest, AnOutputCanBeResetBehindTheMastersBack) {
+    ASSERT_TRUE(hub.add({ModuleType::rgbdm, 0}));
+    EXPECT_TRUE(hub.set_values({ModuleType::rgbdm, 0}, std::array<std::uint16_t, 1>{3}));
+    EXPECT_EQ(hub.values({ModuleType::rgbdm, 0}).value(), std::vector<std::uint16_t>{3});
+    EXPECT_FALSE(hub.set_values({ModuleType::rgbdm, 0}, std::array<std::uint16_t, 1>{8}));
+    EXPECT_FALSE(hub.set_values({ModuleType::rgbdm, 0}, std::array<std::uint16_t, 2>{1, 2}));
 }
 
 TEST(Id2Model, AnswersEachCommandByte) {

@@ -1,0 +1,348 @@
+#include "daemon/link_scheduler.hpp"
+
+#include <algorithm>
+#include <new>
+
+#include <spdlog/spdlog.h>
+
+namespace ioport::daemon {
+namespace {
+
+using asio::redirect_error;
+using asio::use_awaitable;
+using gateway::ModuleStatus;
+using modbus::Exception;
+
+std::vector<PollEntry> poll_entries(const config::LinkConfig& link) {
+    std::vector<PollEntry> entries;
+    if (link.protocol == config::Protocol::id2) return {PollEntry{}, PollEntry{}};
+    for (const auto& module : link.modules) {
+        const bool output = is_output(module.address.type);
+        entries.push_back({output, output ? module.refresh : module.poll});
+    }
+    return entries;
+}
+
+LinkSettings link_settings(const config::LinkConfig& link) {
+    return {link.device, link.baud, link.timeout, link.retries};
+}
+
+std::string duration_text(std::chrono::microseconds duration) {
+    return fmt::format("{} ms", duration.count() / 1000);
+}
+
+bool is_port_failure(Errc code) {
+    return code == Errc::port_lost || code == Errc::port_closed || code == Errc::io_error;
+}
+
+}  // namespace
+
+UnitImage::UnitImage()
+    : mapping_(modbus_mapping_new_start_address(
+          0, gateway::coil_count, 0, gateway::discrete_input_count, 0,
+          gateway::holding_register_count, 0, gateway::input_register_count)) {
+    if (!mapping_) throw std::bad_alloc();
+    auto* m = mapping_.get();
+    tables_ = {{m->tab_bits, gateway::coil_count},
+               {m->tab_input_bits, gateway::discrete_input_count},
+               {m->tab_registers, gateway::holding_register_count},
+               {m->tab_input_registers, gateway::input_register_count}};
+}
+
+struct LinkScheduler::PendingWrite {
+    PendingWrite(const asio::any_io_executor& executor, gateway::WritePlan write_plan)
+        : plan(std::move(write_plan)), done(executor, Clock::time_point::max()) {}
+    gateway::WritePlan plan;
+    asio::steady_timer done;  // cancelled when the outcome is known
+    bool finished = false;
+    std::optional<Exception> outcome = Exception::gateway_target_failed;
+};
+
+LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
+                             gateway::WordOrder word_order)
+    : config_(link),
+      word_order_(word_order),
+      link_(executor, link_settings(link)),
+      wake_(executor),
+      plan_(poll_entries(link)) {
+    state_.kind =
+        link.protocol == config::Protocol::id2 ? gateway::UnitKind::id2 : gateway::UnitKind::ioport;
+    state_.status.fill(ModuleStatus::not_configured);
+    if (state_.kind == gateway::UnitKind::id2) {
+        entries_ = {{id2::Command::stop_input, 0}, {id2::Command::count, 0}};
+        state_.status[0] = ModuleStatus::not_polled;
+    }
+    for (const auto& module : link.modules) {
+        entries_.push_back({module.address, slot(module.address), module.initial});
+        state_.status[static_cast<std::size_t>(slot(module.address))] = ModuleStatus::not_polled;
+    }
+    (void)image(true);
+}
+
+void LinkScheduler::start() {
+    asio::co_spawn(wake_.get_executor(), run(), asio::detached);
+}
+
+void LinkScheduler::stop() {
+    stopping_ = true;
+    wake_.cancel();
+    link_.close();
+    state_.port_open = false;
+    fail_pending_writes();
+}
+
+int LinkScheduler::modules_online() const {
+    return static_cast<int>(
+        std::count(state_.status.begin(), state_.status.end(), ModuleStatus::online));
+}
+
+asio::awaitable<void> LinkScheduler::run() {
+    auto delay = first_reopen_delay;
+    while (!stopping_) {
+        if (co_await open_port(delay)) co_await serve_port();
+    }
+}
+
+asio::awaitable<bool> LinkScheduler::open_port(std::chrono::microseconds& delay) {
+    if (auto opened = link_.open(); opened) {
+        spdlog::info("link {}: {} open at {} baud, unit {}{}", config_.name, config_.device,
+                     config_.baud, config_.unit_id, link_.low_latency() ? ", low latency" : "");
+        state_.port_open = true;
+        last_open_error_.clear();
+        delay = first_reopen_delay;
+        plan_.port_opened(Clock::now());
+        co_return true;
+    } else if (opened.error().message != last_open_error_) {
+        // Once per distinct reason: a port that stays away for hours must not flood the log.
+        last_open_error_ = opened.error().message;
+        spdlog::warn("link {}: {}; retrying every {} at most", config_.name, last_open_error_,
+                     duration_text(max_reopen_delay));
+    }
+    co_await sleep_until(Clock::now() + delay);
+    delay = std::min(2 * delay, max_reopen_delay);
+    co_return false;
+}
+
+asio::awaitable<void> LinkScheduler::serve_port() {
+    while (!stopping_ && link_.is_open()) {
+        const auto step = plan_.next(Clock::now(), !writes_.empty());
+        switch (step.kind) {
+            case PollPlan::Kind::write: {
+                const auto write = writes_.front();
+                writes_.pop_front();
+                co_await execute(*write);
+                break;
+            }
+            case PollPlan::Kind::refresh:
+                co_await refresh(step.entry);
+                break;
+            case PollPlan::Kind::poll:
+                co_await poll(step.entry);
+                break;
+            case PollPlan::Kind::idle:
+                co_await sleep_until(step.wake_at);
+                break;
+        }
+    }
+}
+
+asio::awaitable<void> LinkScheduler::sleep_until(Clock::time_point when) {
+    wake_.expires_at(when);
+    boost::system::error_code ec;  // cancelled: a write arrived, or stop()
+    co_await wake_.async_wait(redirect_error(use_awaitable, ec));
+}
+
+asio::awaitable<Result<Reading>> LinkScheduler::transact(std::size_t entry, std::uint16_t value) {
+    const auto& target = entries_[entry].target;
+    if (const auto* command = std::get_if<id2::Command>(&target))
+        co_return co_await link_.transact(make_exchange(*command));
+    auto exchange = make_exchange(std::get<ModuleAddress>(target), value);
+    if (!exchange) co_return Unexpected(exchange.error());
+    co_return co_await link_.transact(*exchange);
+}
+
+asio::awaitable<void> LinkScheduler::poll(std::size_t entry) {
+    const auto result = co_await transact(entry, 0);
+    if (result) {
+        const auto& target = entries_[entry].target;
+        if (const auto* command = std::get_if<id2::Command>(&target))
+            gateway::store_id2(image_.tables(), *command, result->raw[0]);
+        else
+            gateway::store_reading(image_.tables(), std::get<ModuleAddress>(target), *result,
+                                   word_order_);
+    }
+    record(entry, result);
+}
+
+asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
+    const auto value = entries_[entry].desired;
+    const auto result = co_await transact(entry, value);
+    if (result)
+        gateway::store_output(image_.tables(), std::get<ModuleAddress>(entries_[entry].target),
+                              value);
+    record(entry, result);
+}
+
+asio::awaitable<std::optional<Exception>> LinkScheduler::write(gateway::WritePlan plan) {
+    if (plan.changes.empty() && !plan.reset_counter) co_return std::nullopt;
+    if (!state_.port_open || stopping_) co_return Exception::gateway_target_failed;
+    auto pending = std::make_shared<PendingWrite>(wake_.get_executor(), std::move(plan));
+    writes_.push_back(pending);
+    wake_.cancel();  // the loop may be idle until the next poll is due
+    boost::system::error_code ec;
+    if (!pending->finished) co_await pending->done.async_wait(redirect_error(use_awaitable, ec));
+    co_return pending->outcome;
+}
+
+asio::awaitable<void> LinkScheduler::execute(PendingWrite& write) {
+    std::optional<Exception> outcome;
+    for (const auto& change : write.plan.changes) {
+        if (!link_.is_open()) {
+            outcome = Exception::gateway_target_failed;
+            break;
+        }
+        // The others stay applied; the request answers the exception, 0B before 04.
+        if (auto failed = co_await apply(change);
+            failed && (!outcome || *failed == Exception::gateway_target_failed))
+            outcome = failed;
+    }
+    if (write.plan.reset_counter) outcome = co_await reset_counter();
+    write.outcome = outcome;
+    write.finished = true;
+    write.done.cancel();
+}
+
+asio::awaitable<std::optional<Exception>> LinkScheduler::apply(
+    const gateway::OutputChange& change) {
+    const auto entry = entry_of(change.module);
+    if (!entry) co_return Exception::illegal_data_address;  // the planner rules this out
+    auto& module = entries_[*entry];
+    // Merged now, not when the request arrived: another client's write may have come first.
+    const auto value =
+        static_cast<std::uint16_t>((module.desired & ~change.mask) | (change.value & change.mask));
+    const auto result = co_await transact(*entry, value);
+    if (result) {
+        module.desired = value;
+        gateway::store_output(image_.tables(), change.module, value);
+    }
+    record(*entry, result);
+    if (result) co_return std::nullopt;
+    co_return result.error().code == Errc::error_ack ? Exception::server_device_failure
+                                                     : Exception::gateway_target_failed;
+}
+
+asio::awaitable<std::optional<Exception>> LinkScheduler::reset_counter() {
+    if (!link_.is_open()) co_return Exception::gateway_target_failed;
+    const auto result = co_await link_.transact(make_exchange(id2::Command::reset));
+    if (result) {
+        last_good_[0] = Clock::now();
+        set_status(0, ModuleStatus::online, nullptr);
+        co_return std::nullopt;
+    }
+    if (is_port_failure(result.error().code)) port_lost(result.error());
+    co_return result.error().code == Errc::error_ack ? Exception::server_device_failure
+                                                     : Exception::gateway_target_failed;
+}
+
+void LinkScheduler::record(std::size_t entry, const Result<Reading>& result) {
+    const auto now = Clock::now();
+    const int slot_index = entries_[entry].slot;
+    if (result) {
+        plan_.done(entry, true, now);
+        last_good_[static_cast<std::size_t>(slot_index)] = now;
+        set_status(slot_index, ModuleStatus::online, nullptr);
+        return;
+    }
+    const auto& error = result.error();
+    switch (error.code) {
+        case Errc::cancelled:
+            return;
+        case Errc::port_lost:
+        case Errc::port_closed:
+        case Errc::io_error:
+            port_lost(error);
+            return;
+        case Errc::timeout:
+            plan_.done(entry, false, now);
+            set_status(slot_index, ModuleStatus::no_answer, &error);
+            return;
+        default:  // malformed, error ack, a line that never went quiet
+            plan_.done(entry, false, now);
+            set_status(slot_index, ModuleStatus::bad_answer, &error);
+            return;
+    }
+}
+
+void LinkScheduler::set_status(int slot_index, ModuleStatus status, const Error* error) {
+    auto& current = state_.status[static_cast<std::size_t>(slot_index)];
+    if (current == status) return;
+    const bool was_online = current == ModuleStatus::online;
+    current = status;
+    const auto what = state_.kind == gateway::UnitKind::id2 ? std::string("ID-2")
+                                                            : to_string(module_at_slot(slot_index));
+    if (status == ModuleStatus::online)
+        spdlog::info("link {}: {} online", config_.name, what);
+    else if (was_online || error)
+        spdlog::warn("link {}: {} offline: {}", config_.name, what,
+                     error ? error->message : std::string("port closed"));
+}
+
+void LinkScheduler::port_lost(const Error& error) {
+    link_.close();
+    if (!state_.port_open) return;
+    state_.port_open = false;
+    spdlog::warn("link {}: port down: {}; reopening", config_.name, error.message);
+    // Polled modules answer 0B (or hold) while the port is away; never-polled ones stay 4.
+    for (auto& status : state_.status)
+        if (status != ModuleStatus::not_configured && status != ModuleStatus::not_polled)
+            status = ModuleStatus::no_answer;
+    fail_pending_writes();
+}
+
+void LinkScheduler::fail_pending_writes() {
+    for (const auto& write : writes_) {
+        write->outcome = Exception::gateway_target_failed;
+        write->finished = true;
+        write->done.cancel();
+    }
+    writes_.clear();
+}
+
+std::optional<std::size_t> LinkScheduler::entry_of(ModuleAddress module) const {
+    for (std::size_t i = 0; i < entries_.size(); ++i)
+        if (const auto* address = std::get_if<ModuleAddress>(&entries_[i].target);
+            address && *address == module)
+            return i;
+    return std::nullopt;
+}
+
+modbus_mapping_t* LinkScheduler::image(bool diagnostics) {
+    if (!diagnostics) return image_.mapping();
+    const auto now = Clock::now();
+    gateway::Diagnostics d;
+    const auto configured = [](ModuleStatus s) { return s != ModuleStatus::not_configured; };
+    const bool all_online =
+        std::all_of(state_.status.begin(), state_.status.end(),
+                    [&](ModuleStatus s) { return !configured(s) || s == ModuleStatus::online; });
+    d.link_state = !state_.port_open ? gateway::LinkState::port_not_open
+                   : all_online      ? gateway::LinkState::all_online
+                                     : gateway::LinkState::some_offline;
+    d.last_cycle = plan_.last_cycle();
+    d.cycles = plan_.cycles();
+    d.transactions_ok = link_.counters().transactions_ok;
+    d.transactions_failed = link_.counters().transactions_failed;
+    d.opens = link_.counters().opens;
+    d.status = state_.status;
+    for (std::size_t i = 0; i < slot_count; ++i) {
+        const auto& good = last_good_[i];
+        d.age_ms[i] =
+            good ? static_cast<std::uint32_t>(std::min<long long>(
+                       std::chrono::duration_cast<std::chrono::milliseconds>(now - *good).count(),
+                       0xFFFFFFFF))
+                 : 0xFFFFFFFF;
+    }
+    gateway::store_diagnostics(image_.tables(), d, word_order_);
+    return image_.mapping();
+}
+
+}  // namespace ioport::daemon

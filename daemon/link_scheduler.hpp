@@ -1,0 +1,107 @@
+// One serial link and the Modbus unit it serves: the port, its polling coroutine, the unit's
+// process image and the queue of client writes. Everything runs on the one io_context; the
+// Modbus server reads the image directly and awaits writes.
+//
+// The loop: open the port (retrying at 100 ms doubling to 2 s), restore the outputs, then do
+// what the PollPlan says next — client writes, due refreshes, poll reads — one transaction at
+// a time. A lost port fails the queued writes with 0B and goes back to opening.
+#pragma once
+
+#include <array>
+#include <deque>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <modbus/modbus.h>
+
+#include "config/gateway_config.hpp"
+#include "daemon/poll_plan.hpp"
+#include "link/asio.hpp"
+#include "link/serial_link.hpp"
+#include "protocol/gateway_map.hpp"
+
+namespace ioport::daemon {
+
+inline constexpr std::chrono::microseconds first_reopen_delay = 100ms;
+inline constexpr std::chrono::microseconds max_reopen_delay = 2s;
+
+// A unit's four tables in a libmodbus mapping, so modbus_reply() answers reads straight from it.
+class UnitImage {
+  public:
+    UnitImage();
+    modbus_mapping_t* mapping() const { return mapping_.get(); }
+    const gateway::Tables& tables() const { return tables_; }
+
+  private:
+    struct Free {
+        void operator()(modbus_mapping_t* mapping) const { modbus_mapping_free(mapping); }
+    };
+    std::unique_ptr<modbus_mapping_t, Free> mapping_;
+    gateway::Tables tables_;
+};
+
+class LinkScheduler {
+  public:
+    LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
+                  gateway::WordOrder word_order);
+    LinkScheduler(const LinkScheduler&) = delete;
+    LinkScheduler& operator=(const LinkScheduler&) = delete;
+
+    // Starts the loop; it first tries to open the port.
+    void start();
+    // Ends the loop and closes the port; queued writes answer 0B.
+    void stop();
+
+    const config::LinkConfig& config() const { return config_; }
+    const gateway::UnitState& state() const { return state_; }
+    // The image, with the time-dependent diagnostics brought up to date when `diagnostics`.
+    modbus_mapping_t* image(bool diagnostics);
+    // Sends a validated write and completes when the device acknowledged it (nullopt) or it
+    // failed (04 error ack, 0B no answer or port closed).
+    asio::awaitable<std::optional<modbus::Exception>> write(gateway::WritePlan plan);
+
+    bool port_open() const { return state_.port_open; }
+    int modules_online() const;
+
+  private:
+    struct Entry {
+        Target target;  // a module, or an ID-2 command
+        int slot;
+        std::uint16_t desired = 0;  // outputs: last confirmed value, or `initial`
+    };
+    struct PendingWrite;
+
+    asio::awaitable<void> run();
+    asio::awaitable<bool> open_port(std::chrono::microseconds& delay);
+    asio::awaitable<void> serve_port();
+    asio::awaitable<Result<Reading>> transact(std::size_t entry, std::uint16_t value);
+    asio::awaitable<void> poll(std::size_t entry);
+    asio::awaitable<void> refresh(std::size_t entry);
+    asio::awaitable<void> execute(PendingWrite& write);
+    asio::awaitable<std::optional<modbus::Exception>> apply(const gateway::OutputChange& change);
+    asio::awaitable<std::optional<modbus::Exception>> reset_counter();
+    asio::awaitable<void> sleep_until(Clock::time_point when);
+
+    void record(std::size_t entry, const Result<Reading>& result);
+    void set_status(int slot, gateway::ModuleStatus status, const Error* error);
+    void port_lost(const Error& error);
+    void fail_pending_writes();
+    std::optional<std::size_t> entry_of(ModuleAddress module) const;
+
+    config::LinkConfig config_;
+    gateway::WordOrder word_order_;
+    SerialLink link_;
+    asio::steady_timer wake_;
+    PollPlan plan_;
+    std::vector<Entry> entries_;
+    std::deque<std::shared_ptr<PendingWrite>> writes_;
+    UnitImage image_;
+    gateway::UnitState state_;
+    std::array<std::optional<Clock::time_point>, slot_count> last_good_{};
+    bool stopping_ = false;
+    std::string last_open_error_;
+};
+
+}  // namespace ioport::daemon

@@ -1,0 +1,78 @@
+#include "daemon/poll_plan.hpp"
+
+#include <algorithm>
+
+namespace ioport::daemon {
+
+std::chrono::microseconds backoff(int consecutive_failures) {
+    if (consecutive_failures <= 0) return {};
+    auto delay = first_backoff;
+    for (int i = 1; i < consecutive_failures && delay < max_backoff; ++i)
+        delay *= 2;
+    return std::min(delay, max_backoff);
+}
+
+PollPlan::PollPlan(const std::vector<PollEntry>& entries) {
+    entries_.reserve(entries.size());
+    for (const auto& entry : entries)
+        entries_.push_back(State{entry, {}, 0});
+}
+
+void PollPlan::port_opened(Clock::time_point now) {
+    for (auto& state : entries_) {
+        state.due = now;
+        state.failures = 0;
+    }
+    cursor_ = 0;
+    pass_did_work_ = false;
+}
+
+std::optional<std::size_t> PollPlan::due_refresh(Clock::time_point now) const {
+    std::optional<std::size_t> earliest;
+    for (std::size_t i = 0; i < entries_.size(); ++i) {
+        const auto& state = entries_[i];
+        if (state.entry.output && state.due <= now &&
+            (!earliest || state.due < entries_[*earliest].due))
+            earliest = i;
+    }
+    return earliest;
+}
+
+PollPlan::Step PollPlan::next(Clock::time_point now, bool write_pending) {
+    if (write_pending) return {Kind::write};
+    if (const auto refresh = due_refresh(now)) return {Kind::refresh, *refresh};
+    // One look at every entry, wrapping at most once: the round-robin resumes where it stopped.
+    for (std::size_t looked = 0; looked <= entries_.size() && !entries_.empty(); ++looked) {
+        if (cursor_ == entries_.size()) {
+            cursor_ = 0;
+            finish_pass(now);
+        }
+        const auto& state = entries_[cursor_];
+        if (!state.entry.output && state.due <= now) return {Kind::poll, cursor_++};
+        ++cursor_;
+    }
+    auto wake = Clock::time_point::max();
+    for (const auto& state : entries_)
+        wake = std::min(wake, state.due);
+    return {Kind::idle, 0, wake};
+}
+
+void PollPlan::done(std::size_t entry, bool ok, Clock::time_point now) {
+    auto& state = entries_.at(entry);
+    pass_did_work_ = true;
+    state.failures = ok ? 0 : state.failures + 1;
+    state.due = now + std::max(state.entry.interval, backoff(state.failures));
+}
+
+void PollPlan::finish_pass(Clock::time_point now) {
+    // A pass in which nothing was due is not a cycle: the link was idle, not polling.
+    if (!pass_did_work_) return;
+    pass_did_work_ = false;
+    ++cycles_;
+    if (last_completion_)
+        last_cycle_ =
+            std::chrono::duration_cast<std::chrono::microseconds>(now - *last_completion_);
+    last_completion_ = now;
+}
+
+}  // namespace ioport::daemon

@@ -1,0 +1,176 @@
+#!/usr/bin/python3
+"""ioportd through Modbus clients that are not ours: pymodbus (python3-pymodbus) and mbpoll,
+both from Debian, against the real daemon and the real simulator on ptys.
+
+Usage: third_party_clients.py IOPORTD IOPORT_SIM
+"""
+import os
+import re
+import shutil
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+import unittest
+
+from pymodbus.client import ModbusTcpClient
+
+IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
+
+
+def eventually(condition, deadline=5.0):
+    until = time.monotonic() + deadline
+    while True:
+        if condition():
+            return True
+        if time.monotonic() >= until:
+            return False
+        time.sleep(0.005)
+
+
+class Rig:
+    """ioport-sim with a hub and ioportd on it, in a temporary directory."""
+
+    def __init__(self):
+        self.dir = tempfile.mkdtemp(prefix="ioportd-3p-")
+        self.link = os.path.join(self.dir, "ttyHUB")
+        self.control = os.path.join(self.dir, "hub.ctl")
+        self.sim = subprocess.Popen(
+            [IOPORT_SIM, "--link", self.link, "--control", self.control, "--no-line-timing",
+             "--hub", "dim16:0,dom16:0,acm3p:0,rgbdm:0"],
+            stdout=subprocess.PIPE, text=True)
+        banner = self.sim.stdout.readline()
+        assert banner.startswith("ioport-sim: "), banner
+        self.daemon = None
+        try:
+            self.start_daemon()
+        except BaseException:
+            self.close()
+            raise
+
+    def start_daemon(self):
+        config = os.path.join(self.dir, "ioportd.yaml")
+        with open(config, "w") as f:
+            f.write(f"""modbus:
+  listen: "127.0.0.1:0"
+links:
+  - name: hub0
+    protocol: ioport
+    device: {self.link}
+    timeout: 30ms
+    modules:
+      - {{ type: dim16, number: 0 }}
+      - {{ type: dom16, number: 0 }}
+      - {{ type: acm3p, number: 0 }}
+      - {{ type: rgbdm, number: 0 }}
+""")
+        self.log = os.path.join(self.dir, "ioportd.log")
+        with open(self.log, "w") as log:
+            self.daemon = subprocess.Popen([IOPORTD, "--config", config], stdout=log, stderr=log)
+        match = None
+
+        def listening():
+            nonlocal match
+            with open(self.log) as f:
+                match = re.search(r"Modbus TCP on 127\.0\.0\.1:(\d+)", f.read())
+            return match is not None or self.daemon.poll() is not None
+        assert eventually(listening, 10) and match, open(self.log).read()
+        self.port = int(match.group(1))
+
+    def ctl(self, command):
+        out = subprocess.run([IOPORT_SIM, "ctl", self.control, *command.split()],
+                             capture_output=True, text=True, timeout=10)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.splitlines()[0] if out.stdout else ""
+
+    def close(self):
+        code = None
+        if self.daemon:
+            self.daemon.terminate()
+            code = self.daemon.wait(5)
+        self.sim.terminate()
+        self.sim.wait(5)
+        shutil.rmtree(self.dir, ignore_errors=True)
+        return code
+
+
+class ThirdPartyClients(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.rig = Rig()
+        cls.client = ModbusTcpClient("127.0.0.1", port=cls.rig.port, timeout=3)
+        assert cls.client.connect()
+
+        def online():
+            r = cls.client.read_input_registers(1000, 1, slave=1)
+            return not r.isError() and r.registers[0] == 1
+        assert eventually(online), open(cls.rig.log).read()
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.client.close()
+        assert cls.rig.close() == 0
+
+    def mbpoll(self, *args):
+        out = subprocess.run(["mbpoll", "-1", "-m", "tcp", "-p", str(self.rig.port), *args],
+                             capture_output=True, text=True, timeout=20)
+        self.assertEqual(out.returncode, 0, out.stdout + out.stderr)
+        return out.stdout
+
+    def test_pymodbus_reads_inputs_and_floats(self):
+        self.rig.ctl("set dim16:0 0x8001")
+        self.rig.ctl("set acm3p:0 13208 41203 4095")
+
+        def updated():
+            r = self.client.read_input_registers(0, 1, slave=1)
+            return not r.isError() and r.registers[0] == 0x8001
+        self.assertTrue(eventually(updated))
+        bits = self.client.read_discrete_inputs(0, 16, slave=1)
+        self.assertEqual(bits.bits[:16], [True] + [False] * 14 + [True])
+        self.assertTrue(eventually(lambda: self.client.read_input_registers(
+            16, 1, slave=1).registers[0] == 13208))
+        r = self.client.read_input_registers(200, 2, slave=1)
+        value = struct.unpack(">f", struct.pack(">HH", *r.registers))[0]
+        self.assertEqual(value, struct.unpack(">f", struct.pack(">f", 13208 / 65535 * 100))[0])
+
+    def test_pymodbus_writes_coils_and_registers(self):
+        self.assertFalse(self.client.write_register(0, 0x1234, slave=1).isError())
+        self.assertEqual(self.rig.ctl("get dom16:0"), str(0x1234))
+        self.assertFalse(self.client.write_coils(0, [False, True], slave=1).isError())
+        self.assertEqual(self.rig.ctl("get dom16:0"), str(0x1236))
+        self.assertFalse(self.client.write_registers(8, [4], slave=1).isError())
+        self.assertEqual(self.rig.ctl("get rgbdm:0").split()[0], "4")
+
+    def test_pymodbus_sees_the_exceptions(self):
+        self.assertEqual(self.client.read_input_registers(0, 1, slave=9).exception_code, 0x0A)
+        self.assertEqual(self.client.write_register(8, 9, slave=1).exception_code, 0x03)
+        self.assertEqual(self.client.read_input_registers(80, 1, slave=1).exception_code, 0x02)
+        self.assertEqual(self.client.write_register(9, 1, slave=1).exception_code, 0x02)
+
+    def test_mbpoll_reads_and_writes(self):
+        self.rig.ctl("set dim16:0 0x00F0")
+        self.rig.ctl("set acm3p:0 13208 0 0")
+        self.assertTrue(eventually(lambda: self.client.read_input_registers(
+            0, 1, slave=1).registers[0] == 0x00F0))
+        self.assertTrue(eventually(lambda: self.client.read_input_registers(
+            16, 1, slave=1).registers[0] == 13208))
+        out = self.mbpoll("-a", "1", "-t", "3:hex", "-r", "1", "-c", "1", "127.0.0.1")
+        self.assertRegex(out, r"\[1\]:\s+0x00F0")
+        self.mbpoll("-a", "1", "-t", "4", "-r", "1", "127.0.0.1", "4660")
+        self.assertEqual(self.rig.ctl("get dom16:0"), "4660")
+        out = self.mbpoll("-a", "1", "-t", "3:float", "-B", "-r", "201", "-c", "1", "127.0.0.1")
+        self.assertRegex(out, r"\[201\]:\s+20\.15")
+
+    def test_malformed_frame_closes_only_its_own_connection(self):
+        with socket.create_connection(("127.0.0.1", self.rig.port), timeout=3) as bad:
+            # transaction 1, protocol id 1 (must be 0), length 6, unit 1, FC04 0 1
+            bad.sendall(bytes.fromhex("0001 0001 0006 01 04 0000 0001"))
+            self.assertEqual(bad.recv(100), b"")  # closed, not answered
+        r = self.client.read_input_registers(1000, 1, slave=1)
+        self.assertFalse(r.isError())
+
+
+if __name__ == "__main__":
+    unittest.main(argv=sys.argv[:1], verbosity=2)

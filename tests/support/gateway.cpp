@@ -1,0 +1,194 @@
+#include "tests/support/gateway.hpp"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <regex>
+#include <sstream>
+#include <thread>
+
+extern char** environ;
+
+namespace ioport::test {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+constexpr auto poll_interval = std::chrono::milliseconds(5);
+
+}  // namespace
+
+bool eventually(const std::function<bool()>& condition, std::chrono::milliseconds deadline) {
+    const auto until = Clock::now() + deadline;
+    for (;;) {
+        if (condition()) return true;
+        if (Clock::now() >= until) return false;
+        std::this_thread::sleep_for(poll_interval);
+    }
+}
+
+GatewayProcess::GatewayProcess(const std::string& yaml, std::vector<std::string> extra)
+    : log_path_(dir_ / "ioportd.log") {
+    const auto config = dir_ / "ioportd.yaml";
+    std::ofstream(config) << yaml;
+    const int log_fd = ::open(log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    std::vector<std::string> argv{IOPORTD_BINARY, "--config", config};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    std::vector<char*> args;
+    args.reserve(argv.size() + 1);
+    for (auto& arg : argv)
+        args.push_back(arg.data());
+    args.push_back(nullptr);
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_adddup2(&actions, log_fd, STDOUT_FILENO);
+    posix_spawn_file_actions_adddup2(&actions, log_fd, STDERR_FILENO);
+    const int rc = posix_spawn(&pid_, args[0], &actions, nullptr, args.data(), environ);
+    posix_spawn_file_actions_destroy(&actions);
+    ::close(log_fd);
+    if (rc != 0) {
+        pid_ = -1;
+        ADD_FAILURE() << "cannot start ioportd: " << std::strerror(rc);
+        return;
+    }
+    // "Modbus TCP on 127.0.0.1:40123, ..." once the listener is bound.
+    const std::regex listening(R"(Modbus TCP on \[?[0-9a-f.:]+\]?:(\d+))");
+    std::smatch match;
+    const bool bound = eventually(
+        [&] {
+            const auto text = log();
+            return std::regex_search(text, match, listening) || !running();
+        },
+        10s);
+    const auto text = log();
+    if (!bound || !std::regex_search(text, match, listening)) {
+        ADD_FAILURE() << "ioportd did not start listening; its log:\n" << text;
+        return;
+    }
+    port_ = static_cast<std::uint16_t>(std::stoi(match[1]));
+}
+
+GatewayProcess::~GatewayProcess() {
+    if (pid_ > 0) stop(SIGTERM, 5s);
+    if (::testing::Test::HasFailure()) std::cerr << "--- ioportd log ---\n" << log() << "---\n";
+}
+
+bool GatewayProcess::running() const {
+    return pid_ > 0 && ::waitpid(pid_, nullptr, WNOHANG) == 0;
+}
+
+std::string GatewayProcess::log() const {
+    std::ifstream in(log_path_);
+    std::stringstream text;
+    text << in.rdbuf();
+    return text.str();
+}
+
+bool GatewayProcess::wait_for_log(std::string_view text, std::chrono::milliseconds deadline,
+                                  std::size_t from) const {
+    return eventually(
+        [&] {
+            const auto all = log();
+            return all.size() > from && all.find(text, from) != std::string::npos;
+        },
+        deadline);
+}
+
+int GatewayProcess::stop(int signal, std::chrono::milliseconds deadline) {
+    if (pid_ <= 0) return -1;
+    ::kill(pid_, signal);
+    int status = 0;
+    pid_t waited = 0;
+    eventually([&] { return (waited = ::waitpid(pid_, &status, WNOHANG)) != 0; }, deadline);
+    if (waited != pid_) {
+        ::kill(pid_, SIGKILL);
+        ::waitpid(pid_, nullptr, 0);
+        pid_ = -1;
+        return -1;
+    }
+    pid_ = -1;
+    return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+}
+
+ModbusClient::ModbusClient(std::uint16_t port, int unit, const char* host)
+    : context_(modbus_new_tcp(host, port)) {
+    if (!context_) return;
+    modbus_set_response_timeout(context_, 3, 0);
+    modbus_set_slave(context_, unit);
+    connected_ = modbus_connect(context_) == 0;
+}
+
+ModbusClient::~ModbusClient() {
+    if (!context_) return;
+    modbus_close(context_);
+    modbus_free(context_);
+}
+
+void ModbusClient::set_unit(int unit) {
+    modbus_set_slave(context_, unit);
+}
+
+int ModbusClient::failure() const {
+    return errno > MODBUS_ENOBASE && errno <= MODBUS_ENOBASE + 11 ? exception_code(errno) : -errno;
+}
+
+ModbusClient::Bits ModbusClient::read_coils(int address, int count) {
+    std::vector<std::uint8_t> bits(static_cast<std::size_t>(std::max(count, 1)));
+    if (modbus_read_bits(context_, address, count, bits.data()) < 0) return Unexpected(failure());
+    return bits;
+}
+
+ModbusClient::Bits ModbusClient::read_discrete_inputs(int address, int count) {
+    std::vector<std::uint8_t> bits(static_cast<std::size_t>(std::max(count, 1)));
+    if (modbus_read_input_bits(context_, address, count, bits.data()) < 0)
+        return Unexpected(failure());
+    return bits;
+}
+
+ModbusClient::Registers ModbusClient::read_holding_registers(int address, int count) {
+    std::vector<std::uint16_t> registers(static_cast<std::size_t>(std::max(count, 1)));
+    if (modbus_read_registers(context_, address, count, registers.data()) < 0)
+        return Unexpected(failure());
+    return registers;
+}
+
+ModbusClient::Registers ModbusClient::read_input_registers(int address, int count) {
+    std::vector<std::uint16_t> registers(static_cast<std::size_t>(std::max(count, 1)));
+    if (modbus_read_input_registers(context_, address, count, registers.data()) < 0)
+        return Unexpected(failure());
+    return registers;
+}
+
+Expected<void, int> ModbusClient::write_coil(int address, bool on) {
+    if (modbus_write_bit(context_, address, on ? 1 : 0) < 0) return Unexpected(failure());
+    return {};
+}
+
+Expected<void, int> ModbusClient::write_register(int address, std::uint16_t value) {
+    if (modbus_write_register(context_, address, value) < 0) return Unexpected(failure());
+    return {};
+}
+
+Expected<void, int> ModbusClient::write_coils(int address,
+                                              const std::vector<std::uint8_t>& values) {
+    if (modbus_write_bits(context_, address, static_cast<int>(values.size()), values.data()) < 0)
+        return Unexpected(failure());
+    return {};
+}
+
+Expected<void, int> ModbusClient::write_registers(int address,
+                                                  const std::vector<std::uint16_t>& values) {
+    if (modbus_write_registers(context_, address, static_cast<int>(values.size()), values.data()) <
+        0)
+        return Unexpected(failure());
+    return {};
+}
+
+}  // namespace ioport::test
