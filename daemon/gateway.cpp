@@ -59,7 +59,7 @@ std::string describe(const config::GatewayConfig& config) {
         modbus.stale == gateway::Stale::exception ? "exception" : "hold");
     for (const auto& link : config.links) {
         const bool id2 = link.protocol == config::Protocol::id2;
-        text += fmt::format("link {}: {} on {}, {} baud, unit {}, timeout {}, {} retries\n",
+        text += fmt::format("link {}: {} on {}, {} baud, unit {}, timeout {}, retries {}\n",
                             link.name, id2 ? "ID-2" : "ioport hub", link.device, link.baud,
                             link.unit_id, format_duration(link.timeout), link.retries);
         for (const auto& module : link.modules) {

@@ -80,7 +80,9 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
 }
 
 void LinkScheduler::start() {
-    asio::co_spawn(wake_.get_executor(), run(), asio::detached);
+    // The first attempt is made at once, so that start-up has tried every port before the
+    // Modbus server accepts its first client.
+    asio::co_spawn(wake_.get_executor(), run(try_open()), asio::detached);
 }
 
 void LinkScheduler::stop() {
@@ -96,31 +98,37 @@ int LinkScheduler::modules_online() const {
         std::count(state_.status.begin(), state_.status.end(), ModuleStatus::online));
 }
 
-asio::awaitable<void> LinkScheduler::run() {
+asio::awaitable<void> LinkScheduler::run(bool open) {
     auto delay = first_reopen_delay;
     while (!stopping_) {
-        if (co_await open_port(delay)) co_await serve_port();
+        if (open) {
+            delay = first_reopen_delay;
+            co_await serve_port();
+        } else {
+            co_await sleep_until(Clock::now() + delay);
+            delay = std::min(2 * delay, max_reopen_delay);
+        }
+        open = !stopping_ && try_open();
     }
 }
 
-asio::awaitable<bool> LinkScheduler::open_port(std::chrono::microseconds& delay) {
-    if (auto opened = link_.open(); opened) {
+bool LinkScheduler::try_open() {
+    auto opened = link_.open();
+    if (opened) {
         spdlog::info("link {}: {} open at {} baud, unit {}{}", config_.name, config_.device,
                      config_.baud, config_.unit_id, link_.low_latency() ? ", low latency" : "");
         state_.port_open = true;
         last_open_error_.clear();
-        delay = first_reopen_delay;
         plan_.port_opened(Clock::now());
-        co_return true;
-    } else if (opened.error().message != last_open_error_) {
+        return true;
+    }
+    if (opened.error().message != last_open_error_) {
         // Once per distinct reason: a port that stays away for hours must not flood the log.
         last_open_error_ = opened.error().message;
         spdlog::warn("link {}: {}; retrying every {} at most", config_.name, last_open_error_,
                      duration_text(max_reopen_delay));
     }
-    co_await sleep_until(Clock::now() + delay);
-    delay = std::min(2 * delay, max_reopen_delay);
-    co_return false;
+    return false;
 }
 
 asio::awaitable<void> LinkScheduler::serve_port() {

@@ -49,7 +49,7 @@ class LinkScheduler {
     LinkScheduler(const LinkScheduler&) = delete;
     LinkScheduler& operator=(const LinkScheduler&) = delete;
 
-    // Starts the loop; it first tries to open the port.
+    // Tries to open the port once, now, and starts the loop.
     void start();
     // Ends the loop and closes the port; queued writes answer 0B.
     void stop();
@@ -73,8 +73,8 @@ class LinkScheduler {
     };
     struct PendingWrite;
 
-    asio::awaitable<void> run();
-    asio::awaitable<bool> open_port(std::chrono::microseconds& delay);
+    asio::awaitable<void> run(bool open);
+    bool try_open();
     asio::awaitable<void> serve_port();
     asio::awaitable<Result<Reading>> transact(std::size_t entry, std::uint16_t value);
     asio::awaitable<void> poll(std::size_t entry);

@@ -49,6 +49,13 @@ struct ModbusServer::Connection {
         return last_activity + idle_timeout;
     }
 
+    // Moves the start of a pipelined or partial request to the front of the buffer.
+    void compact() {
+        std::memmove(rx.data(), rx.data() + begin, end - begin);
+        end -= begin;
+        begin = 0;
+    }
+
     void close() {
         if (!open) return;
         open = false;
@@ -240,13 +247,7 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             completed_frame = true;
         }
         if (!c->open) break;
-        if (c->begin == c->end) {
-            c->begin = c->end = 0;
-        } else if (c->begin > 0) {
-            std::memmove(c->rx.data(), &c->rx[c->begin], c->end - c->begin);
-            c->end -= c->begin;
-            c->begin = 0;
-        }
+        c->compact();
         const bool was_partial = c->partial && !completed_frame;
         c->partial = c->end > 0;
         if (c->partial && !was_partial) {

@@ -10,9 +10,6 @@
 namespace ioport::test {
 namespace {
 
-constexpr int illegal_function = 0x01;
-constexpr int illegal_address = 0x02;
-constexpr int illegal_value = 0x03;
 constexpr int device_failure = 0x04;
 constexpr int path_unavailable = 0x0A;
 constexpr int target_failed = 0x0B;
