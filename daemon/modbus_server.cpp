@@ -26,6 +26,14 @@ std::string describe(const tcp::endpoint& endpoint) {
                            : fmt::format("{}:{}", address.to_string(), endpoint.port());
 }
 
+// libmodbus answers function + 0x80, which for a request function code of 0x80 or above wraps
+// to a byte without the exception bit (0xFF → 0x7F, a normal-looking response). The exception
+// response is the request's function code with its high bit set, whatever the code.
+int reply_exception(modbus_t* context, std::span<std::uint8_t> request, unsigned code) {
+    request[modbus::mbap_length] &= 0x7F;
+    return modbus_reply_exception(context, request.data(), code);
+}
+
 struct ModbusFree {
     void operator()(modbus_t* context) const { modbus_free(context); }
 };
@@ -278,20 +286,15 @@ asio::awaitable<bool> ModbusServer::handle(Connection& c, std::span<const std::u
     auto* context = c.context.get();
     const auto unit_id = adu[modbus::mbap_length - 1];
     auto* unit = units_[unit_id];
-    if (!unit)
-        co_return modbus_reply_exception(context, request.data(), MODBUS_EXCEPTION_GATEWAY_PATH) >
-            0;
+    if (!unit) co_return reply_exception(context, request, MODBUS_EXCEPTION_GATEWAY_PATH) > 0;
     auto plan = gateway::plan(unit->state(), policy_, adu.subspan(modbus::mbap_length));
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
-        co_return modbus_reply_exception(context, request.data(),
-                                         static_cast<unsigned>(*exception)) > 0;
+        co_return reply_exception(context, request, static_cast<unsigned>(*exception)) > 0;
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan))
         co_return modbus_reply(context, request.data(), length, unit->image(read->diagnostics)) > 0;
     const auto failed = co_await unit->write(std::get<gateway::WritePlan>(std::move(plan)));
     if (!c.open) co_return false;
-    if (failed)
-        co_return modbus_reply_exception(context, request.data(), static_cast<unsigned>(*failed)) >
-            0;
+    if (failed) co_return reply_exception(context, request, static_cast<unsigned>(*failed)) > 0;
     co_return modbus_reply(context, request.data(), length, scratch_) > 0;
 }
 
