@@ -84,9 +84,13 @@ TEST_F(GatewayTest, ReadsInputsThroughEveryTable) {
     ModbusClient client(gateway.port());
     ASSERT_TRUE(client.connected());
     ASSERT_TRUE(all_online(client));
+    // The three modules are polled one after the other: wait until each was read once more.
     ASSERT_TRUE(eventually([&] {
-        const auto word = client.read_input_registers(0, 1);
-        return word && (*word)[0] == 0x8001;
+        const auto dim = client.read_input_registers(0, 1);
+        const auto lim = client.read_input_registers(8, 1);
+        const auto acm = client.read_input_registers(16, 1);
+        return dim && (*dim)[0] == 0x8001 && lim && (*lim)[0] == 0x0102 && acm &&
+               (*acm)[0] == 13208;
     }));
     const auto inputs = client.read_discrete_inputs(0, 16);
     ASSERT_TRUE(inputs);
@@ -201,11 +205,12 @@ TEST_F(GatewayTest, Id2UnitServesStopCounterAndReset) {
     id2.ctl("set count 1234");
     ModbusClient client(gateway.port(), 2);
     ASSERT_TRUE(all_online(client));
+    // Stop input and counter are polled one after the other: wait for both.
     ASSERT_TRUE(eventually([&] {
         const auto count = client.read_input_registers(0, 1);
-        return count && (*count)[0] == 1234;
+        const auto stop = client.read_discrete_inputs(0, 1);
+        return count && (*count)[0] == 1234 && stop && (*stop)[0] == 1;
     }));
-    EXPECT_EQ((*client.read_discrete_inputs(0, 1))[0], 1);
     ASSERT_TRUE(client.write_coil(0, true));
     EXPECT_EQ(sim_value(id2, "count"), "0");
     EXPECT_EQ((*client.read_coils(0, 1))[0], 0);
