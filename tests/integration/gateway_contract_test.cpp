@@ -1260,7 +1260,7 @@ TEST(ContractPolling, AFailingModuleIsRetriedOnBackOffWhileOthersKeepBeingPolled
 class ContractCli : public ::testing::Test {
   protected:
     std::string write(const std::string& name, const std::string& text) {
-        const auto path = dir / name;
+        auto path = dir / name;
         std::ofstream(path) << text;
         return path;
     }
