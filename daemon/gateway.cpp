@@ -1,5 +1,7 @@
 #include "daemon/gateway.hpp"
 
+#include <algorithm>
+
 #include <fmt/format.h>
 
 #include "config/duration.hpp"
@@ -42,6 +44,12 @@ std::string Gateway::summary() const {
     }
     return fmt::format("{} of {} links up, {} of {} modules online, {} clients", up, links_.size(),
                        online, configured, server_->connections());
+}
+
+bool Gateway::healthy() const {
+    const auto now = Clock::now();
+    return std::all_of(links_.begin(), links_.end(),
+                       [&](const auto& link) { return link->progressing(now); });
 }
 
 std::string describe(const config::GatewayConfig& config) {

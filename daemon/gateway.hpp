@@ -20,8 +20,10 @@ class Gateway {
     Result<> start();
     void stop();
 
-    // "2 links up of 2, 9 modules online, 3 clients"
+    // "2 of 2 links up, 9 of 9 modules online, 3 clients"
     std::string summary() const;
+    // Every link's loop is making progress (see LinkScheduler::progressing).
+    bool healthy() const;
 
   private:
     config::GatewayConfig config_;

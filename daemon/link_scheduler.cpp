@@ -156,8 +156,18 @@ asio::awaitable<void> LinkScheduler::serve_port() {
 
 asio::awaitable<void> LinkScheduler::sleep_until(Clock::time_point when) {
     wake_.expires_at(when);
+    asleep_until_ = when;
     boost::system::error_code ec;  // cancelled: a write arrived, or stop()
     co_await wake_.async_wait(redirect_error(use_awaitable, ec));
+    asleep_until_.reset();
+    last_progress_ = Clock::now();
+}
+
+bool LinkScheduler::progressing(Clock::time_point now) const {
+    if (asleep_until_ == Clock::time_point::max()) return true;  // nothing to poll, ever
+    const auto longest_step = (config_.retries + 1) * config_.timeout + 10 * config_.timeout + 1s;
+    const auto since = asleep_until_ ? std::max(*asleep_until_, last_progress_) : last_progress_;
+    return now < since + longest_step;
 }
 
 asio::awaitable<Result<Reading>> LinkScheduler::transact(std::size_t entry, std::uint16_t value) {
@@ -254,6 +264,7 @@ asio::awaitable<std::optional<Exception>> LinkScheduler::reset_counter() {
 
 void LinkScheduler::record(std::size_t entry, const Result<Reading>& result) {
     const auto now = Clock::now();
+    last_progress_ = now;
     const int slot_index = entries_[entry].slot;
     if (result) {
         plan_.done(entry, true, now);

@@ -64,6 +64,9 @@ class LinkScheduler {
 
     bool port_open() const { return state_.port_open; }
     int modules_online() const;
+    // The loop is not stuck: it finished a step, or is asleep, within the longest time one step
+    // may take ((retries + 1) timeouts, the bounded wait for silence, and a second to spare).
+    bool progressing(Clock::time_point now) const;
 
   private:
     struct Entry {
@@ -102,6 +105,8 @@ class LinkScheduler {
     std::array<std::optional<Clock::time_point>, slot_count> last_good_{};
     bool stopping_ = false;
     std::string last_open_error_;
+    Clock::time_point last_progress_ = Clock::now();
+    std::optional<Clock::time_point> asleep_until_;
 };
 
 }  // namespace ioport::daemon

@@ -11,6 +11,7 @@
 #include "config/gateway_config.hpp"
 #include "daemon/gateway.hpp"
 #include "daemon/options.hpp"
+#include "daemon/service_notifier.hpp"
 
 namespace {
 
@@ -65,10 +66,14 @@ int run(ioport::config::GatewayConfig config) {
         return 1;
     }
     spdlog::info("ioportd {} started: {}", IOPORTD_VERSION, gateway.summary());
+    ioport::daemon::ServiceNotifier service(
+        io.get_executor(), [&] { return gateway.summary(); }, [&] { return gateway.healthy(); });
+    service.ready();
     asio::signal_set signals(io, SIGINT, SIGTERM);
     signals.async_wait([&](const boost::system::error_code& ec, int signal) {
         if (ec) return;
         spdlog::info("{}: stopping", signal == SIGINT ? "SIGINT" : "SIGTERM");
+        service.stopping();
         gateway.stop();
     });
     io.run();

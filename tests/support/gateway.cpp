@@ -34,7 +34,8 @@ bool eventually(const std::function<bool()>& condition, std::chrono::millisecond
     }
 }
 
-GatewayProcess::GatewayProcess(const std::string& yaml, std::vector<std::string> extra)
+GatewayProcess::GatewayProcess(const std::string& yaml, std::vector<std::string> extra,
+                               const std::vector<std::string>& environment)
     : log_path_(dir_ / "ioportd.log") {
     const auto config = dir_ / "ioportd.yaml";
     std::ofstream(config) << yaml;
@@ -50,7 +51,13 @@ GatewayProcess::GatewayProcess(const std::string& yaml, std::vector<std::string>
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_adddup2(&actions, log_fd, STDOUT_FILENO);
     posix_spawn_file_actions_adddup2(&actions, log_fd, STDERR_FILENO);
-    const int rc = posix_spawn(&pid_, args[0], &actions, nullptr, args.data(), environ);
+    std::vector<char*> env;
+    for (char** entry = environ; *entry != nullptr; ++entry)
+        env.push_back(*entry);
+    for (const auto& entry : environment)
+        env.push_back(const_cast<char*>(entry.c_str()));
+    env.push_back(nullptr);
+    const int rc = posix_spawn(&pid_, args[0], &actions, nullptr, args.data(), env.data());
     posix_spawn_file_actions_destroy(&actions);
     ::close(log_fd);
     if (rc != 0) {

@@ -22,7 +22,9 @@ class GatewayProcess {
   public:
     // `yaml` may say "127.0.0.1:0" as listen address: the port the daemon bound is read from its
     // start-up log.
-    explicit GatewayProcess(const std::string& yaml, std::vector<std::string> extra = {});
+    // `environment`: NAME=VALUE entries added to the test's own environment.
+    explicit GatewayProcess(const std::string& yaml, std::vector<std::string> extra = {},
+                            const std::vector<std::string>& environment = {});
     ~GatewayProcess();
     GatewayProcess(const GatewayProcess&) = delete;
     GatewayProcess& operator=(const GatewayProcess&) = delete;
