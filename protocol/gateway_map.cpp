@@ -180,10 +180,16 @@ int block_end(UnitKind kind, const Region& region) {
     return end;
 }
 
-// Where each address of the request lies; empty unless all of them lie inside one block.
-std::vector<Location> locate_request(UnitKind kind, const Request& request) {
+// The request's first address, when the whole range lies inside one block.
+std::optional<Location> locate_range(UnitKind kind, const Request& request) {
     const auto start = locate(kind, request.table, request.address);
-    if (!start || request.address + request.quantity > block_end(kind, *start->region)) return {};
+    if (!start || request.address + request.quantity > block_end(kind, *start->region))
+        return std::nullopt;
+    return start;
+}
+
+// Where each address of a write lies; the range is inside one block.
+std::vector<Location> locate_each(UnitKind kind, const Request& request) {
     std::vector<Location> where;
     where.reserve(request.quantity);
     for (int i = 0; i < request.quantity; ++i)
@@ -195,18 +201,32 @@ ModuleStatus status_at(const UnitState& unit, const Location& at) {
     return unit.status[static_cast<std::size_t>(at.slot())];
 }
 
-bool stale(const UnitState& unit, std::span<const Location> where) {
-    return std::any_of(where.begin(), where.end(), [&](const Location& at) {
-        if (!is_data(at.content())) return false;
-        const auto status = status_at(unit, at);
-        return status != ModuleStatus::not_configured && status != ModuleStatus::online;
-    });
+// Region by region and slot by slot, not address by address: a read of 2000 bits is on the
+// request path of every client and must not cost 2000 lookups.
+bool stale(const UnitState& unit, const Request& request) {
+    const int first = request.address;
+    const int end = request.address + request.quantity;
+    for (const auto& region : regions(unit.kind)) {
+        if (region.table != request.table || !is_data(region.content)) continue;
+        const int lo = std::max(first, region.first);
+        const int hi = std::min(end, region.end());
+        if (lo >= hi) continue;
+        const int last_slot = region.first_slot + (hi - 1 - region.first) / region.per_slot;
+        for (int s = region.first_slot + (lo - region.first) / region.per_slot; s <= last_slot;
+             ++s) {
+            const auto status = unit.status[static_cast<std::size_t>(s)];
+            if (status != ModuleStatus::not_configured && status != ModuleStatus::online)
+                return true;
+        }
+    }
+    return false;
 }
 
-Plan plan_read(const UnitState& unit, const Policy& policy, std::span<const Location> where) {
-    if (policy.stale == Stale::exception && stale(unit, where))
+Plan plan_read(const UnitState& unit, const Policy& policy, const Request& request,
+               const Location& start) {
+    if (policy.stale == Stale::exception && stale(unit, request))
         return Exception::gateway_target_failed;
-    return ReadPlan{is_diagnostics(where.front().content())};
+    return ReadPlan{is_diagnostics(start.content())};
 }
 
 bool unconfigured(const UnitState& unit, std::span<const Location> where) {
@@ -569,10 +589,10 @@ Plan plan(const UnitState& unit, const Policy& policy, std::span<const std::uint
     if (!request) return request.error();
     if (request->write && policy.read_only) return Exception::illegal_function;
     if (const auto wrong = modbus::check_limits(*request)) return *wrong;
-    const auto where = locate_request(unit.kind, *request);
-    if (where.empty()) return Exception::illegal_data_address;
-    if (request->write) return plan_write(unit, *request, where);
-    return plan_read(unit, policy, where);
+    const auto start = locate_range(unit.kind, *request);
+    if (!start) return Exception::illegal_data_address;
+    if (request->write) return plan_write(unit, *request, locate_each(unit.kind, *request));
+    return plan_read(unit, policy, *request, *start);
 }
 
 // --- The tables -----------------------------------------------------------------------------
