@@ -2,20 +2,16 @@
 
 #include <fcntl.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
 
 #include <cerrno>
-#include <cstring>
 #include <fstream>
 #include <regex>
 #include <sstream>
 #include <thread>
-
-extern char** environ;
 
 namespace ioport::test {
 namespace {
@@ -42,29 +38,9 @@ GatewayProcess::GatewayProcess(const std::string& yaml, std::vector<std::string>
     const int log_fd = ::open(log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
     std::vector<std::string> argv{IOPORTD_BINARY, "--config", config};
     argv.insert(argv.end(), extra.begin(), extra.end());
-    std::vector<char*> args;
-    args.reserve(argv.size() + 1);
-    for (auto& arg : argv)
-        args.push_back(arg.data());
-    args.push_back(nullptr);
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_adddup2(&actions, log_fd, STDOUT_FILENO);
-    posix_spawn_file_actions_adddup2(&actions, log_fd, STDERR_FILENO);
-    std::vector<char*> env;
-    for (char** entry = environ; *entry != nullptr; ++entry)
-        env.push_back(*entry);
-    for (const auto& entry : environment)
-        env.push_back(const_cast<char*>(entry.c_str()));
-    env.push_back(nullptr);
-    const int rc = posix_spawn(&pid_, args[0], &actions, nullptr, args.data(), env.data());
-    posix_spawn_file_actions_destroy(&actions);
+    pid_ = spawn(argv, log_fd, log_fd, environment);
     ::close(log_fd);
-    if (rc != 0) {
-        pid_ = -1;
-        ADD_FAILURE() << "cannot start ioportd: " << std::strerror(rc);
-        return;
-    }
+    if (pid_ <= 0) return;
     // "Modbus TCP on 127.0.0.1:40123, ..." once the listener is bound.
     const std::regex listening(R"(Modbus TCP on \[?[0-9a-f.:]+\]?:(\d+))");
     std::smatch match;
@@ -111,17 +87,13 @@ bool GatewayProcess::wait_for_log(std::string_view text, std::chrono::millisecon
 int GatewayProcess::stop(int signal, std::chrono::milliseconds deadline) {
     if (pid_ <= 0) return -1;
     ::kill(pid_, signal);
-    int status = 0;
-    pid_t waited = 0;
-    eventually([&] { return (waited = ::waitpid(pid_, &status, WNOHANG)) != 0; }, deadline);
-    if (waited != pid_) {
+    const int code = wait_exit(pid_, Clock::now() + deadline);
+    if (code == -1) {
         ::kill(pid_, SIGKILL);
         ::waitpid(pid_, nullptr, 0);
-        pid_ = -1;
-        return -1;
     }
     pid_ = -1;
-    return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    return code;
 }
 
 ModbusClient::ModbusClient(std::uint16_t port, int unit, const char* host)

@@ -27,7 +27,10 @@ int remaining_ms(Clock::time_point deadline) {
     return static_cast<int>(std::max<long long>(0, left.count()));
 }
 
-pid_t spawn(const std::vector<std::string>& argv, int out_fd, int err_fd) {
+}  // namespace
+
+pid_t spawn(const std::vector<std::string>& argv, int out_fd, int err_fd,
+            const std::vector<std::string>& environment) {
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_adddup2(&actions, out_fd, STDOUT_FILENO);
@@ -37,15 +40,20 @@ pid_t spawn(const std::vector<std::string>& argv, int out_fd, int err_fd) {
     for (const auto& arg : argv)
         args.push_back(const_cast<char*>(arg.c_str()));
     args.push_back(nullptr);
+    std::vector<char*> env;
+    for (char** entry = environ; *entry != nullptr; ++entry)
+        env.push_back(*entry);
+    for (const auto& entry : environment)
+        env.push_back(const_cast<char*>(entry.c_str()));
+    env.push_back(nullptr);
     pid_t pid = -1;
-    const int rc = posix_spawn(&pid, args[0], &actions, nullptr, args.data(), environ);
+    const int rc = posix_spawn(&pid, args[0], &actions, nullptr, args.data(), env.data());
     posix_spawn_file_actions_destroy(&actions);
     if (rc != 0) ADD_FAILURE() << "cannot start " << argv[0] << ": " << std::strerror(rc);
     return rc == 0 ? pid : -1;
 }
 
-// Waits for `pid` until the deadline; -1 if it is still running then.
-int wait_exit(pid_t pid, Clock::time_point deadline) {
+int wait_exit(pid_t pid, std::chrono::steady_clock::time_point deadline) {
     // pidfd_open + poll: a bounded wait for a child without polling in a loop.
     const int pidfd = static_cast<int>(::syscall(SYS_pidfd_open, pid, 0));
     if (pidfd >= 0) {
@@ -58,8 +66,6 @@ int wait_exit(pid_t pid, Clock::time_point deadline) {
     if (WIFEXITED(status)) return WEXITSTATUS(status);
     return 128 + WTERMSIG(status);
 }
-
-}  // namespace
 
 Outcome run(const std::vector<std::string>& argv, std::chrono::milliseconds deadline_after) {
     std::array<int, 2> out{}, err{};
