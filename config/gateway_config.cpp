@@ -214,6 +214,16 @@ constexpr std::array<std::pair<std::string_view, Stale>, 2> stale_choices{
     {{"exception", Stale::exception}, {"hold", Stale::hold}}};
 constexpr std::array<std::pair<std::string_view, Protocol>, 2> protocols{
     {{"ioport", Protocol::ioport}, {"id2", Protocol::id2}}};
+constexpr std::array<std::pair<std::string_view, OnShutdown>, 2> on_shutdown_choices{
+    {{"keep", OnShutdown::keep}, {"initial", OnShutdown::initial}}};
+constexpr std::array<std::pair<std::string_view, LogLevel>, 7> log_levels{
+    {{"trace", LogLevel::trace},
+     {"debug", LogLevel::debug},
+     {"info", LogLevel::info},
+     {"warn", LogLevel::warn},
+     {"error", LogLevel::error},
+     {"critical", LogLevel::critical},
+     {"off", LogLevel::off}}};
 
 Parsed<std::string> non_empty(const YAML::Node& value) {
     if (value.Scalar().empty()) return Unexpected(std::string("must not be empty"));
@@ -315,9 +325,10 @@ struct Fields {
 };
 
 using Keys = std::span<const std::string_view>;
-constexpr std::array<std::string_view, 2> top_keys{"modbus", "links"};
-constexpr std::array<std::string_view, 7> modbus_keys{
-    "listen", "max_connections", "idle_timeout", "allow", "read_only", "word_order", "stale"};
+constexpr std::array<std::string_view, 4> top_keys{"modbus", "links", "on_shutdown", "log_level"};
+constexpr std::array<std::string_view, 8> modbus_keys{"listen", "max_connections", "idle_timeout",
+                                                      "allow",  "read_only",       "word_order",
+                                                      "stale",  "keepalive"};
 constexpr std::array<std::string_view, 8> link_keys{"name",    "protocol", "device",  "baud",
                                                     "unit_id", "timeout",  "retries", "modules"};
 constexpr std::array<std::string_view, 5> module_keys{"type", "number", "poll", "initial",
@@ -452,6 +463,9 @@ void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
     if (const Entry* modbus = top.find("modbus")) read_modbus(*modbus, config.modbus);
     require(top, "links", "the gateway needs at least one link");
     if (const Entry* links = top.find("links")) read_links(*links, config.links);
+    read(top, "on_shutdown", "keep or initial", config.on_shutdown,
+         choice<OnShutdown>(on_shutdown_choices));
+    read(top, "log_level", "a log level", config.log_level, choice<LogLevel>(log_levels));
 }
 
 void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
@@ -472,6 +486,8 @@ void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
     read(f, "read_only", "true or false", modbus.read_only, boolean);
     read(f, "word_order", "big or little", modbus.word_order, choice<WordOrder>(word_orders));
     read(f, "stale", "exception or hold", modbus.stale, choice<Stale>(stale_choices));
+    read(f, "keepalive", "a duration such as 60s, or 0 for off", modbus.keepalive,
+         duration(microseconds{0}, 2h));
 }
 
 void Loader::read_allow(const Fields& f, std::vector<Network>& allow) {
@@ -690,6 +706,18 @@ Parsed<std::string> read_file(const std::filesystem::path& path) {
 }
 
 }  // namespace
+
+std::string_view to_string(LogLevel level) {
+    for (const auto& [name, value] : log_levels)
+        if (value == level) return name;
+    return "info";
+}
+
+std::optional<LogLevel> log_level_from_name(std::string_view name) {
+    for (const auto& [text, value] : log_levels)
+        if (text == name) return value;
+    return std::nullopt;
+}
 
 std::string to_string(const ConfigError& error) {
     std::string text = error.file;

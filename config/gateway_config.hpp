@@ -24,6 +24,9 @@ using namespace std::chrono_literals;
 using gateway::Stale;
 using gateway::WordOrder;
 enum class Protocol { ioport, id2 };
+// What happens to the outputs when the daemon stops: left as they are, or set to `initial`.
+enum class OnShutdown { keep, initial };
+enum class LogLevel { trace, debug, info, warn, error, critical, off };
 
 // An IPv4 or IPv6 network, as written in `allow`: "10.0.0.0/8", "::1/128", "127.0.0.1"
 // (a bare address is a /32 or /128).
@@ -44,6 +47,8 @@ struct ModbusSettings {
     bool read_only = false;
     WordOrder word_order = WordOrder::big;
     Stale stale = Stale::exception;
+    std::chrono::microseconds keepalive = 60s;  // TCP keepalive idle time; 0 = off
+    friend bool operator==(const ModbusSettings&, const ModbusSettings&) = default;
 };
 
 struct ModuleConfig {
@@ -52,6 +57,11 @@ struct ModuleConfig {
     std::uint16_t initial = 0;               // output modules: the register value sent at start-up
     std::chrono::microseconds refresh = 1s;  // output modules: re-send the desired state
     int line = 0;                            // in the file, for messages
+    // Equal as settings: where in the file does not matter.
+    friend bool operator==(const ModuleConfig& a, const ModuleConfig& b) {
+        return a.address == b.address && a.poll == b.poll && a.initial == b.initial &&
+               a.refresh == b.refresh;
+    }
 };
 
 struct LinkConfig {
@@ -64,13 +74,24 @@ struct LinkConfig {
     int retries = 1;
     std::vector<ModuleConfig> modules;  // ioport only, in file order
     int line = 0;
+    friend bool operator==(const LinkConfig& a, const LinkConfig& b) {
+        return a.name == b.name && a.protocol == b.protocol && a.device == b.device &&
+               a.baud == b.baud && a.unit_id == b.unit_id && a.timeout == b.timeout &&
+               a.retries == b.retries && a.modules == b.modules;
+    }
 };
 
 struct GatewayConfig {
     std::string file;  // as given, for messages
     ModbusSettings modbus;
     std::vector<LinkConfig> links;
+    OnShutdown on_shutdown = OnShutdown::keep;
+    LogLevel log_level = LogLevel::info;
 };
+
+// "info", as written in the file and on the command line.
+std::string_view to_string(LogLevel level);
+std::optional<LogLevel> log_level_from_name(std::string_view name);
 
 struct ConfigError {
     std::string file;

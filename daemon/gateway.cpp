@@ -3,32 +3,91 @@
 #include <algorithm>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "config/duration.hpp"
 
 namespace ioport::daemon {
 
-Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig config)
-    : config_(std::move(config)) {
-    std::vector<LinkScheduler*> units;
-    for (const auto& link : config_.links) {
-        links_.push_back(
-            std::make_unique<LinkScheduler>(executor, link, config_.modbus.word_order));
-        units.push_back(links_.back().get());
-    }
-    server_ = std::make_unique<ModbusServer>(executor, config_.modbus, units);
+Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log)
+    : executor_(executor), config_(std::move(config)), log_(log) {}
+
+std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) const {
+    auto scheduler =
+        std::make_shared<LinkScheduler>(executor_, link, config_.modbus.word_order, log_);
+    if (link.name == stall_link_) scheduler->stall_after_first_cycle();
+    return scheduler;
 }
 
 Result<> Gateway::start() {
+    for (const auto& link : config_.links)
+        links_.push_back(make_link(link));
+    server_ = std::make_unique<ModbusServer>(executor_, config_.modbus, links_, log_);
     for (auto& link : links_)
         link->start();
     return server_->start();
 }
 
+void Gateway::shut_down(std::function<void()> done) {
+    server_->shut_down();
+    // Shared by the links' callbacks; `done` runs when the last of them has finished.
+    auto remaining = std::make_shared<std::size_t>(links_.size());
+    auto finished = [remaining, done = std::move(done)] {
+        if (--*remaining == 0) done();
+    };
+    for (auto& link : links_)
+        link->finish(config_.on_shutdown, finished);
+}
+
 void Gateway::stop() {
-    server_->stop();
+    if (server_) server_->stop();
     for (auto& link : links_)
         link->stop();
+}
+
+Result<std::string> Gateway::reload(config::GatewayConfig next) {
+    if (auto bound = server_->prepare(next.modbus); !bound) return Unexpected(bound.error());
+    const bool same_word_order = next.modbus.word_order == config_.modbus.word_order;
+    const bool modbus_changed = !(next.modbus == config_.modbus);
+    ModbusServer::Units links;
+    struct {
+        std::vector<std::string> kept, restarted, added, removed;
+    } names;
+    for (const auto& link : next.links) {
+        const auto old = std::find_if(links_.begin(), links_.end(), [&](const auto& running) {
+            return running && running->config().name == link.name;
+        });
+        if (old != links_.end() && same_word_order && (*old)->config() == link) {
+            links.push_back(*old);
+            names.kept.push_back(link.name);
+            old->reset();
+            continue;
+        }
+        (old != links_.end() ? names.restarted : names.added).push_back(link.name);
+        links.push_back(nullptr);  // made once the old ones have let go of their ports
+    }
+    // The links left are changed or gone; they close their ports before a new link opens one,
+    // which may be the same device.
+    for (auto& link : links_) {
+        if (!link) continue;
+        if (std::ranges::find(names.restarted, link->config().name) == names.restarted.end())
+            names.removed.push_back(link->config().name);
+        link->stop();
+    }
+    config_ = std::move(next);
+    for (std::size_t i = 0; i < links.size(); ++i) {
+        if (links[i]) continue;
+        links[i] = make_link(config_.links[i]);
+        links[i]->start();
+    }
+    links_ = std::move(links);
+    server_->apply(config_.modbus, links_);
+    const auto list = [](const std::vector<std::string>& of) {
+        return of.empty() ? std::string("none") : fmt::format("{}", fmt::join(of, " "));
+    };
+    return fmt::format("links kept: {}; restarted: {}; added: {}; removed: {}; Modbus settings {}",
+                       list(names.kept), list(names.restarted), list(names.added),
+                       list(names.removed), modbus_changed ? "changed" : "unchanged");
 }
 
 std::string Gateway::summary() const {
@@ -55,16 +114,21 @@ bool Gateway::healthy() const {
 std::string describe(const config::GatewayConfig& config) {
     const auto& modbus = config.modbus;
     std::string text = fmt::format(
-        "Modbus TCP on {}:{}, at most {} clients, idle timeout {}, {}{}, word order {}, stale "
-        "{}\n",
+        "Modbus TCP on {}:{}, at most {} clients, idle timeout {}, keepalive {}, {}{}, word order "
+        "{}, stale {}\n",
         modbus.listen_host.find(':') != std::string::npos ? "[" + modbus.listen_host + "]"
                                                           : modbus.listen_host,
         modbus.listen_port, modbus.max_connections, format_duration(modbus.idle_timeout),
+        modbus.keepalive.count() == 0 ? "off" : format_duration(modbus.keepalive),
         modbus.allow.empty() ? "any client"
                              : fmt::format("{} allowed networks", modbus.allow.size()),
         modbus.read_only ? ", read-only" : "",
         modbus.word_order == gateway::WordOrder::big ? "big" : "little",
         modbus.stale == gateway::Stale::exception ? "exception" : "hold");
+    text += fmt::format(
+        "on shutdown: outputs {}; log level {}\n",
+        config.on_shutdown == config::OnShutdown::keep ? "kept as they are" : "set to initial",
+        config::to_string(config.log_level));
     for (const auto& link : config.links) {
         const bool id2 = link.protocol == config::Protocol::id2;
         text += fmt::format("link {}: {} on {}, {} baud, unit {}, timeout {}, retries {}\n",

@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <new>
 
-#include <spdlog/spdlog.h>
-
 namespace ioport::daemon {
 namespace {
 
@@ -59,9 +57,10 @@ struct LinkScheduler::PendingWrite {
 };
 
 LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
-                             gateway::WordOrder word_order)
+                             gateway::WordOrder word_order, Log& log)
     : config_(link),
       word_order_(word_order),
+      log_(log),
       link_(executor, link_settings(link)),
       wake_(executor),
       plan_(poll_entries(link)) {
@@ -73,7 +72,7 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
         state_.status[0] = ModuleStatus::not_polled;
     }
     for (const auto& module : link.modules) {
-        entries_.push_back({module.address, slot(module.address), module.initial});
+        entries_.push_back({module.address, slot(module.address), module.initial, module.initial});
         state_.status[static_cast<std::size_t>(slot(module.address))] = ModuleStatus::not_polled;
     }
     (void)image(true);
@@ -83,6 +82,12 @@ void LinkScheduler::start() {
     // The first attempt is made at once, so that start-up has tried every port before the
     // Modbus server accepts its first client.
     asio::co_spawn(wake_.get_executor(), run(try_open()), asio::detached);
+}
+
+void LinkScheduler::finish(config::OnShutdown outputs, std::function<void()> finished) {
+    finishing_ = outputs;
+    finished_ = std::move(finished);
+    wake_.cancel();  // the loop may be asleep until the next poll or reopen
 }
 
 void LinkScheduler::stop() {
@@ -99,8 +104,9 @@ int LinkScheduler::modules_online() const {
 }
 
 asio::awaitable<void> LinkScheduler::run(bool open) {
+    const auto self = shared_from_this();  // a reload may let go of this link while it runs
     auto delay = first_reopen_delay;
-    while (!stopping_) {
+    while (!stopping_ && !finishing_) {
         if (open) {
             delay = first_reopen_delay;
             co_await serve_port();
@@ -108,15 +114,18 @@ asio::awaitable<void> LinkScheduler::run(bool open) {
             co_await sleep_until(Clock::now() + delay);
             delay = std::min(2 * delay, max_reopen_delay);
         }
-        open = !stopping_ && try_open();
+        open = !stopping_ && !finishing_ && try_open();
     }
+    if (finishing_ == config::OnShutdown::initial && !stopping_) co_await set_outputs_to_initial();
+    stop();
+    if (auto finished = std::exchange(finished_, nullptr)) finished();
 }
 
 bool LinkScheduler::try_open() {
     auto opened = link_.open();
     if (opened) {
-        spdlog::info("link {}: {} open at {} baud, unit {}{}", config_.name, config_.device,
-                     config_.baud, config_.unit_id, link_.low_latency() ? ", low latency" : "");
+        log_.info(fields(), "link {}: {} open at {} baud, unit {}{}", config_.name, config_.device,
+                  config_.baud, config_.unit_id, link_.low_latency() ? ", low latency" : "");
         state_.port_open = true;
         last_open_error_.clear();
         plan_.port_opened(Clock::now());
@@ -125,14 +134,15 @@ bool LinkScheduler::try_open() {
     if (opened.error().message != last_open_error_) {
         // Once per distinct reason: a port that stays away for hours must not flood the log.
         last_open_error_ = opened.error().message;
-        spdlog::warn("link {}: {}; retrying every {} at most", config_.name, last_open_error_,
-                     duration_text(max_reopen_delay));
+        log_.warn(fields(), "link {}: {}; retrying every {} at most", config_.name,
+                  last_open_error_, duration_text(max_reopen_delay));
     }
     return false;
 }
 
 asio::awaitable<void> LinkScheduler::serve_port() {
     while (!stopping_ && link_.is_open()) {
+        if (finishing_ && writes_.empty()) co_return;  // writes go first, so they are all done
         const auto step = plan_.next(Clock::now(), !writes_.empty());
         switch (step.kind) {
             case PollPlan::Kind::write: {
@@ -146,6 +156,11 @@ asio::awaitable<void> LinkScheduler::serve_port() {
                 break;
             case PollPlan::Kind::poll:
                 co_await poll(step.entry);
+                while (stall_ && plan_.cycles() > 0 && !stopping_) {
+                    wake_.expires_at(Clock::time_point::max());
+                    boost::system::error_code ec;
+                    co_await wake_.async_wait(redirect_error(use_awaitable, ec));
+                }
                 break;
             case PollPlan::Kind::idle:
                 co_await sleep_until(step.wake_at);
@@ -161,6 +176,37 @@ asio::awaitable<void> LinkScheduler::sleep_until(Clock::time_point when) {
     co_await wake_.async_wait(redirect_error(use_awaitable, ec));
     asleep_until_.reset();
     last_progress_ = Clock::now();
+}
+
+asio::awaitable<void> LinkScheduler::set_outputs_to_initial() {
+    int set = 0;
+    for (std::size_t i = 0; i < entries_.size() && !stopping_; ++i) {
+        const auto* module = std::get_if<ModuleAddress>(&entries_[i].target);
+        if (module == nullptr || !is_output(module->type)) continue;
+        const auto what = to_string(*module);
+        if (!link_.is_open()) {
+            log_.warn(fields(what), "link {}: {} not set to its initial value: port not open",
+                      config_.name, what);
+            continue;
+        }
+        const auto result = co_await transact(i, entries_[i].initial);
+        record(i, result);
+        if (result) {
+            entries_[i].desired = entries_[i].initial;
+            gateway::store_output(image_.tables(), *module, entries_[i].initial);
+            ++set;
+        } else {
+            log_.warn(fields(what), "link {}: {} not set to its initial value: {}", config_.name,
+                      what, result.error().message);
+        }
+    }
+    if (set > 0)
+        log_.info(fields(), "link {}: {} output module(s) set to their initial values",
+                  config_.name, set);
+}
+
+LogFields LinkScheduler::fields(std::string_view module) const {
+    return {config_.name, config_.unit_id, module, {}};
 }
 
 bool LinkScheduler::progressing(Clock::time_point now) const {
@@ -203,7 +249,8 @@ asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
 
 asio::awaitable<std::optional<Exception>> LinkScheduler::write(gateway::WritePlan plan) {
     if (plan.changes.empty() && !plan.reset_counter) co_return std::nullopt;
-    if (!state_.port_open || stopping_) co_return Exception::gateway_target_failed;
+    if (!state_.port_open || stopping_ || finishing_) co_return Exception::gateway_target_failed;
+    const auto self = shared_from_this();  // a reload may let go of this link meanwhile
     auto pending = std::make_shared<PendingWrite>(wake_.get_executor(), std::move(plan));
     writes_.push_back(pending);
     wake_.cancel();  // the loop may be idle until the next poll is due
@@ -300,17 +347,17 @@ void LinkScheduler::set_status(int slot_index, ModuleStatus status, const Error*
     const auto what = state_.kind == gateway::UnitKind::id2 ? std::string("ID-2")
                                                             : to_string(module_at_slot(slot_index));
     if (status == ModuleStatus::online)
-        spdlog::info("link {}: {} online", config_.name, what);
+        log_.info(fields(what), "link {}: {} online", config_.name, what);
     else if (was_online || error)
-        spdlog::warn("link {}: {} offline: {}", config_.name, what,
-                     error ? error->message : std::string("port closed"));
+        log_.warn(fields(what), "link {}: {} offline: {}", config_.name, what,
+                  error ? error->message : std::string("port closed"));
 }
 
 void LinkScheduler::port_lost(const Error& error) {
     link_.close();
     if (!state_.port_open) return;
     state_.port_open = false;
-    spdlog::warn("link {}: port down: {}; reopening", config_.name, error.message);
+    log_.warn(fields(), "link {}: port down: {}; reopening", config_.name, error.message);
     // Polled modules answer 0B (or hold) while the port is away; never-polled ones stay 4.
     for (auto& status : state_.status)
         if (status != ModuleStatus::not_configured && status != ModuleStatus::not_polled)

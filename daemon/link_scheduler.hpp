@@ -5,10 +5,14 @@
 // The loop: open the port (retrying at 100 ms doubling to 2 s), restore the outputs, then do
 // what the PollPlan says next — client writes, due refreshes, poll reads — one transaction at
 // a time. A lost port fails the queued writes with 0B and goes back to opening.
+//
+// Owned through a shared_ptr: the loop and a client's write keep it alive, so a reload can drop
+// a link while they still finish.
 #pragma once
 
 #include <array>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -17,6 +21,7 @@
 #include <modbus/modbus.h>
 
 #include "config/gateway_config.hpp"
+#include "daemon/log.hpp"
 #include "daemon/poll_plan.hpp"
 #include "link/asio.hpp"
 #include "link/serial_link.hpp"
@@ -42,17 +47,24 @@ class UnitImage {
     gateway::Tables tables_;
 };
 
-class LinkScheduler {
+class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
   public:
     LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
-                  gateway::WordOrder word_order);
+                  gateway::WordOrder word_order, Log& log);
     LinkScheduler(const LinkScheduler&) = delete;
     LinkScheduler& operator=(const LinkScheduler&) = delete;
 
     // Tries to open the port once, now, and starts the loop.
     void start();
-    // Ends the loop and closes the port; queued writes answer 0B.
+    // The orderly end: no more polling; the queued writes are done, then with
+    // OnShutdown::initial every output is set to its `initial` value, then the port is closed
+    // and `finished` called.
+    void finish(config::OnShutdown outputs, std::function<void()> finished);
+    // The abrupt end: the transaction in flight is abandoned, queued writes answer 0B, the port
+    // is closed at once.
     void stop();
+    // For the watchdog test only: after its first cycle the loop waits for nothing, for ever.
+    void stall_after_first_cycle() { stall_ = true; }
 
     const config::LinkConfig& config() const { return config_; }
     const gateway::UnitState& state() const { return state_; }
@@ -73,6 +85,7 @@ class LinkScheduler {
         Target target;  // a module, or an ID-2 command
         int slot;
         std::uint16_t desired = 0;  // outputs: last confirmed value, or `initial`
+        std::uint16_t initial = 0;
     };
     struct PendingWrite;
 
@@ -86,6 +99,8 @@ class LinkScheduler {
     asio::awaitable<std::optional<modbus::Exception>> apply(const gateway::OutputChange& change);
     asio::awaitable<std::optional<modbus::Exception>> reset_counter();
     asio::awaitable<void> sleep_until(Clock::time_point when);
+    asio::awaitable<void> set_outputs_to_initial();
+    LogFields fields(std::string_view module = {}) const;
 
     void record(std::size_t entry, const Result<Reading>& result);
     void set_status(int slot, gateway::ModuleStatus status, const Error* error);
@@ -95,6 +110,7 @@ class LinkScheduler {
 
     config::LinkConfig config_;
     gateway::WordOrder word_order_;
+    Log& log_;
     SerialLink link_;
     asio::steady_timer wake_;
     PollPlan plan_;
@@ -104,6 +120,9 @@ class LinkScheduler {
     gateway::UnitState state_;
     std::array<std::optional<Clock::time_point>, slot_count> last_good_{};
     bool stopping_ = false;
+    std::optional<config::OnShutdown> finishing_;
+    std::function<void()> finished_;
+    bool stall_ = false;
     std::string last_open_error_;
     Clock::time_point last_progress_ = Clock::now();
     std::optional<Clock::time_point> asleep_until_;

@@ -1,30 +1,43 @@
 // ioportd: load the configuration, start the links and the Modbus server on one io_context,
-// run until SIGTERM or SIGINT, stop in reverse order.
+// run until SIGTERM or SIGINT, stop in reverse order. SIGHUP re-reads the configuration.
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <csignal>
+#include <cstdlib>
 #include <iostream>
 #include <string_view>
 #include <vector>
 
-#include <spdlog/sinks/stdout_color_sinks.h>
-#include <spdlog/spdlog.h>
-
 #include "config/gateway_config.hpp"
 #include "daemon/gateway.hpp"
+#include "daemon/log.hpp"
 #include "daemon/options.hpp"
 #include "daemon/service_notifier.hpp"
 
 namespace {
 
+using ioport::daemon::Log;
 using ioport::daemon::Options;
 
-// A graceful stop lets every coroutine finish; this bounds it should a device hold one up.
+// The orderly stop (writes in flight, outputs to `initial`) gets this long; then everything is
+// cancelled, which leaves time to exit within the 2 s that gateway.md promises.
 constexpr auto stop_deadline = std::chrono::milliseconds(1500);
 
-void set_up_logging(const std::string& level) {
-    auto logger = spdlog::stderr_color_st("ioportd");
-    logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
-    spdlog::set_default_logger(logger);
-    spdlog::set_level(spdlog::level::from_str(level));
+Log::Target log_target(Options::LogTarget target) {
+    switch (target) {
+        case Options::LogTarget::journal:
+            return Log::Target::journal;
+        case Options::LogTarget::standard_error:
+            return Log::Target::standard_error;
+        case Options::LogTarget::automatic:
+            break;
+    }
+    struct stat stderr_stat {};
+    const bool journal = ::fstat(STDERR_FILENO, &stderr_stat) == 0 &&
+                         ioport::daemon::is_journal_stream(std::getenv("JOURNAL_STREAM"),
+                                                           stderr_stat.st_dev, stderr_stat.st_ino);
+    return journal ? Log::Target::journal : Log::Target::standard_error;
 }
 
 std::optional<ioport::config::GatewayConfig> load(const std::string& path) {
@@ -56,30 +69,99 @@ int print_map(const ioport::config::GatewayConfig& config, Options::MapFormat fo
     return 0;
 }
 
-int run(ioport::config::GatewayConfig config) {
-    asio::io_context io(1);
-    ioport::daemon::Gateway gateway(io.get_executor(), std::move(config));
-    if (auto started = gateway.start(); !started) {
-        spdlog::critical("{}", started.error().message);
-        gateway.stop();
-        io.run_for(stop_deadline);
-        return 1;
+// The daemon between start-up and exit: what the signals do.
+class Daemon {
+  public:
+    Daemon(const Options& options, ioport::config::GatewayConfig config, Log& log)
+        : options_(options),
+          log_(log),
+          gateway_(io_.get_executor(), std::move(config), log),
+          service_(
+              io_.get_executor(), [this] { return gateway_.summary(); },
+              [this] { return gateway_.healthy(); }, log),
+          signals_(io_, SIGINT, SIGTERM, SIGHUP),
+          deadline_(io_) {}
+
+    int run() {
+        if (const char* stall = std::getenv("IOPORTD_TEST_STALL_LINK")) {
+            log_.warn({}, "IOPORTD_TEST_STALL_LINK: link {} will stall after its first cycle",
+                      stall);
+            gateway_.stall_for_test(stall);
+        }
+        if (auto started = gateway_.start(); !started) {
+            log_.critical({}, "{}", started.error().message);
+            gateway_.stop();
+            io_.run_for(stop_deadline);
+            return 1;
+        }
+        log_.info({}, "ioportd {} started: {}", IOPORTD_VERSION, gateway_.summary());
+        service_.ready();
+        wait_for_signal();
+        io_.run();
+        log_.info({}, "ioportd stopped");
+        return 0;
     }
-    spdlog::info("ioportd {} started: {}", IOPORTD_VERSION, gateway.summary());
-    ioport::daemon::ServiceNotifier service(
-        io.get_executor(), [&] { return gateway.summary(); }, [&] { return gateway.healthy(); });
-    service.ready();
-    asio::signal_set signals(io, SIGINT, SIGTERM);
-    signals.async_wait([&](const boost::system::error_code& ec, int signal) {
-        if (ec) return;
-        spdlog::info("{}: stopping", signal == SIGINT ? "SIGINT" : "SIGTERM");
-        service.stopping();
-        gateway.stop();
-    });
-    io.run();
-    spdlog::info("ioportd stopped");
-    return 0;
-}
+
+  private:
+    void wait_for_signal() {
+        signals_.async_wait([this](const boost::system::error_code& ec, int signal) {
+            if (ec) return;
+            if (signal == SIGHUP) {
+                reload();
+                wait_for_signal();
+            } else {
+                shut_down(signal);
+            }
+        });
+    }
+
+    void reload() {
+        service_.reloading();
+        const auto& path = options_.config_path;
+        auto next = ioport::config::load_config(path);
+        if (!next) {
+            for (const auto& error : next.error())
+                log_.error({}, "{}", to_string(error));
+            log_.error({}, "SIGHUP: {} error(s) in {}; the running configuration is kept",
+                       next.error().size(), path);
+        } else {
+            const auto level = next->log_level;
+            if (auto applied = gateway_.reload(std::move(*next)); !applied) {
+                log_.error({}, "SIGHUP: {}; the running configuration is kept",
+                           applied.error().message);
+            } else {
+                if (!options_.log_level) log_.set_level(level);
+                log_.info({}, "SIGHUP: reloaded {}: {}", path, *applied);
+            }
+        }
+        service_.ready();
+    }
+
+    void shut_down(int signal) {
+        log_.info({}, "{}: stopping{}", signal == SIGINT ? "SIGINT" : "SIGTERM",
+                  gateway_.config().on_shutdown == ioport::config::OnShutdown::initial
+                      ? ", outputs to their initial values"
+                      : "");
+        service_.stopping();
+        signals_.cancel();
+        deadline_.expires_after(stop_deadline);
+        deadline_.async_wait([this](const boost::system::error_code& ec) {
+            if (ec) return;
+            log_.warn({}, "stop: not finished within {} ms; the rest is abandoned",
+                      stop_deadline.count());
+            gateway_.stop();
+        });
+        gateway_.shut_down([this] { deadline_.cancel(); });
+    }
+
+    const Options& options_;
+    Log& log_;
+    asio::io_context io_{1};
+    ioport::daemon::Gateway gateway_;
+    ioport::daemon::ServiceNotifier service_;
+    asio::signal_set signals_;
+    asio::steady_timer deadline_;
+};
 
 }  // namespace
 
@@ -100,7 +182,6 @@ int main(int argc, char** argv) {
         default:
             break;
     }
-    set_up_logging(options->log_level);
     auto config = load(options->config_path);
     if (!config) return 1;
     if (options->mode == Options::Mode::check_config) {
@@ -108,5 +189,7 @@ int main(int argc, char** argv) {
         return 0;
     }
     if (options->mode == Options::Mode::print_map) return print_map(*config, options->map_format);
-    return run(std::move(*config));
+    Log log(log_target(options->log_target), options->log_level.value_or(config->log_level));
+    Daemon daemon(*options, std::move(*config), log);
+    return daemon.run();
 }

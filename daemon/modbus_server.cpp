@@ -1,11 +1,13 @@
 #include "daemon/modbus_server.hpp"
 
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+
 #include <algorithm>
 #include <cstring>
 #include <new>
 
 #include <fmt/format.h>
-#include <spdlog/spdlog.h>
 
 namespace ioport::daemon {
 namespace {
@@ -19,6 +21,13 @@ using asio::ip::tcp;
 constexpr auto refusal_log_interval = 60s;
 constexpr std::size_t refusal_log_memory = 1024;
 constexpr auto accept_error_pause = 100ms;
+// After `keepalive` of silence a client is probed this many times, keepalive / probes apart: one
+// that vanished (power cut, cable pulled) is closed within twice `keepalive`.
+constexpr int keepalive_probes = 3;
+
+using KeepaliveIdle = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPIDLE>;
+using KeepaliveInterval = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPINTVL>;
+using KeepaliveProbes = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPCNT>;
 
 std::string describe(const tcp::endpoint& endpoint) {
     const auto address = endpoint.address();
@@ -41,11 +50,12 @@ struct ModbusFree {
 }  // namespace
 
 struct ModbusServer::Connection {
-    Connection(tcp::socket s, std::string name)
+    Connection(tcp::socket s, const tcp::endpoint& from)
         : socket(std::move(s)),
           timer(socket.get_executor()),
           context(modbus_new_tcp(nullptr, 0)),
-          peer(std::move(name)) {
+          address(from.address()),
+          peer(describe(from)) {
         if (!context) throw std::bad_alloc();
         modbus_set_socket(context.get(), socket.native_handle());
     }
@@ -76,6 +86,7 @@ struct ModbusServer::Connection {
     tcp::socket socket;
     asio::steady_timer timer;  // the watchdog: idle timeout and frame timeout
     std::unique_ptr<modbus_t, ModbusFree> context;
+    asio::ip::address address;
     std::string peer;
     // Pipelined requests are framed from here; larger than a frame so one always fits.
     std::array<std::uint8_t, 4096> rx{};
@@ -90,14 +101,20 @@ struct ModbusServer::Connection {
 };
 
 ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                           const std::vector<LinkScheduler*>& units)
-    : settings_(std::move(settings)),
+                           const Units& units, Log& log)
+    : executor_(executor),
+      settings_(std::move(settings)),
       policy_{settings_.read_only, settings_.stale},
-      acceptor_(executor),
+      log_(log),
       accept_retry_(executor),
       scratch_(modbus_mapping_new(gateway::coil_count, 0, gateway::holding_register_count, 0)) {
     if (!scratch_) throw std::bad_alloc();
-    for (auto* unit : units)
+    set_units(units);
+}
+
+void ModbusServer::set_units(const Units& units) {
+    units_.fill(nullptr);
+    for (const auto& unit : units)
         units_[static_cast<std::size_t>(unit->config().unit_id)] = unit;
     if (units.size() == 1) units_[0] = units_[255] = units.front();
 }
@@ -106,20 +123,20 @@ ModbusServer::~ModbusServer() {
     modbus_mapping_free(scratch_);
 }
 
-Result<> ModbusServer::start() {
+Result<ModbusServer::Acceptor> ModbusServer::listen(const config::ModbusSettings& settings) {
     boost::system::error_code ec;
-    const auto address = asio::ip::make_address(settings_.listen_host, ec);
+    const auto address = asio::ip::make_address(settings.listen_host, ec);
     if (ec)
         return fail(Errc::invalid_argument,
-                    fmt::format("modbus.listen: {} is not an IP address", settings_.listen_host));
-    const tcp::endpoint endpoint(address, settings_.listen_port);
-    const auto where = describe(endpoint);
-    acceptor_.open(endpoint.protocol(), ec);
-    if (!ec) acceptor_.set_option(tcp::acceptor::reuse_address(true), ec);
+                    fmt::format("modbus.listen: {} is not an IP address", settings.listen_host));
+    const tcp::endpoint endpoint(address, settings.listen_port);
+    auto acceptor = std::make_shared<tcp::acceptor>(executor_);
+    acceptor->open(endpoint.protocol(), ec);
+    if (!ec) acceptor->set_option(tcp::acceptor::reuse_address(true), ec);
     // "[::]:502" takes IPv4 clients too, as ::ffff:a.b.c.d.
-    if (!ec && address.is_v6()) acceptor_.set_option(asio::ip::v6_only(false), ec);
-    if (!ec) acceptor_.bind(endpoint, ec);
-    if (!ec) acceptor_.listen(asio::socket_base::max_listen_connections, ec);
+    if (!ec && address.is_v6()) acceptor->set_option(asio::ip::v6_only(false), ec);
+    if (!ec) acceptor->bind(endpoint, ec);
+    if (!ec) acceptor->listen(asio::socket_base::max_listen_connections, ec);
     if (ec) {
         const auto hint = ec == asio::error::address_in_use
                               ? "another program listens there (find it with: ss -ltnp)"
@@ -127,34 +144,88 @@ Result<> ModbusServer::start() {
                               ? "ports below 1024 need CAP_NET_BIND_SERVICE (the packaged "
                                 "service has it) or use a port such as 1502"
                               : "check modbus.listen";
-        return fail(Errc::io_error,
-                    fmt::format("cannot listen on {}: {}: {}", where, ec.message(), hint));
+        return fail(Errc::io_error, fmt::format("cannot listen on {}: {}: {}", describe(endpoint),
+                                                ec.message(), hint));
     }
-    spdlog::info("Modbus TCP on {}, at most {} clients{}", describe(acceptor_.local_endpoint()),
-                 settings_.max_connections, settings_.read_only ? ", read-only" : "");
-    asio::co_spawn(acceptor_.get_executor(), accept_loop(), asio::detached);
+    return acceptor;
+}
+
+Result<> ModbusServer::start() {
+    auto acceptor = listen(settings_);
+    if (!acceptor) return Unexpected(acceptor.error());
+    accept_on(std::move(*acceptor));
     return {};
 }
 
-void ModbusServer::stop() {
+void ModbusServer::accept_on(Acceptor acceptor) {
+    if (acceptor_) {
+        boost::system::error_code ignored;
+        acceptor_->close(ignored);
+        accept_retry_.cancel();
+    }
+    acceptor_ = std::move(acceptor);
+    log_.info({}, "Modbus TCP on {}, at most {} clients{}", describe(local_endpoint()),
+              settings_.max_connections, settings_.read_only ? ", read-only" : "");
+    asio::co_spawn(executor_, accept_loop(acceptor_), asio::detached);
+}
+
+Result<> ModbusServer::prepare(const config::ModbusSettings& next) {
+    next_acceptor_.reset();
+    if (next.listen_host == settings_.listen_host && next.listen_port == settings_.listen_port)
+        return {};
+    auto acceptor = listen(next);
+    if (!acceptor) return Unexpected(acceptor.error());
+    next_acceptor_ = std::move(*acceptor);
+    return {};
+}
+
+void ModbusServer::apply(config::ModbusSettings next, const Units& units) {
+    settings_ = std::move(next);
+    policy_ = {settings_.read_only, settings_.stale};
+    set_units(units);
+    if (next_acceptor_) accept_on(std::exchange(next_acceptor_, nullptr));
+    for (auto* connection : connections_) {
+        if (!allowed(connection->address)) {
+            log_.info({.client = connection->peer},
+                      "Modbus client {} closed: not in the reloaded modbus.allow",
+                      connection->peer);
+            connection->close();
+        } else {
+            connection->timer.cancel();  // re-armed with the new idle_timeout
+        }
+    }
+}
+
+void ModbusServer::shut_down() {
     stopping_ = true;
     boost::system::error_code ignored;
-    acceptor_.close(ignored);
+    if (acceptor_) acceptor_->close(ignored);
+    if (next_acceptor_) next_acceptor_->close(ignored);
     accept_retry_.cancel();
+    for (auto* connection : connections_)
+        if (!connection->busy) connection->close();
+}
+
+void ModbusServer::stop() {
+    shut_down();
     for (auto* connection : connections_)
         connection->close();
 }
 
 tcp::endpoint ModbusServer::local_endpoint() const {
     boost::system::error_code ec;
-    return acceptor_.local_endpoint(ec);
+    return acceptor_ ? acceptor_->local_endpoint(ec) : tcp::endpoint();
 }
 
 std::optional<std::string> ModbusServer::refusal(const tcp::endpoint& peer) const {
     if (connections_.size() >= static_cast<std::size_t>(settings_.max_connections))
         return fmt::format("max_connections ({}) reached", settings_.max_connections);
-    if (settings_.allow.empty()) return std::nullopt;
-    const auto address = peer.address();
+    if (allowed(peer.address())) return std::nullopt;
+    return std::string("not in modbus.allow");
+}
+
+bool ModbusServer::allowed(const asio::ip::address& address) const {
+    if (settings_.allow.empty()) return true;
     std::array<std::uint8_t, 16> bytes{};
     if (address.is_v4()) {
         const auto v4 = address.to_v4().to_bytes();
@@ -162,12 +233,10 @@ std::optional<std::string> ModbusServer::refusal(const tcp::endpoint& peer) cons
     } else {
         bytes = address.to_v6().to_bytes();
     }
-    const bool allowed = std::any_of(settings_.allow.begin(), settings_.allow.end(),
-                                     [&](const config::Network& network) {
-                                         return config::contains(network, bytes, address.is_v6());
-                                     });
-    if (allowed) return std::nullopt;
-    return std::string("not in modbus.allow");
+    return std::any_of(settings_.allow.begin(), settings_.allow.end(),
+                       [&](const config::Network& network) {
+                           return config::contains(network, bytes, address.is_v6());
+                       });
 }
 
 void ModbusServer::log_refusal(const asio::ip::address& address, const std::string& why) {
@@ -177,18 +246,33 @@ void ModbusServer::log_refusal(const asio::ip::address& address, const std::stri
     if (found != refused_logged_.end() && now - found->second < refusal_log_interval) return;
     if (refused_logged_.size() >= refusal_log_memory) refused_logged_.clear();
     refused_logged_[key] = now;
-    spdlog::warn("refused Modbus client {}: {} (logged once a minute per address)", key, why);
+    log_.warn({.client = key}, "refused Modbus client {}: {} (logged once a minute per address)",
+              key, why);
 }
 
-asio::awaitable<void> ModbusServer::accept_loop() {
-    while (!stopping_) {
-        tcp::socket socket(acceptor_.get_executor());
+// Keepalive reaps clients that vanished without a FIN: their connection would otherwise hold a
+// max_connections place for ever when idle_timeout is 0.
+void ModbusServer::configure(tcp::socket& socket) const {
+    boost::system::error_code ec;
+    socket.set_option(tcp::no_delay(true), ec);
+    if (settings_.keepalive.count() == 0) return;
+    const auto idle = static_cast<int>(std::max<std::int64_t>(
+        1, std::chrono::duration_cast<std::chrono::seconds>(settings_.keepalive).count()));
+    socket.set_option(asio::socket_base::keep_alive(true), ec);
+    socket.set_option(KeepaliveIdle(idle), ec);
+    socket.set_option(KeepaliveInterval(std::max(1, idle / keepalive_probes)), ec);
+    socket.set_option(KeepaliveProbes(keepalive_probes), ec);
+}
+
+asio::awaitable<void> ModbusServer::accept_loop(Acceptor acceptor) {
+    while (acceptor->is_open()) {
+        tcp::socket socket(executor_);
         boost::system::error_code ec;
-        co_await acceptor_.async_accept(socket, redirect_error(use_awaitable, ec));
-        if (stopping_) break;
+        co_await acceptor->async_accept(socket, redirect_error(use_awaitable, ec));
+        if (!acceptor->is_open()) break;  // shut down, or replaced by a reload
         if (ec) {
             // Out of descriptors, say: pause instead of spinning on the same error.
-            spdlog::warn("accepting a Modbus client failed: {}", ec.message());
+            log_.warn({}, "accepting a Modbus client failed: {}", ec.message());
             accept_retry_.expires_after(accept_error_pause);
             co_await accept_retry_.async_wait(redirect_error(use_awaitable, ec));
             continue;
@@ -200,14 +284,13 @@ asio::awaitable<void> ModbusServer::accept_loop() {
             socket.close(ec);
             continue;
         }
-        socket.set_option(tcp::no_delay(true), ec);
-        socket.set_option(asio::socket_base::keep_alive(true), ec);
-        auto connection = std::make_shared<Connection>(std::move(socket), describe(peer));
+        configure(socket);
+        auto connection = std::make_shared<Connection>(std::move(socket), peer);
         connections_.insert(connection.get());
-        spdlog::debug("Modbus client {} connected ({} open)", connection->peer,
-                      connections_.size());
-        asio::co_spawn(acceptor_.get_executor(), serve(connection), asio::detached);
-        asio::co_spawn(acceptor_.get_executor(), watch(connection), asio::detached);
+        log_.debug({.client = connection->peer}, "Modbus client {} connected ({} open)",
+                   connection->peer, connections_.size());
+        asio::co_spawn(executor_, serve(connection), asio::detached);
+        asio::co_spawn(executor_, watch(connection), asio::detached);
     }
 }
 
@@ -220,9 +303,9 @@ asio::awaitable<void> ModbusServer::watch(ConnectionPtr c) {
         if (!c->open) break;
         // Re-armed lazily: activity only moves the deadline, the timer catches up here.
         if (Clock::now() < c->deadline(settings_.idle_timeout)) continue;
-        spdlog::debug("Modbus client {}: {}", c->peer,
-                      c->partial ? "request not complete within 1 s of its first byte, closed"
-                                 : "idle timeout, closed");
+        log_.debug({.client = c->peer}, "Modbus client {}: {}", c->peer,
+                   c->partial ? "request not complete within 1 s of its first byte, closed"
+                              : "idle timeout, closed");
         c->close();
     }
 }
@@ -246,6 +329,11 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             const bool keep = co_await handle(*c, {&c->rx[c->begin], total});
             c->busy = false;
             c->last_activity = Clock::now();
+            if (stopping_) {
+                why = "the gateway is shutting down";
+                c->close();
+                break;
+            }
             if (!keep) {
                 if (c->open) why = "the response could not be sent whole";
                 c->close();
@@ -275,7 +363,7 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     }
     c->close();
     connections_.erase(c.get());
-    spdlog::debug("Modbus client {} disconnected: {}", c->peer, why);
+    log_.debug({.client = c->peer}, "Modbus client {} disconnected: {}", c->peer, why);
 }
 
 asio::awaitable<bool> ModbusServer::handle(Connection& c, std::span<const std::uint8_t> adu) {
@@ -285,7 +373,7 @@ asio::awaitable<bool> ModbusServer::handle(Connection& c, std::span<const std::u
     const int length = static_cast<int>(adu.size());
     auto* context = c.context.get();
     const auto unit_id = adu[modbus::mbap_length - 1];
-    auto* unit = units_[unit_id];
+    const auto unit = units_[unit_id];  // held: a reload may replace the link meanwhile
     if (!unit) co_return reply_exception(context, request, MODBUS_EXCEPTION_GATEWAY_PATH) > 0;
     auto plan = gateway::plan(unit->state(), policy_, adu.subspan(modbus::mbap_length));
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))

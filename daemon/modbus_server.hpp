@@ -29,18 +29,29 @@ inline constexpr std::chrono::microseconds frame_timeout = 1s;
 
 class ModbusServer {
   public:
+    using Units = std::vector<std::shared_ptr<LinkScheduler>>;
+
     // `units`: the links in configuration order; each serves its unit id (and 0 and 255 too when
     // there is exactly one).
     ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                 const std::vector<LinkScheduler*>& units);
+                 const Units& units, Log& log);
     ModbusServer(const ModbusServer&) = delete;
     ModbusServer& operator=(const ModbusServer&) = delete;
     ~ModbusServer();
 
     // Binds and listens; fails when the address is in use or not permitted.
     Result<> start();
-    // Stops accepting and closes every connection.
+    // The orderly end: stops accepting and reading; a connection waiting for a write's outcome
+    // is closed once its response is sent, every other one at once.
+    void shut_down();
+    // The abrupt end: closes every connection now.
     void stop();
+
+    // A reload in two steps, so that nothing changes unless everything can: prepare() binds the
+    // new listen address if it differs; apply() takes the new settings and units. Connections
+    // are kept, but those the new `allow` refuses.
+    Result<> prepare(const config::ModbusSettings& next);
+    void apply(config::ModbusSettings next, const Units& units);
 
     std::size_t connections() const { return connections_.size(); }
     asio::ip::tcp::endpoint local_endpoint() const;
@@ -48,18 +59,27 @@ class ModbusServer {
   private:
     struct Connection;
     using ConnectionPtr = std::shared_ptr<Connection>;
+    using Acceptor = std::shared_ptr<asio::ip::tcp::acceptor>;
 
-    asio::awaitable<void> accept_loop();
+    Result<Acceptor> listen(const config::ModbusSettings& settings);
+    void set_units(const Units& units);
+    void accept_on(Acceptor acceptor);
+    asio::awaitable<void> accept_loop(Acceptor acceptor);
+    void configure(asio::ip::tcp::socket& socket) const;
     asio::awaitable<void> serve(ConnectionPtr connection);
     asio::awaitable<void> watch(ConnectionPtr connection);
     asio::awaitable<bool> handle(Connection& connection, std::span<const std::uint8_t> adu);
     std::optional<std::string> refusal(const asio::ip::tcp::endpoint& peer) const;
+    bool allowed(const asio::ip::address& address) const;
     void log_refusal(const asio::ip::address& address, const std::string& why);
 
+    asio::any_io_executor executor_;
     config::ModbusSettings settings_;
     gateway::Policy policy_;
-    std::array<LinkScheduler*, 256> units_{};
-    asio::ip::tcp::acceptor acceptor_;
+    Log& log_;
+    std::array<std::shared_ptr<LinkScheduler>, 256> units_{};
+    Acceptor acceptor_;
+    Acceptor next_acceptor_;  // bound by prepare(), taken by apply()
     asio::steady_timer accept_retry_;
     std::unordered_set<Connection*> connections_;
     std::unordered_map<std::string, Clock::time_point> refused_logged_;

@@ -1,25 +1,28 @@
 #include "daemon/options.hpp"
 
-#include <algorithm>
-#include <array>
-
 #include <fmt/format.h>
 
 namespace ioport::daemon {
 
-const std::string_view usage = R"(Usage: ioportd [--config PATH] [--log-level LEVEL]
+const std::string_view usage =
+    R"(Usage: ioportd [--config PATH] [--log-level LEVEL] [--log auto|stderr|journal]
        ioportd [--config PATH] --check-config
        ioportd [--config PATH] --print-map [--format md|csv]
 
 Serves ioport remote I/O modules (hub8u/hub8r) and ID-2 stop/counter interfaces on serial links
 as Modbus TCP units, as configured in one YAML file. Runs in the foreground until SIGTERM or
-SIGINT; logs to stderr.
+SIGINT (which set the outputs as on_shutdown says and exit 0); SIGHUP re-reads the
+configuration and applies it if it is valid, keeping the links and clients it does not change.
 
   -c, --config PATH      the configuration (default /etc/ioportd/ioportd.yaml)
       --check-config     validate the configuration, print a summary and exit: 0 valid, 1 not
       --print-map        print the Modbus map of the configuration and exit (opens no port)
       --format md|csv    of --print-map: a Markdown table (default) or CSV
-      --log-level LEVEL  trace, debug, info (default), warn, error, critical or off
+      --log-level LEVEL  trace, debug, info, warn, error, critical or off; overrides the
+                         configuration's log_level (default info)
+      --log TARGET       auto (default): the journal when stderr is connected to it, as
+                         under systemd, else stderr; stderr: stderr with timestamps;
+                         journal: the systemd journal, with fields LINK, UNIT, MODULE, CLIENT
   -V, --version          print the version and exit
   -h, --help             this text
 
@@ -28,8 +31,6 @@ could not be bound; 2 bad command line.
 )";
 
 namespace {
-
-constexpr std::array log_levels{"trace", "debug", "info", "warn", "error", "critical", "off"};
 
 Expected<Options, std::string> error(std::string message) {
     return Unexpected(std::move(message) + " (ioportd --help for usage)");
@@ -65,10 +66,19 @@ Expected<Options, std::string> parse_options(std::span<const std::string_view> a
             format_given = true;
         } else if (argument == "--log-level") {
             const auto level = value();
-            if (!level ||
-                std::find(log_levels.begin(), log_levels.end(), *level) == log_levels.end())
+            options.log_level = level ? config::log_level_from_name(*level) : std::nullopt;
+            if (!options.log_level)
                 return error("--log-level takes trace, debug, info, warn, error, critical or off");
-            options.log_level = std::string(*level);
+        } else if (argument == "--log") {
+            const auto target = value();
+            if (target == "auto")
+                options.log_target = Options::LogTarget::automatic;
+            else if (target == "stderr")
+                options.log_target = Options::LogTarget::standard_error;
+            else if (target == "journal")
+                options.log_target = Options::LogTarget::journal;
+            else
+                return error("--log takes auto, stderr or journal");
         } else if (argument == "-V" || argument == "--version") {
             options.mode = Options::Mode::version;
         } else if (argument == "-h" || argument == "--help") {

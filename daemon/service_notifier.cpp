@@ -2,7 +2,7 @@
 
 #include <systemd/sd-daemon.h>
 
-#include <spdlog/spdlog.h>
+#include <utility>
 
 namespace ioport::daemon {
 namespace {
@@ -15,20 +15,26 @@ constexpr auto status_period = 1s;
 }  // namespace
 
 ServiceNotifier::ServiceNotifier(const asio::any_io_executor& executor,
-                                 std::function<std::string()> status, std::function<bool()> healthy)
-    : timer_(executor), status_(std::move(status)), healthy_(std::move(healthy)) {
+                                 std::function<std::string()> status, std::function<bool()> healthy,
+                                 Log& log)
+    : timer_(executor), status_(std::move(status)), healthy_(std::move(healthy)), log_(log) {
     std::uint64_t usec = 0;
     if (sd_watchdog_enabled(0, &usec) > 0) watchdog_ = std::chrono::microseconds(usec);
 }
 
 void ServiceNotifier::notify(const std::string& state) {
-    if (sd_notify(0, state.c_str()) < 0) spdlog::debug("sd_notify({}) failed", state);
+    if (sd_notify(0, state.c_str()) < 0) log_.debug({}, "sd_notify({}) failed", state);
 }
 
 void ServiceNotifier::ready() {
     last_status_ = status_();
     notify("READY=1\nSTATUS=" + last_status_);
-    asio::co_spawn(timer_.get_executor(), keep_informed(), asio::detached);
+    if (!std::exchange(informing_, true))
+        asio::co_spawn(timer_.get_executor(), keep_informed(), asio::detached);
+}
+
+void ServiceNotifier::reloading() {
+    notify("RELOADING=1\nSTATUS=reloading the configuration");
 }
 
 void ServiceNotifier::stopping() {

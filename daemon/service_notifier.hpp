@@ -7,6 +7,7 @@
 #include <functional>
 #include <string>
 
+#include "daemon/log.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {
@@ -15,9 +16,11 @@ class ServiceNotifier {
   public:
     // `status`: the one-line summary; `healthy`: whether the watchdog may be fed now.
     ServiceNotifier(const asio::any_io_executor& executor, std::function<std::string()> status,
-                    std::function<bool()> healthy);
+                    std::function<bool()> healthy, Log& log);
 
     void ready();
+    // A reload has begun; ready() again when it is over, whatever its outcome.
+    void reloading();
     void stopping();
 
     // WatchdogSec as systemd passed it (WATCHDOG_USEC), zero when the watchdog is off.
@@ -30,9 +33,11 @@ class ServiceNotifier {
     asio::steady_timer timer_;
     std::function<std::string()> status_;
     std::function<bool()> healthy_;
+    Log& log_;
     std::chrono::microseconds watchdog_{0};
     std::string last_status_;
     bool stopping_ = false;
+    bool informing_ = false;  // keep_informed() is running
 };
 
 }  // namespace ioport::daemon

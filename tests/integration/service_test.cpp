@@ -1,5 +1,6 @@
-// ioportd under systemd's service protocol, with a NOTIFY_SOCKET owned by the test: READY once
-// started, STATUS kept current, WATCHDOG at a quarter of WatchdogSec, STOPPING on SIGTERM.
+// ioportd's life as a service: systemd's protocol with a NOTIFY_SOCKET owned by the test (READY
+// once started, STATUS kept current, WATCHDOG at a quarter of WatchdogSec and only while every
+// link makes progress, RELOADING, STOPPING), SIGHUP reloads, and SIGTERM with a write in flight.
 #include <poll.h>
 #include <sys/socket.h>
 #include <sys/un.h>
@@ -14,6 +15,7 @@
 
 #include "tests/support/gateway.hpp"
 #include "tests/support/process.hpp"
+#include "tests/support/raw_client.hpp"
 
 namespace ioport::test {
 namespace {
@@ -116,6 +118,230 @@ links: [{ name: hub0, protocol: ioport, device: )" +
     ModbusClient client(gateway.port());
     EXPECT_TRUE(client.read_input_registers(1000, 1));
     EXPECT_EQ(gateway.stop(SIGTERM, 2s), 0);
+}
+
+TEST(Logging, TheConfiguredLogLevelAppliesAndTheCommandLineWins) {
+    SimProcess hub("--hub", "dim16:0,dom16:0", {"--no-line-timing"});
+    const auto yaml = hub_yaml(hub.link()) + "log_level: debug\n";
+    const auto connect_and_stop = [](GatewayProcess& gateway) {
+        {
+            ModbusClient client(gateway.port());
+            EXPECT_TRUE(client.read_input_registers(1000, 1));
+        }
+        EXPECT_EQ(gateway.stop(SIGTERM, 2s), 0);
+        return gateway.log();
+    };
+    GatewayProcess debug(yaml);
+    EXPECT_NE(connect_and_stop(debug).find(" debug Modbus client 127.0.0.1:"), std::string::npos);
+    GatewayProcess info(yaml, {"--log-level", "info"});
+    const auto log = connect_and_stop(info);
+    EXPECT_NE(log.find("ioportd stopped"), std::string::npos);
+    EXPECT_EQ(log.find(" debug "), std::string::npos) << log;
+}
+
+TEST(ServiceNotify, TheWatchdogStopsWhenALinkStalls) {
+    SimProcess hub("--hub", "dim16:0,dom16:0", {"--no-line-timing"});
+    SimProcess other("--hub", "dim16:0", {"--no-line-timing"});
+    TempDir dir;
+    NotifySocket notify(dir / "notify");
+    GatewayProcess gateway(
+        fmt::format(R"(modbus: {{ listen: "127.0.0.1:0" }}
+links:
+  - {{ name: hub0, protocol: ioport, device: {}, timeout: 30ms, modules: [{{ type: dim16, number: 0 }}] }}
+  - {{ name: hub1, protocol: ioport, device: {}, timeout: 30ms, modules: [{{ type: dim16, number: 0 }}] }}
+)",
+                    hub.link(), other.link()),
+        {},
+        {"NOTIFY_SOCKET=" + notify.path(), "WATCHDOG_USEC=400000", "IOPORTD_TEST_STALL_LINK=hub1"});
+    ASSERT_FALSE(notify.wait_for("READY=1", 5s).empty());
+    // hub1's loop hangs after its first cycle; the limit for a step with a 30 ms timeout and
+    // one retry is 60 + 300 ms + 1 s, after which no WATCHDOG=1 may come.
+    const auto started = Clock::now();
+    auto last_fed = started;
+    while (Clock::now() < started + 3s)
+        if (notify.receive(started + 3s).find("WATCHDOG=1") != std::string::npos)
+            last_fed = Clock::now();
+    EXPECT_GT(last_fed, started) << "the watchdog was not fed even before the limit";
+    EXPECT_LT(last_fed - started, 2s) << "the watchdog was still fed with a stalled link";
+    // The rest of the daemon is alive: the healthy link is served, the stalled one shows its
+    // age growing.
+    ModbusClient client(gateway.port(), 1);
+    EXPECT_TRUE(client.read_discrete_inputs(0, 16));
+    EXPECT_EQ(gateway.stop(SIGTERM, 2s), 0);
+}
+
+// FC 06, holding register 0 (dom16 0) = 0x1234; its response is an echo.
+const Bytes write_dom16 = {0x06, 0x00, 0x00, 0x12, 0x34};
+
+std::string outputs_yaml(const std::string& device, std::string_view on_shutdown) {
+    return fmt::format(R"(modbus: {{ listen: "127.0.0.1:0" }}
+on_shutdown: {}
+links:
+  - {{ name: hub0, protocol: ioport, device: {}, timeout: 1s,
+      modules: [{{ type: dom16, number: 0, initial: 0x00FF }}, {{ type: rgbdm, number: 0, initial: red }}] }}
+)",
+                       on_shutdown, device);
+}
+
+// SIGTERM while a write waits for the device's answer (delayed 300 ms): the write completes, its
+// client gets the normal response, and the daemon exits 0 within 2 s.
+void stop_with_a_write_in_flight(SimProcess& hub, GatewayProcess& gateway) {
+    ModbusClient client(gateway.port());
+    ASSERT_TRUE(eventually([&] {
+        auto status = client.read_input_registers(1000, 1);
+        return status && (*status)[0] == 1;  // every module online
+    }));
+    ASSERT_TRUE(client.write_register(8, 5));  // rgbdm 0 magenta
+    hub.ctl("fault dom16:0 delay 1 300ms");
+    RawClient writer(gateway.port());
+    ASSERT_TRUE(writer.send(adu(7, 1, write_dom16)));
+    // The device has the command once the simulator holds the value; its answer is 300 ms away.
+    ASSERT_TRUE(eventually([&] { return hub.ctl("get dom16:0").find("4660") == 0; }, 2s));
+    const auto signalled = Clock::now();
+    EXPECT_EQ(gateway.stop(SIGTERM, 2s), 0) << "not stopped with exit 0 within 2 s";
+    EXPECT_LT(Clock::now() - signalled, 2s);
+    const auto response = writer.receive(1s);
+    ASSERT_TRUE(response) << "the write in flight got no response";
+    EXPECT_EQ(response->transaction, 7);
+    EXPECT_EQ(response->pdu, write_dom16) << "the write in flight did not get its normal response";
+}
+
+TEST(Shutdown, SigtermFinishesTheWriteInFlightAndKeepsTheOutputs) {
+    SimProcess hub("--hub", "dom16:0,rgbdm:0", {"--no-line-timing"});
+    GatewayProcess gateway(outputs_yaml(hub.link(), "keep"));
+    stop_with_a_write_in_flight(hub, gateway);
+    EXPECT_EQ(hub.ctl("get dom16:0"), "4660\n");
+    EXPECT_EQ(hub.ctl("get rgbdm:0"), "5\n");
+}
+
+TEST(Shutdown, OnShutdownInitialSetsEveryOutputToItsInitialValue) {
+    SimProcess hub("--hub", "dom16:0,rgbdm:0", {"--no-line-timing"});
+    GatewayProcess gateway(outputs_yaml(hub.link(), "initial"));
+    stop_with_a_write_in_flight(hub, gateway);
+    EXPECT_EQ(hub.ctl("get dom16:0"), "255\n");
+    EXPECT_EQ(hub.ctl("get rgbdm:0"), "1\n");
+    EXPECT_NE(gateway.log().find("2 output module(s) set to their initial values"),
+              std::string::npos);
+}
+
+std::string three_links_yaml(const std::string& hub0, const std::string& hub1,
+                             std::string_view hub1_timeout, std::string_view third_name,
+                             int third_unit, const std::string& third) {
+    return fmt::format(R"(modbus: {{ listen: "127.0.0.1:0" }}
+links:
+  - {{ name: hub0, protocol: ioport, device: {}, unit_id: 1, timeout: 30ms, modules: [{{ type: dim16, number: 0 }}] }}
+  - {{ name: hub1, protocol: ioport, device: {}, unit_id: 2, timeout: {}, modules: [{{ type: dim16, number: 0 }}] }}
+  - {{ name: {}, protocol: ioport, device: {}, unit_id: {}, timeout: 30ms, modules: [{{ type: dim16, number: 0 }}] }}
+)",
+                       hub0, hub1, hub1_timeout, third_name, third, third_unit);
+}
+
+std::uint32_t counter(ModbusClient& client, int address) {
+    const auto words = client.read_input_registers(address, 2);
+    return words ? (std::uint32_t{(*words)[0]} << 16) | (*words)[1] : 0;
+}
+
+TEST(Reload, AValidConfigKeepsWhatItDoesNotChange) {
+    SimProcess a("--hub", "dim16:0", {"--no-line-timing"});
+    SimProcess b("--hub", "dim16:0", {"--no-line-timing"});
+    SimProcess c("--hub", "dim16:0", {"--no-line-timing"});
+    TempDir dir;
+    NotifySocket notify(dir / "notify");
+    GatewayProcess gateway(three_links_yaml(a.link(), b.link(), "30ms", "old", 3, c.link()), {},
+                           {"NOTIFY_SOCKET=" + notify.path()});
+    ASSERT_FALSE(notify.wait_for("READY=1", 5s).empty());
+    ModbusClient client(gateway.port());
+    ASSERT_TRUE(eventually([&] { return counter(client, 1002) > 5; }));  // hub0's cycles
+    const auto cycles = counter(client, 1002);
+
+    // hub1 changes, "old" goes and "new" comes on the same port: it must be let go first.
+    gateway.rewrite_config(three_links_yaml(a.link(), b.link(), "40ms", "new", 4, c.link()));
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("SIGHUP: reloaded"));
+    EXPECT_NE(gateway.log().find("links kept: hub0; restarted: hub1; added: new; removed: old; "
+                                 "Modbus settings unchanged"),
+              std::string::npos);
+    EXPECT_FALSE(notify.wait_for("RELOADING=1", 2s).empty());
+    EXPECT_FALSE(notify.wait_for("READY=1", 2s).empty());
+
+    // The same connection goes on; hub0 was not restarted: its port was opened once and its
+    // cycle count goes on from where it was.
+    EXPECT_EQ(counter(client, 1008), 1U);
+    EXPECT_GE(counter(client, 1002), cycles);
+    client.set_unit(3);
+    EXPECT_EQ(client.read_input_registers(1000, 1).error(), 0x0A);
+    client.set_unit(4);
+    EXPECT_TRUE(eventually([&] {
+        auto state = client.read_input_registers(1000, 1);
+        return state && (*state)[0] == 1;
+    }));
+    client.set_unit(2);
+    EXPECT_TRUE(eventually([&] {
+        auto state = client.read_input_registers(1000, 1);
+        return state && (*state)[0] == 1;
+    }));
+}
+
+TEST(Reload, AnInvalidConfigIsRejectedAndTheRunningOneKept) {
+    SimProcess hub("--hub", "dim16:0,dom16:0", {"--no-line-timing"});
+    GatewayProcess gateway(hub_yaml(hub.link()));
+    ModbusClient client(gateway.port());
+    ASSERT_TRUE(eventually([&] { return counter(client, 1002) > 2; }));
+    gateway.rewrite_config(hub_yaml(hub.link()) + "bogus: 1\n");
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("the running configuration is kept"));
+    EXPECT_NE(gateway.log().find("ioportd.yaml:5: bogus: unknown key"), std::string::npos)
+        << gateway.log();
+    EXPECT_TRUE(client.write_register(0, 0x00AA));
+    EXPECT_EQ(hub.ctl("get dom16:0"), "170\n");
+    EXPECT_EQ(counter(client, 1008), 1U);
+    EXPECT_TRUE(gateway.running());
+}
+
+TEST(Reload, AListenAddressThatCannotBeBoundChangesNothing) {
+    SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
+    GatewayProcess gateway(R"(modbus: { listen: "127.0.0.1:0", read_only: true }
+links: [{ name: hub0, protocol: ioport, device: )" +
+                           hub.link() + R"(, modules: [{ type: dim16, number: 0 }] }]
+)");
+    GatewayProcess squatter(R"(modbus: { listen: "127.0.0.1:0" }
+links: [{ name: hub0, protocol: ioport, device: /dev/null/none, modules: [{ type: dim16, number: 0 }] }]
+)");
+    gateway.rewrite_config(fmt::format(R"(modbus: {{ listen: "127.0.0.1:{}" }}
+links: [{{ name: hub0, protocol: ioport, device: {}, modules: [{{ type: dim16, number: 0 }}] }}]
+)",
+                                       squatter.port(), hub.link()));
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("the running configuration is kept"));
+    EXPECT_NE(gateway.log().find(fmt::format("cannot listen on 127.0.0.1:{}", squatter.port())),
+              std::string::npos);
+    ModbusClient client(gateway.port());
+    EXPECT_EQ(client.write_coil(0, true).error(), 0x01);  // still read-only
+}
+
+TEST(Reload, ANewListenAddressMovesTheServerAndAllowClosesRefusedClients) {
+    SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
+    const auto yaml = [&](std::string_view modbus) {
+        return fmt::format(R"(modbus: {}
+links: [{{ name: hub0, protocol: ioport, device: {}, modules: [{{ type: dim16, number: 0 }}] }}]
+)",
+                           modbus, hub.link());
+    };
+    GatewayProcess gateway(yaml(R"({ listen: "127.0.0.1:0" })"));
+    ModbusClient kept(gateway.port());
+    ASSERT_TRUE(kept.read_input_registers(1000, 1));
+    gateway.rewrite_config(yaml(R"({ listen: "127.0.0.2:0", allow: ["127.0.0.0/8"] })"));
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("SIGHUP: reloaded"));
+    EXPECT_NE(gateway.log().find("Modbus TCP on 127.0.0.2:"), std::string::npos);
+    EXPECT_TRUE(kept.read_input_registers(1000, 1)) << "an allowed client was dropped";
+    gateway.rewrite_config(yaml(R"({ listen: "127.0.0.2:0", allow: ["10.0.0.0/8"] })"));
+    const auto from = gateway.log().size();
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("SIGHUP: reloaded", 5s, from));
+    EXPECT_NE(gateway.log().find("closed: not in the reloaded modbus.allow", from),
+              std::string::npos);
+    EXPECT_FALSE(kept.read_input_registers(1000, 1));
 }
 
 }  // namespace

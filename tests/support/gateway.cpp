@@ -33,8 +33,8 @@ bool eventually(const std::function<bool()>& condition, std::chrono::millisecond
 GatewayProcess::GatewayProcess(const std::string& yaml, std::vector<std::string> extra,
                                const std::vector<std::string>& environment)
     : log_path_(dir_ / "ioportd.log") {
-    const auto config = dir_ / "ioportd.yaml";
-    std::ofstream(config) << yaml;
+    const auto config = config_path();
+    rewrite_config(yaml);
     const int log_fd = ::open(log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
     std::vector<std::string> argv{IOPORTD_BINARY, "--config", config};
     argv.insert(argv.end(), extra.begin(), extra.end());
@@ -82,6 +82,14 @@ bool GatewayProcess::wait_for_log(std::string_view text, std::chrono::millisecon
             return all.size() > from && all.find(text, from) != std::string::npos;
         },
         deadline);
+}
+
+void GatewayProcess::rewrite_config(const std::string& yaml) const {
+    std::ofstream(config_path()) << yaml;
+}
+
+void GatewayProcess::signal(int signal) const {
+    if (pid_ > 0) ::kill(pid_, signal);
 }
 
 int GatewayProcess::stop(int signal, std::chrono::milliseconds deadline) {

@@ -30,6 +30,11 @@ class GatewayProcess {
     GatewayProcess& operator=(const GatewayProcess&) = delete;
 
     std::uint16_t port() const { return port_; }
+    // The configuration file the daemon was started with; rewrite it before a SIGHUP.
+    std::string config_path() const { return dir_ / "ioportd.yaml"; }
+    void rewrite_config(const std::string& yaml) const;
+    // Sends `signal` and leaves the daemon running.
+    void signal(int signal) const;
     bool running() const;
     std::string log() const;
     // Waits for `text` to appear in the log (from `from` on, an offset into log()).

@@ -47,7 +47,7 @@ pid_t spawn(const std::vector<std::string>& argv, int out_fd, int err_fd,
         env.push_back(const_cast<char*>(entry.c_str()));
     env.push_back(nullptr);
     pid_t pid = -1;
-    const int rc = posix_spawn(&pid, args[0], &actions, nullptr, args.data(), env.data());
+    const int rc = posix_spawnp(&pid, args[0], &actions, nullptr, args.data(), env.data());
     posix_spawn_file_actions_destroy(&actions);
     if (rc != 0) ADD_FAILURE() << "cannot start " << argv[0] << ": " << std::strerror(rc);
     return rc == 0 ? pid : -1;

@@ -20,8 +20,9 @@ struct Outcome {
     std::string err;
 };
 
-// Starts argv[0] with stdout (and stderr unless err_fd < 0) on the given descriptors and
-// `environment` (NAME=VALUE) added to the test's own; -1 (and a test failure) if it cannot.
+// Starts argv[0] (searched in PATH unless it has a slash) with stdout (and stderr unless err_fd <
+// 0) on the given descriptors and `environment` (NAME=VALUE) added to the test's own; -1 (and a
+// test failure) if it cannot.
 pid_t spawn(const std::vector<std::string>& argv, int out_fd, int err_fd,
             const std::vector<std::string>& environment = {});
 // Waits for `pid` to exit until `deadline`: its exit status (128 + signal when killed), or -1

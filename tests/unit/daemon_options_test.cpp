@@ -16,7 +16,8 @@ TEST(DaemonOptions, DefaultsRunTheDefaultConfig) {
     ASSERT_TRUE(options);
     EXPECT_EQ(options->mode, Options::Mode::run);
     EXPECT_EQ(options->config_path, "/etc/ioportd/ioportd.yaml");
-    EXPECT_EQ(options->log_level, "info");
+    EXPECT_EQ(options->log_level, std::nullopt);  // the configuration's
+    EXPECT_EQ(options->log_target, Options::LogTarget::automatic);
 }
 
 TEST(DaemonOptions, EveryMode) {
@@ -30,6 +31,14 @@ TEST(DaemonOptions, EveryMode) {
     EXPECT_EQ(map->map_format, Options::MapFormat::csv);
 }
 
+TEST(DaemonOptions, LoggingChoices) {
+    const auto options = parse({"--log-level", "debug", "--log", "journal"});
+    ASSERT_TRUE(options);
+    EXPECT_EQ(options->log_level, config::LogLevel::debug);
+    EXPECT_EQ(options->log_target, Options::LogTarget::journal);
+    EXPECT_EQ(parse({"--log", "stderr"})->log_target, Options::LogTarget::standard_error);
+}
+
 TEST(DaemonOptions, MistakesAreNamed) {
     EXPECT_NE(parse({"--config"}).error().find("--config needs a path"), std::string::npos);
     EXPECT_NE(parse({"--bogus"}).error().find("unknown argument '--bogus'"), std::string::npos);
@@ -37,6 +46,8 @@ TEST(DaemonOptions, MistakesAreNamed) {
               std::string::npos);
     EXPECT_NE(parse({"--format", "csv"}).error().find("only for --print-map"), std::string::npos);
     EXPECT_NE(parse({"--log-level", "loud"}).error().find("--log-level takes"), std::string::npos);
+    EXPECT_NE(parse({"--log"}).error().find("--log takes auto, stderr or journal"),
+              std::string::npos);
 }
 
 }  // namespace

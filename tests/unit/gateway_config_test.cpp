@@ -131,6 +131,9 @@ TEST(GatewayConfig, KeysLeftOutTakeTheDefaultsOfTheSpec) {
     EXPECT_EQ(config->modbus.listen_port, 502);
     EXPECT_EQ(config->modbus.max_connections, 32);
     EXPECT_EQ(config->modbus.idle_timeout, 5min);
+    EXPECT_EQ(config->modbus.keepalive, 60s);
+    EXPECT_EQ(config->on_shutdown, OnShutdown::keep);
+    EXPECT_EQ(config->log_level, LogLevel::info);
 
     const LinkConfig& press = config->links[0];
     EXPECT_EQ(press.baud, 9600);
@@ -186,6 +189,23 @@ links: [{ name: a, protocol: id2, device: /dev/ttyS0, unit_id: 247, timeout: 1ms
     EXPECT_EQ(config->links[0].unit_id, 247);
     EXPECT_EQ(config->links[0].timeout, 1ms);
     EXPECT_EQ(config->links[0].retries, 0);
+}
+
+TEST(GatewayConfig, ReadsTheServiceSettings) {
+    const auto config = parse(R"(modbus: { keepalive: 10s }
+on_shutdown: initial
+log_level: debug
+links: [{ name: a, protocol: id2, device: /dev/ttyS0 }]
+)");
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->modbus.keepalive, 10s);
+    EXPECT_EQ(config->on_shutdown, OnShutdown::initial);
+    EXPECT_EQ(config->log_level, LogLevel::debug);
+    const auto off = parse(R"(modbus: { keepalive: 0 }
+links: [{ name: a, protocol: id2, device: /dev/ttyS0 }]
+)");
+    ASSERT_TRUE(off) << describe(off.error());
+    EXPECT_EQ(off->modbus.keepalive, 0us);
 }
 
 TEST(GatewayConfig, ListenTakesIpLiteralsAndLocalhost) {
@@ -340,6 +360,9 @@ TEST(GatewayConfigErrors, ModbusSettingsOutOfRange) {
     expect_one_error({modbus("idle_timeout: 5"), 2, "modbus.idle_timeout", "e.g. 500us"});
     expect_one_error({modbus("word_order: middle"), 2, "modbus.word_order", "use big or little"});
     expect_one_error({modbus("stale: zero"), 2, "modbus.stale", "use exception or hold"});
+    expect_one_error({modbus("keepalive: 121m"), 2, "modbus.keepalive", "out of range"});
+    expect_one_error({"on_shutdown: off\n" + hub, 1, "on_shutdown", "use keep or initial"});
+    expect_one_error({"log_level: loud\n" + hub, 1, "log_level", "use trace or debug or info"});
 }
 
 TEST(GatewayConfigErrors, AllowListEntries) {

@@ -1,0 +1,104 @@
+#include "daemon/log.hpp"
+
+#include <sys/uio.h>
+#include <systemd/sd-journal.h>
+
+#include <cstdio>
+
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+namespace ioport::daemon {
+namespace {
+
+// syslog(3)'s priorities, which the journal uses.
+int priority(LogLevel level) {
+    switch (level) {
+        case LogLevel::trace:
+        case LogLevel::debug:
+            return 7;
+        case LogLevel::info:
+            return 6;
+        case LogLevel::warn:
+            return 4;
+        case LogLevel::error:
+            return 3;
+        case LogLevel::critical:
+        case LogLevel::off:
+            break;
+    }
+    return 2;
+}
+
+spdlog::level::level_enum spdlog_level(LogLevel level) {
+    switch (level) {
+        case LogLevel::trace:
+            return spdlog::level::trace;
+        case LogLevel::debug:
+            return spdlog::level::debug;
+        case LogLevel::info:
+            return spdlog::level::info;
+        case LogLevel::warn:
+            return spdlog::level::warn;
+        case LogLevel::error:
+            return spdlog::level::err;
+        case LogLevel::critical:
+            return spdlog::level::critical;
+        case LogLevel::off:
+            break;
+    }
+    return spdlog::level::off;
+}
+
+}  // namespace
+
+std::vector<std::string> journal_entry(LogLevel level, const LogFields& fields,
+                                       std::string_view message) {
+    std::vector<std::string> entry{fmt::format("MESSAGE={}", message),
+                                   fmt::format("PRIORITY={}", priority(level)),
+                                   "SYSLOG_IDENTIFIER=ioportd"};
+    if (!fields.link.empty()) entry.push_back(fmt::format("LINK={}", fields.link));
+    if (fields.unit >= 0) entry.push_back(fmt::format("UNIT={}", fields.unit));
+    if (!fields.module.empty()) entry.push_back(fmt::format("MODULE={}", fields.module));
+    if (!fields.client.empty()) entry.push_back(fmt::format("CLIENT={}", fields.client));
+    return entry;
+}
+
+bool is_journal_stream(const char* journal_stream, dev_t device, ino_t inode) {
+    if (journal_stream == nullptr) return false;
+    unsigned long long stream_device = 0;
+    unsigned long long stream_inode = 0;
+    // NOLINTNEXTLINE(cert-err34-c): a malformed value simply does not match
+    if (std::sscanf(journal_stream, "%llu:%llu", &stream_device, &stream_inode) != 2) return false;
+    return stream_device == device && stream_inode == inode;
+}
+
+Log::Log(Target target, LogLevel level)
+    : target_(target),
+      level_(level),
+      stderr_(std::make_shared<spdlog::logger>(
+          "ioportd", std::make_shared<spdlog::sinks::stderr_color_sink_st>())) {
+    stderr_->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
+    stderr_->set_level(spdlog::level::trace);  // filtered here, by level_
+}
+
+Log::~Log() = default;
+
+void Log::write(LogLevel level, const LogFields& fields, std::string_view message) {
+    if (target_ == Target::journal) {
+        const auto entry = journal_entry(level, fields, message);
+        std::vector<iovec> vector;
+        vector.reserve(entry.size());
+        for (const auto& field : entry)
+            vector.push_back({const_cast<char*>(field.data()), field.size()});
+        // Should the journal be gone (journald restarting), the line still goes somewhere.
+        if (sd_journal_sendv(vector.data(), static_cast<int>(vector.size())) >= 0) return;
+    }
+    write_stderr(level, message);
+}
+
+void Log::write_stderr(LogLevel level, std::string_view message) {
+    stderr_->log(spdlog_level(level), "{}", message);
+}
+
+}  // namespace ioport::daemon

@@ -1,0 +1,92 @@
+// ioportd's log: one line per event worth an operator's attention, to stderr with timestamps or
+// to the systemd journal with fields (journalctl -u ioportd LINK=hub0 MODULE="dom16 0").
+// An object made in main() and handed to whoever logs: no global logger.
+#pragma once
+
+#include <sys/types.h>
+
+#include <memory>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include "config/gateway_config.hpp"
+
+namespace spdlog {
+class logger;
+}
+
+namespace ioport::daemon {
+
+using config::LogLevel;
+
+// What a line is about. Empty fields are left out of the journal entry.
+struct LogFields {
+    std::string_view link{};    // a link's name
+    int unit = -1;              // its Modbus unit id; -1: none
+    std::string_view module{};  // "dom16 0", "ID-2"
+    std::string_view client{};  // a Modbus client, "10.0.0.5:50123"
+};
+
+// The journal entry of one line, as KEY=value strings: MESSAGE, PRIORITY (syslog's numbers),
+// SYSLOG_IDENTIFIER and the fields that are set.
+std::vector<std::string> journal_entry(LogLevel level, const LogFields& fields,
+                                       std::string_view message);
+
+// systemd sets JOURNAL_STREAM to "device:inode" of the journal stream it connected to stdout and
+// stderr; stderr goes to the journal when its own device and inode are those.
+bool is_journal_stream(const char* journal_stream, dev_t device, ino_t inode);
+
+class Log {
+  public:
+    enum class Target { standard_error, journal };
+
+    Log(Target target, LogLevel level);
+    ~Log();
+    Log(const Log&) = delete;
+    Log& operator=(const Log&) = delete;
+
+    Target target() const { return target_; }
+    void set_level(LogLevel level) { level_ = level; }
+    bool enabled(LogLevel level) const { return level_ != LogLevel::off && level >= level_; }
+
+    template <class... Args>
+    void debug(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {
+        emit(LogLevel::debug, fields, format, std::forward<Args>(args)...);
+    }
+    template <class... Args>
+    void info(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {
+        emit(LogLevel::info, fields, format, std::forward<Args>(args)...);
+    }
+    template <class... Args>
+    void warn(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {
+        emit(LogLevel::warn, fields, format, std::forward<Args>(args)...);
+    }
+    template <class... Args>
+    void error(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {
+        emit(LogLevel::error, fields, format, std::forward<Args>(args)...);
+    }
+    template <class... Args>
+    void critical(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {
+        emit(LogLevel::critical, fields, format, std::forward<Args>(args)...);
+    }
+
+    void write(LogLevel level, const LogFields& fields, std::string_view message);
+
+  private:
+    template <class... Args>
+    void emit(LogLevel level, const LogFields& fields, fmt::format_string<Args...> format,
+              Args&&... args) {
+        if (enabled(level)) write(level, fields, fmt::format(format, std::forward<Args>(args)...));
+    }
+    void write_stderr(LogLevel level, std::string_view message);
+
+    Target target_;
+    LogLevel level_;
+    std::shared_ptr<spdlog::logger> stderr_;
+};
+
+}  // namespace ioport::daemon

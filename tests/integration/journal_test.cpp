@@ -1,0 +1,206 @@
+// ioportd logging to the systemd journal, received by the test itself: the daemon runs in a
+// private mount namespace in which the test's datagram socket is /run/systemd/journal/socket,
+// so the entries are read exactly as sd_journal_sendv() sent them (the native protocol).
+#include <fcntl.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/un.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cstring>
+#include <fstream>
+#include <functional>
+#include <map>
+
+#include <fmt/format.h>
+
+#include "tests/support/gateway.hpp"
+#include "tests/support/process.hpp"
+
+namespace ioport::test {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using Entry = std::map<std::string, std::string>;
+
+// One datagram of the journal's native protocol: "KEY=value\n", or "KEY\n", a little-endian
+// 64-bit length, the value and "\n" for values with newlines.
+Entry parse_entry(std::string_view datagram) {
+    Entry entry;
+    while (!datagram.empty()) {
+        const auto end = datagram.find('\n');
+        if (end == std::string_view::npos) break;
+        const auto line = datagram.substr(0, end);
+        if (const auto equals = line.find('='); equals != std::string_view::npos) {
+            entry[std::string(line.substr(0, equals))] = std::string(line.substr(equals + 1));
+            datagram.remove_prefix(end + 1);
+            continue;
+        }
+        std::uint64_t size = 0;
+        if (datagram.size() < end + 1 + 8) break;
+        std::memcpy(&size, datagram.data() + end + 1, 8);
+        if (datagram.size() < end + 1 + 8 + size + 1) break;
+        entry[std::string(line)] = std::string(datagram.substr(end + 1 + 8, size));
+        datagram.remove_prefix(end + 1 + 8 + size + 1);
+    }
+    return entry;
+}
+
+class JournalSocket {
+  public:
+    explicit JournalSocket(const std::string& path) {
+        fd_ = ::socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+        sockaddr_un address{};
+        address.sun_family = AF_UNIX;
+        std::strncpy(address.sun_path, path.c_str(), sizeof(address.sun_path) - 1);
+        EXPECT_EQ(::bind(fd_, reinterpret_cast<sockaddr*>(&address), sizeof(address)), 0)
+            << std::strerror(errno);
+    }
+    ~JournalSocket() { ::close(fd_); }
+    JournalSocket(const JournalSocket&) = delete;
+    JournalSocket& operator=(const JournalSocket&) = delete;
+
+    // The first entry whose MESSAGE contains `text`, or an empty one after `within`.
+    Entry wait_for(std::string_view text, std::chrono::milliseconds within = 5s) {
+        const auto deadline = Clock::now() + within;
+        for (;;) {
+            const auto left =
+                std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+            pollfd fd{fd_, POLLIN, 0};
+            if (left.count() <= 0 || ::poll(&fd, 1, static_cast<int>(left.count())) <= 0) return {};
+            std::array<char, 65536> buffer{};
+            const auto n = ::recv(fd_, buffer.data(), buffer.size(), 0);
+            if (n <= 0) return {};
+            auto entry = parse_entry({buffer.data(), static_cast<std::size_t>(n)});
+            if (entry["MESSAGE"].find(text) != std::string::npos) return entry;
+        }
+    }
+
+  private:
+    int fd_ = -1;
+};
+
+bool can_make_mount_namespaces() {
+    return run({"unshare", "--mount", "--propagation", "private", "true"}).exit_code == 0;
+}
+
+// ioportd in a mount namespace where `journal_dir` is /run/systemd/journal.
+class JournaledGateway {
+  public:
+    JournaledGateway(const std::string& journal_dir, const std::string& yaml,
+                     const std::vector<std::string>& extra,
+                     const std::function<std::vector<std::string>(int log_fd)>& environment) {
+        const auto config = dir_ / "ioportd.yaml";
+        std::ofstream(config) << yaml;
+        log_path_ = dir_ / "stderr.log";
+        const int log_fd =
+            ::open(log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+        // In the new namespace: an empty /run, and the test's directory as its journal.
+        const std::string script =
+            "mount -t tmpfs tmpfs /run && mkdir -p /run/systemd/journal && "
+            "mount --bind \"$0\" /run/systemd/journal && exec \"$@\"";
+        std::vector<std::string> argv{"unshare",      "--mount",  "--propagation", "private",
+                                      "/bin/sh",      "-c",       script,          journal_dir,
+                                      IOPORTD_BINARY, "--config", config};
+        argv.insert(argv.end(), extra.begin(), extra.end());
+        pid_ = spawn(argv, log_fd, log_fd, environment(log_fd));
+        ::close(log_fd);
+    }
+    ~JournaledGateway() {
+        if (pid_ <= 0) return;
+        ::kill(pid_, SIGTERM);
+        if (wait_exit(pid_, Clock::now() + 5s) == -1) {
+            ::kill(pid_, SIGKILL);
+            wait_exit(pid_, Clock::now() + 5s);
+        }
+    }
+    JournaledGateway(const JournaledGateway&) = delete;
+    JournaledGateway& operator=(const JournaledGateway&) = delete;
+
+    std::string stderr_text() const {
+        std::ifstream in(log_path_);
+        return {std::istreambuf_iterator<char>(in), {}};
+    }
+
+  private:
+    TempDir dir_;
+    std::string log_path_;
+    pid_t pid_ = -1;
+};
+
+std::string hub_yaml(const std::string& device) {
+    return fmt::format(R"(modbus: {{ listen: "127.0.0.1:0" }}
+links:
+  - {{ name: hub0, protocol: ioport, device: {}, unit_id: 7, timeout: 30ms,
+      modules: [{{ type: dim16, number: 0 }}] }}
+)",
+                       device);
+}
+
+std::vector<std::string> no_environment(int /*log_fd*/) {
+    return {};
+}
+
+// "device:inode" of a descriptor, as systemd writes JOURNAL_STREAM.
+std::vector<std::string> journal_stream_of(int fd) {
+    struct stat st {};
+    ::fstat(fd, &st);
+    return {fmt::format("JOURNAL_STREAM={}:{}", st.st_dev, st.st_ino)};
+}
+
+TEST(Journal, EntriesCarryPriorityAndTheLinkUnitAndModuleFields) {
+    if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
+    SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
+    TempDir journal;
+    JournalSocket socket(journal / "socket");
+    JournaledGateway gateway(journal.path(), hub_yaml(hub.link()), {"--log", "journal"},
+                             no_environment);
+
+    auto online = socket.wait_for("dim16 0 online");
+    ASSERT_FALSE(online.empty()) << "no journal entry; stderr:\n" << gateway.stderr_text();
+    EXPECT_EQ(online["MESSAGE"], "link hub0: dim16 0 online");
+    EXPECT_EQ(online["PRIORITY"], "6");
+    EXPECT_EQ(online["SYSLOG_IDENTIFIER"], "ioportd");
+    EXPECT_EQ(online["LINK"], "hub0");
+    EXPECT_EQ(online["UNIT"], "7");
+    EXPECT_EQ(online["MODULE"], "dim16 0");
+
+    hub.ctl("unplug");
+    auto down = socket.wait_for("port down");
+    ASSERT_FALSE(down.empty());
+    EXPECT_EQ(down["PRIORITY"], "4");
+    EXPECT_EQ(down["LINK"], "hub0");
+    EXPECT_EQ(down.count("MODULE"), 0U);
+    EXPECT_EQ(gateway.stderr_text().find("online"), std::string::npos)
+        << "journal lines went to stderr too";
+}
+
+TEST(Journal, UnderSystemdStderrIsRecognisedAsTheJournalStream) {
+    if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
+    SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
+    TempDir journal;
+    JournalSocket socket(journal / "socket");
+    JournaledGateway gateway(journal.path(), hub_yaml(hub.link()), {}, journal_stream_of);
+    EXPECT_FALSE(socket.wait_for("dim16 0 online").empty()) << gateway.stderr_text();
+}
+
+TEST(Journal, AnotherStreamIsNotTheJournal) {
+    if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
+    SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
+    TempDir journal;
+    JournalSocket socket(journal / "socket");
+    JournaledGateway gateway(journal.path(), hub_yaml(hub.link()), {},
+                             [](int) { return std::vector<std::string>{"JOURNAL_STREAM=1:1"}; });
+    // stderr with a timestamp and level: "2026-11-22 10:00:00.123 info link hub0: dim16 0 online"
+    EXPECT_TRUE(eventually([&] {
+        return gateway.stderr_text().find(" info link hub0: dim16 0 online") != std::string::npos;
+    })) << gateway.stderr_text();
+    EXPECT_TRUE(socket.wait_for("online", 200ms).empty());
+}
+
+}  // namespace
+}  // namespace ioport::test
