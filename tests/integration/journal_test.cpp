@@ -2,15 +2,11 @@
 // private mount namespace in which the test's datagram socket is /run/systemd/journal/socket,
 // so the entries are read exactly as sd_journal_sendv() sent them (the native protocol).
 #include <fcntl.h>
-#include <poll.h>
-#include <sys/socket.h>
 #include <sys/stat.h>
-#include <sys/un.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
 
-#include <array>
 #include <cstring>
 #include <fstream>
 #include <functional>
@@ -18,6 +14,7 @@
 
 #include <fmt/format.h>
 
+#include "tests/support/datagram_socket.hpp"
 #include "tests/support/gateway.hpp"
 #include "tests/support/process.hpp"
 
@@ -50,39 +47,16 @@ Entry parse_entry(std::string_view datagram) {
     return entry;
 }
 
-class JournalSocket {
-  public:
-    explicit JournalSocket(const std::string& path) {
-        fd_ = ::socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-        sockaddr_un address{};
-        address.sun_family = AF_UNIX;
-        std::strncpy(address.sun_path, path.c_str(), sizeof(address.sun_path) - 1);
-        EXPECT_EQ(::bind(fd_, reinterpret_cast<sockaddr*>(&address), sizeof(address)), 0)
-            << std::strerror(errno);
+// The journal's socket: the first entry whose MESSAGE contains `text`, or an empty one.
+Entry wait_for_entry(DatagramSocket& journal, std::string_view text,
+                     std::chrono::milliseconds within = 5s) {
+    const auto deadline = Clock::now() + within;
+    while (Clock::now() < deadline) {
+        auto entry = parse_entry(journal.receive(deadline));
+        if (entry["MESSAGE"].find(text) != std::string::npos) return entry;
     }
-    ~JournalSocket() { ::close(fd_); }
-    JournalSocket(const JournalSocket&) = delete;
-    JournalSocket& operator=(const JournalSocket&) = delete;
-
-    // The first entry whose MESSAGE contains `text`, or an empty one after `within`.
-    Entry wait_for(std::string_view text, std::chrono::milliseconds within = 5s) {
-        const auto deadline = Clock::now() + within;
-        for (;;) {
-            const auto left =
-                std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
-            pollfd fd{fd_, POLLIN, 0};
-            if (left.count() <= 0 || ::poll(&fd, 1, static_cast<int>(left.count())) <= 0) return {};
-            std::array<char, 65536> buffer{};
-            const auto n = ::recv(fd_, buffer.data(), buffer.size(), 0);
-            if (n <= 0) return {};
-            auto entry = parse_entry({buffer.data(), static_cast<std::size_t>(n)});
-            if (entry["MESSAGE"].find(text) != std::string::npos) return entry;
-        }
-    }
-
-  private:
-    int fd_ = -1;
-};
+    return {};
+}
 
 bool can_make_mount_namespaces() {
     return run({"unshare", "--mount", "--propagation", "private", "true"}).exit_code == 0;
@@ -156,11 +130,11 @@ TEST(Journal, EntriesCarryPriorityAndTheLinkUnitAndModuleFields) {
     if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
     SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
     TempDir journal;
-    JournalSocket socket(journal / "socket");
+    DatagramSocket socket(journal / "socket");
     JournaledGateway gateway(journal.path(), hub_yaml(hub.link()), {"--log", "journal"},
                              no_environment);
 
-    auto online = socket.wait_for("dim16 0 online");
+    auto online = wait_for_entry(socket, "dim16 0 online");
     ASSERT_FALSE(online.empty()) << "no journal entry; stderr:\n" << gateway.stderr_text();
     EXPECT_EQ(online["MESSAGE"], "link hub0: dim16 0 online");
     EXPECT_EQ(online["PRIORITY"], "6");
@@ -170,7 +144,7 @@ TEST(Journal, EntriesCarryPriorityAndTheLinkUnitAndModuleFields) {
     EXPECT_EQ(online["MODULE"], "dim16 0");
 
     hub.ctl("unplug");
-    auto down = socket.wait_for("port down");
+    auto down = wait_for_entry(socket, "port down");
     ASSERT_FALSE(down.empty());
     EXPECT_EQ(down["PRIORITY"], "4");
     EXPECT_EQ(down["LINK"], "hub0");
@@ -183,23 +157,23 @@ TEST(Journal, UnderSystemdStderrIsRecognisedAsTheJournalStream) {
     if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
     SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
     TempDir journal;
-    JournalSocket socket(journal / "socket");
+    DatagramSocket socket(journal / "socket");
     JournaledGateway gateway(journal.path(), hub_yaml(hub.link()), {}, journal_stream_of);
-    EXPECT_FALSE(socket.wait_for("dim16 0 online").empty()) << gateway.stderr_text();
+    EXPECT_FALSE(wait_for_entry(socket, "dim16 0 online").empty()) << gateway.stderr_text();
 }
 
 TEST(Journal, AnotherStreamIsNotTheJournal) {
     if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
     SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
     TempDir journal;
-    JournalSocket socket(journal / "socket");
+    DatagramSocket socket(journal / "socket");
     JournaledGateway gateway(journal.path(), hub_yaml(hub.link()), {},
                              [](int) { return std::vector<std::string>{"JOURNAL_STREAM=1:1"}; });
     // stderr with a timestamp and level: "2026-11-22 10:00:00.123 info link hub0: dim16 0 online"
     EXPECT_TRUE(eventually([&] {
         return gateway.stderr_text().find(" info link hub0: dim16 0 online") != std::string::npos;
     })) << gateway.stderr_text();
-    EXPECT_TRUE(socket.wait_for("online", 200ms).empty());
+    EXPECT_TRUE(wait_for_entry(socket, "online", 200ms).empty());
 }
 
 }  // namespace

@@ -1,18 +1,13 @@
 // ioportd's life as a service: systemd's protocol with a NOTIFY_SOCKET owned by the test (READY
 // once started, STATUS kept current, WATCHDOG at a quarter of WatchdogSec and only while every
 // link makes progress, RELOADING, STOPPING), SIGHUP reloads, and SIGTERM with a write in flight.
-#include <poll.h>
-#include <sys/socket.h>
-#include <sys/un.h>
-#include <unistd.h>
+#include <csignal>
 
 #include <gtest/gtest.h>
 
-#include <array>
-#include <cstring>
-
 #include <fmt/format.h>
 
+#include "tests/support/datagram_socket.hpp"
 #include "tests/support/gateway.hpp"
 #include "tests/support/process.hpp"
 #include "tests/support/raw_client.hpp"
@@ -22,46 +17,8 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// The receiving end of sd_notify: a datagram socket the daemon finds in NOTIFY_SOCKET.
-class NotifySocket {
-  public:
-    explicit NotifySocket(std::string path) : path_(std::move(path)) {
-        fd_ = ::socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-        sockaddr_un address{};
-        address.sun_family = AF_UNIX;
-        std::strncpy(address.sun_path, path_.c_str(), sizeof(address.sun_path) - 1);
-        EXPECT_EQ(::bind(fd_, reinterpret_cast<sockaddr*>(&address), sizeof(address)), 0)
-            << std::strerror(errno);
-    }
-    ~NotifySocket() { ::close(fd_); }
-    NotifySocket(const NotifySocket&) = delete;
-    NotifySocket& operator=(const NotifySocket&) = delete;
-
-    // The next message, or "" if none came before `deadline`.
-    std::string receive(Clock::time_point deadline) {
-        const auto left =
-            std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
-        pollfd fd{fd_, POLLIN, 0};
-        if (::poll(&fd, 1, static_cast<int>(std::max<long long>(0, left.count()))) <= 0) return "";
-        std::array<char, 4096> buffer{};
-        const auto n = ::recv(fd_, buffer.data(), buffer.size(), 0);
-        return n > 0 ? std::string(buffer.data(), static_cast<std::size_t>(n)) : "";
-    }
-    // Waits for a message containing `text`; returns it, or "".
-    std::string wait_for(std::string_view text, std::chrono::milliseconds within) {
-        const auto deadline = Clock::now() + within;
-        while (Clock::now() < deadline) {
-            auto message = receive(deadline);
-            if (message.find(text) != std::string::npos) return message;
-        }
-        return "";
-    }
-    const std::string& path() const { return path_; }
-
-  private:
-    std::string path_;
-    int fd_ = -1;
-};
+// The receiving end of sd_notify: the daemon finds it in NOTIFY_SOCKET.
+using NotifySocket = DatagramSocket;
 
 std::string hub_yaml(const std::string& device) {
     return fmt::format(R"(modbus: {{ listen: "127.0.0.1:0" }}
