@@ -8,7 +8,8 @@ production. So this test runs the real daemon against the simulator under strace
 would run it (NOTIFY_SOCKET, WATCHDOG_USEC): start-up, Modbus reads and writes on two units, a
 port unplugged and back, the watchdog, and SIGTERM; and checks every system call it made
 against the unit's filter, as systemd-analyze expands it, every socket family against the
-unit's list, and that it opened nothing for writing but its serial ports.
+unit's list, that it opened nothing for writing but its serial ports, and that it looked at
+nothing that ProcSubset=pid and ProtectHome=yes hide.
 
 Usage: sandbox_test.py IOPORTD IOPORT_SIM UNIT_FILE
 """
@@ -27,6 +28,11 @@ from pathlib import Path
 IOPORTD, IOPORT_SIM, UNIT_FILE = sys.argv[1], sys.argv[2], Path(sys.argv[3])
 
 failures: list[str] = []
+# Calls whose first argument is a path (after AT_FDCWD where they take a directory).
+PATH_CALLS = {"open", "openat", "openat2", "stat", "lstat", "newfstatat", "statx", "access",
+              "faccessat", "faccessat2", "readlink", "readlinkat"}
+# ProcSubset=pid leaves only /proc/PID (and /proc/self) visible; ProtectHome=yes empties these.
+HIDDEN_PATHS = r"/proc/(?!self/|self$|thread-self|\d+(/|$))|/home(/|$)|/root(/|$)|/run/user(/|$)"
 
 
 def check(condition: bool, message: str) -> bool:
@@ -182,6 +188,7 @@ links:
             used: dict[str, str] = {}
             socket_families: set[str] = set()
             writes: set[str] = set()
+            paths: set[str] = set()
             for line in Path(trace).read_text().splitlines():
                 call = re.match(r"\d+\s+([a-z0-9_]+)\((.*)", line)
                 if not call:
@@ -190,6 +197,9 @@ links:
                 used.setdefault(name, line)
                 if name == "socket":
                     socket_families.add(arguments.split(",")[0])
+                looked_up = re.match(r'(?:AT_FDCWD, )?"(/[^"]*)"', arguments)
+                if looked_up and name in PATH_CALLS:
+                    paths.add(looked_up.group(1))
                 opened = re.match(r'(?:AT_FDCWD, )?"([^"]*)", ([A-Z_|]+)', arguments)
                 if name in ("open", "openat") and opened and re.search(
                         r"O_WRONLY|O_RDWR|O_CREAT|O_TRUNC", opened.group(2)):
@@ -206,6 +216,10 @@ links:
             check(writes <= {hub, id2},
                   f"ioportd opened for writing {sorted(writes - {hub, id2})}; under "
                   f"ProtectSystem=strict only its serial ports are writable")
+            hidden = sorted(p for p in paths
+                            if re.match(HIDDEN_PATHS, p) and not p.startswith(scratch))
+            check(not hidden, f"ioportd looked at {hidden}, which the unit hides "
+                  "(ProcSubset=pid, ProtectHome=yes)")
             print(f"{len(used)} distinct system calls, socket families "
                   f"{sorted(socket_families)}, files opened for writing {sorted(writes)}")
         finally:
