@@ -276,7 +276,7 @@ def check_script_behaviour(control: Path) -> None:
           f"postinst upgrade without deb-systemd-invoke called {calls}")
 
     result, calls = run_script(postinst, ["configure"], systemd=False, udev=False)
-    check(result.returncode == 0 and calls == [modules],
+    check(result.returncode == 0 and calls == [],
           f"postinst configure without a running systemd and udev (a chroot) called {calls}")
 
     result, calls = run_script(postinst, ["configure", "0.0.9"], systemd=True, udev=True,
