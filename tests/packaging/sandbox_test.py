@@ -135,7 +135,7 @@ links:
   - name: hub0
     protocol: ioport
     device: {hub}
-    timeout: 30ms
+    timeout: 500ms
     modules:
       - {{ type: dim16, number: 0 }}
       - {{ type: dom16, number: 0 }}
@@ -143,7 +143,7 @@ links:
   - name: press
     protocol: id2
     device: {id2}
-    timeout: 30ms
+    timeout: 500ms
 """)
             notify = Notifications(f"{scratch}/notify")
             trace, log = f"{scratch}/trace", f"{scratch}/ioportd.log"
