@@ -23,6 +23,8 @@ import tarfile
 import tempfile
 from pathlib import Path
 
+from unit_file import unit_settings
+
 BUILD_DIR, SOURCE_DIR, VERSION = (Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3])
 PACKAGING = SOURCE_DIR / "packaging"
 UNIT = "ioportd.service"
@@ -490,15 +492,6 @@ def check_udev_rule(root: Path) -> None:
     modules = (root / "usr/lib/modules-load.d/ioportd.conf").read_text().split("\n")
     modules = [m for m in modules if m and not m.startswith("#")]
     check(modules == ["usbserial", "cdc_acm"], f"modules-load.d/ioportd.conf: {modules}")
-
-
-def unit_settings(path: Path) -> dict[str, list[str]]:
-    settings: dict[str, list[str]] = {}
-    for line in path.read_text().splitlines():
-        if line and not line.startswith(("#", ";", "[")):
-            key, _, value = line.partition("=")
-            settings.setdefault(key, []).append(value)
-    return settings
 
 
 def check_unit(root: Path, scratch: Path) -> None:

@@ -25,6 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from unit_file import unit_settings
+
 IOPORTD, IOPORT_SIM, UNIT_FILE = sys.argv[1], sys.argv[2], Path(sys.argv[3])
 
 failures: list[str] = []
@@ -40,15 +42,6 @@ def check(condition: bool, message: str) -> bool:
         failures.append(message)
         print(f"FAIL: {message}", flush=True)
     return condition
-
-
-def unit_settings(path: Path) -> dict[str, list[str]]:
-    settings: dict[str, list[str]] = {}
-    for line in path.read_text().splitlines():
-        if line and not line.startswith(("#", ";", "[")):
-            key, _, value = line.partition("=")
-            settings.setdefault(key, []).append(value)
-    return settings
 
 
 def expand(names: list[str]) -> set[str]:
