@@ -174,6 +174,13 @@ links:
 
             children = Path(f"/proc/{daemon.pid}/task/{daemon.pid}/children").read_text().split()
             check(len(children) == 1, f"strace has children {children}")
+            # systemctl reload: the file is read again and a changed link restarted.
+            config.write_text(config.read_text().replace("timeout: 500ms\n", "timeout: 400ms\n"))
+            notify.messages.clear()
+            os.kill(int(children[0]), signal.SIGHUP)
+            check(notify.wait_for(lambda m: m == "READY=1", 10), f"no READY=1 after SIGHUP")
+            check("SIGHUP: reloaded" in Path(log).read_text(),
+                  f"the reload was not applied:\n{Path(log).read_text()}")
             os.kill(int(children[0]), signal.SIGTERM)
             check(daemon.wait(timeout=10) == 0, f"ioportd exited {daemon.returncode} on SIGTERM")
             check(notify.wait_for(lambda m: m == "STOPPING=1", 1), "no STOPPING=1")
