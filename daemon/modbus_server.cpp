@@ -58,20 +58,27 @@ struct ModbusServer::Connection {
           peer(describe(from)) {}
 
     Clock::time_point deadline(std::chrono::microseconds idle_timeout) const {
-        if (sending) return send_started + send_timeout;
+        if (sending) return drained + send_timeout;
         if (busy) return Clock::time_point::max();
         if (partial) return frame_started + frame_timeout;
         if (idle_timeout.count() == 0) return Clock::time_point::max();
         return last_activity + idle_timeout;
     }
 
-    // Bytes sent to the client that it has not acknowledged yet (SIOCOUTQ): while this shrinks,
-    // the client is reading, however slowly the socket becomes writable again.
-    std::optional<int> unacknowledged() {
+    // Whether the client took data since it was last seen to: the bytes it has not
+    // acknowledged (SIOCOUTQ) are none, or fewer by a few KB. Whether the socket accepts more is
+    // no measure (the kernel takes small writes into its buffers long after the client's window
+    // shut), and neither is any decrease: a client's kernel that compacts its receive queue
+    // acknowledges a KB or so now and then while the client reads nothing.
+    bool client_took_data() {
         int bytes = 0;
-        if (::ioctl(socket.native_handle(), SIOCOUTQ, &bytes) != 0) return std::nullopt;
-        return bytes;
+        if (::ioctl(socket.native_handle(), SIOCOUTQ, &bytes) != 0) return true;
+        const bool took = bytes == 0 || bytes + reading_evidence <= unacknowledged;
+        if (took || bytes > unacknowledged) unacknowledged = bytes;
+        if (took) drained = Clock::now();
+        return took;
     }
+    static constexpr int reading_evidence = 4096;
 
     // Moves the start of a pipelined or partial request to the front of the buffer.
     void compact() {
@@ -99,8 +106,8 @@ struct ModbusServer::Connection {
     std::size_t end = 0;
     Clock::time_point last_activity = Clock::now();
     Clock::time_point frame_started{};
-    Clock::time_point send_started{};  // or the last time the client was seen reading
-    std::optional<int> unacknowledged_then;
+    Clock::time_point drained = Clock::now();  // the client was last seen taking data
+    int unacknowledged = 0;
     Clock::time_point armed = Clock::time_point::max();  // the watchdog's current expiry
     bool partial = false;
     bool busy = false;     // a request is being decided (a write waits for the device)
@@ -330,17 +337,8 @@ asio::awaitable<void> ModbusServer::watch(ConnectionPtr c) {
         if (!c->open) break;
         // Re-armed lazily: activity only moves the deadline, the timer catches up here.
         if (Clock::now() < c->deadline(settings_.idle_timeout)) continue;
-        if (c->sending) {
-            // The socket may stay unwritable for long while a slow reader drains a large send
-            // buffer: that is progress too.
-            const auto unacknowledged = c->unacknowledged();
-            if (unacknowledged && c->unacknowledged_then &&
-                *unacknowledged < *c->unacknowledged_then) {
-                c->unacknowledged_then = unacknowledged;
-                c->send_started = Clock::now();
-                continue;
-            }
-        }
+        // A slow reader may leave the socket unwritable for long: it still reads.
+        if (c->sending && c->client_took_data()) continue;
         log_.debug({.client = c->peer}, "Modbus client {}: {}", c->peer,
                    c->sending   ? "it read nothing for 5 s while a response waited, closed"
                    : c->partial ? "request not complete within 1 s of its first byte, closed"
@@ -369,18 +367,14 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             c->busy = false;
             if (response && c->open) {
                 // Whole, at the client's pace: while it does not read, nothing more is read
-                // from it either, and the watchdog closes it when no byte went out for
-                // send_timeout (progress, not the whole response: a tiny receive window
-                // takes a response a few bytes at a time).
+                // from it either, and the watchdog closes it once it has taken no data for
+                // send_timeout.
                 c->sending = true;
+                c->client_took_data();
+                if (c->drained + send_timeout < c->armed) c->timer.cancel();
                 boost::system::error_code ec;
-                for (std::size_t sent = 0; sent < response->size() && !ec;) {
-                    c->send_started = Clock::now();
-                    c->unacknowledged_then = c->unacknowledged();
-                    if (c->send_started + send_timeout < c->armed) c->timer.cancel();
-                    sent += co_await c->socket.async_write_some(asio::buffer(*response) + sent,
-                                                                redirect_error(use_awaitable, ec));
-                }
+                co_await asio::async_write(c->socket, asio::buffer(*response),
+                                           redirect_error(use_awaitable, ec));
                 c->sending = false;
                 if (ec && c->open) why = fmt::format("sending a response: {}", ec.message());
                 if (ec) c->close();
