@@ -1,7 +1,7 @@
 #include "bench/workload.hpp"
 
-#include <algorithm>
 #include <sys/select.h>
+#include <algorithm>
 
 #include <cerrno>
 #include <cstring>
@@ -63,16 +63,16 @@ struct ReadKind {
 };
 
 const std::vector<ReadKind> read_kinds{
-    {Table::input_registers, 0, 2, {0, 1}},            // two dim16 words
-    {Table::discrete_inputs, 0, 16, {0}},              // dim16 0 bit by bit
-    {Table::input_registers, 8, 1, {2}},               // lim16 0
-    {Table::input_registers, 16, 3, {3}},              // acm3p 0, three channels
-    {Table::input_registers, 64, 1, {4}},              // dccim 0
-    {Table::holding_registers, 0, 4, {5, 6, 7, 8}},    // four dom16 words
-    {Table::coils, 16, 16, {6}},                       // dom16 1 bit by bit
-    {Table::holding_registers, 8, 1, {9}},             // rgbdm 0
-    {Table::holding_registers, 16, 1, {10}},           // mux8m 0
-    {Table::input_registers, 1000, 10, {}},            // diagnostics: must always answer
+    {Table::input_registers, 0, 2, {0, 1}},          // two dim16 words
+    {Table::discrete_inputs, 0, 16, {0}},            // dim16 0 bit by bit
+    {Table::input_registers, 8, 1, {2}},             // lim16 0
+    {Table::input_registers, 16, 3, {3}},            // acm3p 0, three channels
+    {Table::input_registers, 64, 1, {4}},            // dccim 0
+    {Table::holding_registers, 0, 4, {5, 6, 7, 8}},  // four dom16 words
+    {Table::coils, 16, 16, {6}},                     // dom16 1 bit by bit
+    {Table::holding_registers, 8, 1, {9}},           // rgbdm 0
+    {Table::holding_registers, 16, 1, {10}},         // mux8m 0
+    {Table::input_registers, 1000, 10, {}},          // diagnostics: must always answer
 };
 
 // --- Writes ---------------------------------------------------------------------------------
@@ -164,8 +164,8 @@ std::string hub_link_yaml(const std::string& device, std::chrono::milliseconds t
     for (const auto& module : modules) {
         std::string extra;
         if (module.output)
-            extra = fmt::format(", initial: 0x{:04X}, refresh: {}ms", module.initial,
-                                refresh.count());
+            extra =
+                fmt::format(", initial: 0x{:04X}, refresh: {}ms", module.initial, refresh.count());
         else if (module.address.type == ModuleType::dccim)
             extra = ", poll: 100ms";  // a module that is not read every cycle
         text += fmt::format("      - {{ type: {}, number: {}{} }}\n", name(module.address.type),
@@ -201,8 +201,7 @@ std::string Report::summary() const {
 
 Result<SimClock> sim_clock(const std::string& control) {
     sim::ControlClient client;
-    if (auto connected = client.connect(control); !connected)
-        return Unexpected(connected.error());
+    if (auto connected = client.connect(control); !connected) return Unexpected(connected.error());
     const auto reply = client.command("clock");
     if (!reply) return Unexpected(reply.error());
     std::istringstream words(*reply);
@@ -275,9 +274,8 @@ Workload::Workload(WorkloadSettings settings) : settings_(std::move(settings)) {
         input_index_[static_cast<std::size_t>(m)][0].push_back(0);
     }
     for (const auto& info : all_targets) {
-        const auto initial =
-            static_cast<std::uint16_t>(modules[static_cast<std::size_t>(info.module)].initial &
-                                       info.mask);
+        const auto initial = static_cast<std::uint16_t>(
+            modules[static_cast<std::size_t>(info.module)].initial & info.mask);
         targets_.push_back(Target{info, {}, {initial}, {initial}, std::nullopt, std::nullopt});
     }
     read_histogram_.assign(histogram_bins, 0);
@@ -440,7 +438,8 @@ void Workload::run_client(int index) {
         slot.in_flight.store(Clock::now().time_since_epoch().count());
         if (write) {
             op.write = true;
-            op.kind = owned[std::uniform_int_distribution<std::size_t>(0, owned.size() - 1)(random)];
+            op.kind =
+                owned[std::uniform_int_distribution<std::size_t>(0, owned.size() - 1)(random)];
             const auto& job = all_jobs[static_cast<std::size_t>(op.kind)];
             const auto first = static_cast<std::size_t>(job.targets[0]);
             const bool multiple = std::uniform_int_distribution<int>(0, 1)(random) == 1;
@@ -538,8 +537,8 @@ void Workload::run_client(int index) {
             context.reset();
             context = connect();
         }
-        const auto pause = std::chrono::microseconds(std::uniform_int_distribution<long long>(
-            0, settings_.pause.count())(random));
+        const auto pause = std::chrono::microseconds(
+            std::uniform_int_distribution<long long>(0, settings_.pause.count())(random));
         if (pause.count() > 0) std::this_thread::sleep_for(pause);
     }
 }
@@ -564,24 +563,23 @@ void Workload::finalize_windows(Target& target, Clock::time_point until) {
             case Window::Outcome::acknowledged:
                 if (window.seen == 0)
                     problem(&Report::lost_writes,
-                            fmt::format("lost write: {} bits {:04X} = {:04X} acknowledged "
-                                        "(sent at {:.1f} ms, answered at {:.1f} ms) but never "
-                                        "applied by the device in between",
-                                        to_string(modules[static_cast<std::size_t>(
-                                                              target.info.module)]
-                                                      .address),
-                                        target.info.mask, window.value,
-                                        ms_since(started_, window.sent),
-                                        ms_since(started_, window.received)));
+                            fmt::format(
+                                "lost write: {} bits {:04X} = {:04X} acknowledged "
+                                "(sent at {:.1f} ms, answered at {:.1f} ms) but never "
+                                "applied by the device in between",
+                                to_string(
+                                    modules[static_cast<std::size_t>(target.info.module)].address),
+                                target.info.mask, window.value, ms_since(started_, window.sent),
+                                ms_since(started_, window.received)));
                 target.allowed = {window.value};
                 break;
             case Window::Outcome::failed:
                 target.last_failed = window.value;
                 if (window.spans_modules) target.allowed.push_back(window.value);
                 if (window.seen <= settings_.retries)
-                    target.late = LateTransmissions{
-                        window.value, settings_.retries + 1 - window.seen,
-                        window.received + late_grace};
+                    target.late =
+                        LateTransmissions{window.value, settings_.retries + 1 - window.seen,
+                                          window.received + late_grace};
                 break;
             case Window::Outcome::unknown:
                 target.allowed.push_back(window.value);
@@ -612,8 +610,7 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
         ++report_.failed_writes_applied_late;
         return;
     }
-    const auto what =
-        to_string(modules[static_cast<std::size_t>(target.info.module)].address);
+    const auto what = to_string(modules[static_cast<std::size_t>(target.info.module)].address);
     if (target.last_failed && bits == *target.last_failed)
         problem(&Report::failed_writes_pushed,
                 fmt::format("failed write pushed: {} bits {:04X} = {:04X} was answered with an "
@@ -644,7 +641,8 @@ void Workload::check() {
     auto horizon = now;
     for (const auto& slot : slots_) {
         const auto sent = slot->in_flight.load();
-        if (sent != no_request) horizon = std::min(horizon, Clock::time_point(Clock::duration(sent)));
+        if (sent != no_request)
+            horizon = std::min(horizon, Clock::time_point(Clock::duration(sent)));
     }
     const auto log = checker_control_->command("log take");
     if (!log) {
@@ -672,7 +670,8 @@ void Workload::check() {
         commands.push_back({sim_clock_.at(at), *module, parsed->output_value});
     }
     std::ranges::sort(commands, {}, &Applied::at);
-    const auto later = std::ranges::find_if(commands, [&](const Applied& a) { return a.at > horizon; });
+    const auto later =
+        std::ranges::find_if(commands, [&](const Applied& a) { return a.at > horizon; });
     carried_commands_.assign(later, commands.end());
     commands.erase(later, commands.end());
 
@@ -782,7 +781,8 @@ void Workload::check_read(int client, const Op& op) {
     std::size_t word = 0;
     for (const int m : kind.samples) {
         const auto& module = modules[static_cast<std::size_t>(m)];
-        const auto served = std::span(op.words).subspan(word, static_cast<std::size_t>(module.words));
+        const auto served =
+            std::span(op.words).subspan(word, static_cast<std::size_t>(module.words));
         word += static_cast<std::size_t>(module.words);
         if (module.output) {
             if (!checked(m)) continue;
@@ -797,12 +797,12 @@ void Workload::check_read(int client, const Op& op) {
                         static_cast<std::uint16_t>(value & target.info.mask)))
                     confirmed = false;
             if (!had || !confirmed)
-                problem(&Report::wrong_values,
-                        fmt::format("client {}: {} read {:04X} (answered at {:.1f} ms): {}",
-                                    client, to_string(module.address), value,
-                                    ms_since(started_, op.received),
-                                    !had ? "the device never had it before"
-                                         : "no write of it was acknowledged"));
+                problem(
+                    &Report::wrong_values,
+                    fmt::format("client {}: {} read {:04X} (answered at {:.1f} ms): {}", client,
+                                to_string(module.address), value, ms_since(started_, op.received),
+                                !had ? "the device never had it before"
+                                     : "no write of it was acknowledged"));
             continue;
         }
         const auto& history = input_history_[static_cast<std::size_t>(m)];
@@ -815,15 +815,16 @@ void Workload::check_read(int client, const Op& op) {
                     std::equal(served.begin(), served.end(), state.words.begin()))
                     best = std::max(best.value_or(0), k);
             }
-        auto& newest = newest_served_[static_cast<std::size_t>(client)][static_cast<std::size_t>(m)];
+        auto& newest =
+            newest_served_[static_cast<std::size_t>(client)][static_cast<std::size_t>(m)];
         if (!best) {
-            problem(&Report::wrong_values,
-                    fmt::format("client {}: {} read {:04X} {:04X} {:04X} (answered at {:.1f} ms): "
-                                "not a state the device had",
-                                client, to_string(module.address), served[0],
-                                served.size() > 1 ? served[1] : 0,
-                                served.size() > 2 ? served[2] : 0,
-                                ms_since(started_, op.received)));
+            problem(
+                &Report::wrong_values,
+                fmt::format("client {}: {} read {:04X} {:04X} {:04X} (answered at {:.1f} ms): "
+                            "not a state the device had",
+                            client, to_string(module.address), served[0],
+                            served.size() > 1 ? served[1] : 0, served.size() > 2 ? served[2] : 0,
+                            ms_since(started_, op.received)));
         } else if (*best < newest) {
             problem(&Report::wrong_values,
                     fmt::format("client {}: {} read state {} after it had been served state {}: "

@@ -56,8 +56,8 @@ using namespace std::chrono_literals;
 // For ioport-sim --hub:
 std::string hub_sim_modules();
 // A links: entry of ioportd's configuration for that hub on `device`.
-std::string hub_link_yaml(const std::string& device, std::chrono::milliseconds timeout,
-                          int retries, std::chrono::milliseconds refresh = 300ms);
+std::string hub_link_yaml(const std::string& device, std::chrono::milliseconds timeout, int retries,
+                          std::chrono::milliseconds refresh = 300ms);
 
 struct WorkloadSettings {
     std::uint16_t port = 0;   // ioportd's Modbus TCP port on 127.0.0.1
@@ -97,9 +97,9 @@ struct Report {
     // Answered 04/0B, yet the device applied the write's own last transmission after the
     // answer (see LateTransmissions in workload.cpp): what a client must expect, not an error.
     std::uint64_t failed_writes_applied_late = 0;
-    std::uint64_t transactions = 0;           // on the serial line (the simulator's log)
-    std::uint64_t commands_applied = 0;       // output commands the device acknowledged
-    std::uint64_t input_states = 0;           // states the workload gave the input modules
+    std::uint64_t transactions = 0;      // on the serial line (the simulator's log)
+    std::uint64_t commands_applied = 0;  // output commands the device acknowledged
+    std::uint64_t input_states = 0;      // states the workload gave the input modules
     Latency read_latency;
     Latency write_latency;
     std::vector<std::string> problems;  // the first ones, described

@@ -138,8 +138,8 @@ TEST_F(Faults, RandomGarbageShortLongLateErrorAckAndSilenceOn1To10PercentOfTrans
     // Late answers come 45 ms after the request: after the 30 ms timeout, inside the silence
     // the link waits for after a failure (answers later than twice the timeout cannot be told
     // from the next module's: see the README).
-    const std::vector<std::string> kinds{"silent", "error-ack", "garbage", "short", "long",
-                                         "delay"};
+    const std::vector<std::string> kinds{"silent", "error-ack", "garbage",
+                                         "short",  "long",      "delay"};
     std::mt19937 random(11);
     const auto modules = bench::hub_sim_modules();
     const auto started = Clock::now();
@@ -198,8 +198,7 @@ TEST_F(Faults, FiftyUnplugReplugCyclesAtRandomMomentsIncludingDuringWrites) {
         const auto wait = milliseconds(random() % 40);
         const auto from = Clock::now();
         eventually(
-            [&] { return since(from) >= wait && (cycle % 2 == 0 || load->write_in_flight()); },
-            1s);
+            [&] { return since(from) >= wait && (cycle % 2 == 0 || load->write_in_flight()); }, 1s);
         const auto out_for = milliseconds(1 + random() % 60);
         const auto opens = read_u32(diagnostics, 1008);
         if (load->write_in_flight()) ++during_write;
@@ -213,8 +212,7 @@ TEST_F(Faults, FiftyUnplugReplugCyclesAtRandomMomentsIncludingDuringWrites) {
             },
             5s))
             << "not back after the replug";
-        recoveries.push_back(
-            std::chrono::duration_cast<milliseconds>(Clock::now() - replugged));
+        recoveries.push_back(std::chrono::duration_cast<milliseconds>(Clock::now() - replugged));
     }
     const auto report = load->finish();
     expect_three_things(report, gateway);
@@ -321,7 +319,8 @@ class Misbehaviour {
     void expect_ok() {
         stop();
         EXPECT_GT(rounds_.load(), 0) << name_;
-        EXPECT_EQ(failed_.load(), 0) << name_ << ": " << fmt::format("{}", fmt::join(failures_, "; "));
+        EXPECT_EQ(failed_.load(), 0)
+            << name_ << ": " << fmt::format("{}", fmt::join(failures_, "; "));
         figure("rounds of " + name_, std::to_string(rounds_.load()));
     }
     bool stopping() const { return stop_; }
@@ -410,7 +409,8 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
         const auto sent = Clock::now();
         if (!client.closed_silently(3s)) return "not closed";
         const auto after = since(sent);
-        if (after < 900ms || after > 1600ms) return fmt::format("closed after {} ms", after.count());
+        if (after < 900ms || after > 1600ms)
+            return fmt::format("closed after {} ms", after.count());
         return std::nullopt;
     });
     std::mt19937 pipeline_random(seed_random());
@@ -474,16 +474,14 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
     // About 8 s, paced by the workload: the deaf client needs 5 s to be closed.
     const auto started = Clock::now();
     EXPECT_TRUE(eventually([&] { return since(started) >= 8s; }, 20s));
-    for (auto* misbehaviour : {&malformed, &oversize, &unknown, &quantities, &half, &pipelined,
-                               &deaf, &crowd})
+    for (auto* misbehaviour :
+         {&malformed, &oversize, &unknown, &quantities, &half, &pipelined, &deaf, &crowd})
         misbehaviour->expect_ok();
     const auto report = load->finish();
     expect_three_things(report, gateway);
     figure("crowd connections served", std::to_string(crowd_served.load()));
-    figure("read latency of the well-behaved clients, max",
-           ms(report.read_latency.max));
-    figure("read latency of the well-behaved clients, p99",
-           ms(report.read_latency.p99));
+    figure("read latency of the well-behaved clients, max", ms(report.read_latency.max));
+    figure("read latency of the well-behaved clients, p99", ms(report.read_latency.p99));
     EXPECT_EQ(crowd_served.load(), 1000);
     EXPECT_GT(deaf_closed.load(), 0);
     EXPECT_LT(report.read_latency.p99, 50ms);
@@ -496,8 +494,7 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
 class PlainLibmodbusServer {
   public:
     PlainLibmodbusServer()
-        : context_(modbus_new_tcp("127.0.0.1", 0)),
-          mapping_(modbus_mapping_new(0, 0, 0, 1100)) {
+        : context_(modbus_new_tcp("127.0.0.1", 0)), mapping_(modbus_mapping_new(0, 0, 0, 1100)) {
         listener_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
         sockaddr_in address{};
         address.sin_family = AF_INET;
@@ -605,13 +602,13 @@ TEST_F(Faults, AClientTricklingARequestAByteEvery400msFreezesNoOtherClient) {
     // ioportd closes the trickler 1 s after its first byte; it comes back once more.
     milliseconds ioportd_worst{};
     for (int i = 0; i < 2; ++i)
-        ioportd_worst = std::max(ioportd_worst, worst_wait_while_trickling(gateway.port(), frame, 7));
+        ioportd_worst =
+            std::max(ioportd_worst, worst_wait_while_trickling(gateway.port(), frame, 7));
     const auto report = load->finish();
     expect_three_things(report, gateway);
     figure("plain libmodbus select() server: another client's worst wait", ms(plain_worst));
     figure("ioportd: another client's worst wait", ms(ioportd_worst));
-    figure("ioportd: the workload's worst read latency meanwhile",
-           ms(report.read_latency.max));
+    figure("ioportd: the workload's worst read latency meanwhile", ms(report.read_latency.max));
     EXPECT_GE(plain_worst, 1s) << "the yardstick did not freeze: the measurement is wrong";
     EXPECT_LT(ioportd_worst, 100ms);
     EXPECT_LT(report.read_latency.max, 200ms);
