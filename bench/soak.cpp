@@ -113,6 +113,7 @@ class Process {
         posix_spawn_file_actions_adddup2(&actions, fd, STDOUT_FILENO);
         posix_spawn_file_actions_adddup2(&actions, fd, STDERR_FILENO);
         std::vector<char*> args;
+        args.reserve(argv.size() + 1);
         for (const auto& arg : argv)
             args.push_back(const_cast<char*>(arg.c_str()));
         args.push_back(nullptr);
@@ -165,10 +166,10 @@ std::uint16_t free_port() {
     address.sin_family = AF_INET;
     address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
     socklen_t length = sizeof address;
-    ::bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof address);
-    ::getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length);
+    const bool bound = ::bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) == 0 &&
+                       ::getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length) == 0;
     ::close(fd);
-    return ntohs(address.sin_port);
+    return bound ? ntohs(address.sin_port) : 0;
 }
 
 bool accepts(std::uint16_t port) {
@@ -225,8 +226,14 @@ int main(int argc, char** argv) {
     const auto control_path = (dir / "sim.ctl").string();
     const auto config_path = (dir / "ioportd.yaml").string();
     const auto port = free_port();
-    // A real line: 115200 baud, modelled; the timeout and late answers to match.
-    constexpr auto timeout = 50ms;
+    if (port == 0) {
+        std::perror("ioportd-soak: no free port on 127.0.0.1");
+        return 1;
+    }
+    // A real line: 115200 baud, modelled, and the default timeout (100 ms). A shorter one
+    // mistakes a simulator starved of CPU on a busy machine for a module answering two
+    // timeouts late, which no master can tell from the next module's answer.
+    constexpr auto timeout = 100ms;
     std::ofstream(config_path) << fmt::format(
         "modbus:\n  listen: \"127.0.0.1:{}\"\n  max_connections: {}\nlinks:\n{}", port,
         options->clients + 16, ioport::bench::hub_link_yaml(link, timeout, 1, 1000ms));
@@ -260,6 +267,7 @@ int main(int argc, char** argv) {
     settings.pause = options->pause;
     settings.input_period = 100ms;
     settings.seed = options->seed;
+    settings.timeout = timeout;
     ioport::bench::Workload workload(settings);
     if (auto started = workload.start(); !started) {
         std::cerr << "ioportd-soak: " << started.error().message << "\n";
@@ -310,13 +318,14 @@ int main(int argc, char** argv) {
         if (options->faults && now >= next_faults) {
             // Every module a new fault kind, on 1-10 % of its transactions. Late answers come
             // 1.5 timeouts after the request: late, yet inside the silence the link waits for.
+            const auto late = fmt::format(" {}ms", (timeout * 3 / 2).count());
             for (const auto& module : modules) {
                 if (silent && silent->first == module) continue;
                 const auto& kind = kinds[random() % kinds.size()];
                 const double probability =
                     0.01 + 0.09 * static_cast<double>(random() % 1000) / 1000;
                 (void)control.command(fmt::format("fault {} {} {:.3f}{}", module, kind, probability,
-                                                  kind == "delay" ? " 75ms" : ""));
+                                                  kind == "delay" ? late : ""));
             }
             next_faults = now + 500ms;
         }

@@ -110,7 +110,8 @@ const std::vector<TargetInfo> all_targets = target_infos();
 const std::vector<Job> all_jobs = jobs();
 
 constexpr auto no_request = std::numeric_limits<Clock::rep>::max();
-constexpr std::size_t max_problems = 20;
+constexpr std::size_t max_problems = 40;
+constexpr std::uint64_t problems_per_kind = 8;
 constexpr auto histogram_bin = 100us;
 constexpr std::size_t histogram_bins = 20000;  // 2 s; slower ones count in the last bin
 
@@ -235,6 +236,7 @@ struct Window {
     std::uint16_t value;
     enum class Outcome { acknowledged, failed, unknown } outcome;
     bool spans_modules;
+    bool timed_out;
     int seen = 0;  // commands carrying `value` applied inside the window
 };
 
@@ -341,8 +343,9 @@ Report Workload::current_report() const {
 }
 
 void Workload::problem(std::uint64_t Report::*counter, std::string text) {
-    ++(report_.*counter);
-    if (report_.problems.size() < max_problems) report_.problems.push_back(std::move(text));
+    // The first few of every kind: one kind in bulk must not hide another.
+    if (++(report_.*counter) <= problems_per_kind && report_.problems.size() < max_problems)
+        report_.problems.push_back(std::move(text));
 }
 
 // --- Input driver ---------------------------------------------------------------------------
@@ -520,8 +523,7 @@ void Workload::run_client(int index) {
                             word = static_cast<std::uint16_t>(word | 1U << b);
                     op.words[0] = word;
                 } else {
-                    for (std::size_t w = 0; w < op.words.size() && w < registers.size(); ++w)
-                        op.words[w] = registers[w];
+                    std::copy_n(registers.begin(), op.words.size(), op.words.begin());
                 }
             }
         }
@@ -576,7 +578,10 @@ void Workload::finalize_windows(Target& target, Clock::time_point until) {
             case Window::Outcome::failed:
                 target.last_failed = window.value;
                 if (window.spans_modules) target.allowed.push_back(window.value);
-                if (window.seen <= settings_.retries)
+                // Only a write that timed out (0B after every attempt's timeout) leaves
+                // transmissions behind; a 0B for a closed port sent nothing, and an error ack
+                // means the device read the command.
+                if (window.timed_out && window.seen <= settings_.retries)
                     target.late =
                         LateTransmissions{window.value, settings_.retries + 1 - window.seen,
                                           window.received + late_grace};
@@ -592,22 +597,24 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
     finalize_windows_before(target, at);
     const auto bits = static_cast<std::uint16_t>(value & target.info.mask);
     const auto allowed = std::ranges::find(target.allowed, bits) != target.allowed.end();
-    if (!target.windows.empty() && target.windows.front().sent <= at) {
-        // Inside a write of this target: the write itself, or a refresh of the old value.
-        auto& window = target.windows.front();
-        if (bits == window.value) {
-            ++window.seen;
-            return;
-        }
-        if (allowed) return;
+    const bool inside = !target.windows.empty() && target.windows.front().sent <= at;
+    if (inside && bits == target.windows.front().value) {
+        ++target.windows.front().seen;  // the write itself
+        return;
+    }
+    // Before the rest: the owner may have sent its next write before the late transmission of
+    // the one that failed reached the device.
+    if (!allowed && target.late && bits == target.late->value && target.late->remaining > 0 &&
+        at <= target.late->until) {
+        --target.late->remaining;
+        ++report_.failed_writes_applied_late;
+        return;
+    }
+    if (inside) {
+        if (allowed) return;  // a refresh of the old value while the write waits
     } else if (allowed) {
         target.allowed = {bits};
         target.late.reset();  // the gateway has moved on: a failed value from now on is pushed
-        return;
-    } else if (target.late && bits == target.late->value && target.late->remaining > 0 &&
-               at <= target.late->until) {
-        --target.late->remaining;
-        ++report_.failed_writes_applied_late;
         return;
     }
     const auto what = to_string(modules[static_cast<std::size_t>(target.info.module)].address);
@@ -720,8 +727,11 @@ void Workload::check() {
             for (std::size_t t = 0; t < job.targets.size(); ++t) {
                 auto& target = targets_[static_cast<std::size_t>(job.targets[t])];
                 const bool spans = job.targets.size() > 1;
+                const bool timed_out =
+                    op.outcome == MODBUS_EXCEPTION_GATEWAY_TARGET &&
+                    op.received - op.sent >= (settings_.retries + 1) * settings_.timeout;
                 target.windows.push_back(
-                    {op.sent, op.received, op.words[t], outcome, spans, false});
+                    {op.sent, op.received, op.words[t], outcome, spans, timed_out, 0});
                 // What the image may show from now on: a value the device acknowledged.
                 if (outcome != Window::Outcome::failed || spans)
                     target.confirmable.insert(op.words[t]);

@@ -70,6 +70,7 @@ struct WorkloadSettings {
     std::chrono::milliseconds response_timeout = 5s;
     std::uint64_t seed = 1;
     int retries = 1;  // the link's: how many times a write may be sent again
+    std::chrono::milliseconds timeout = 50ms;  // the link's, per attempt
     // false: nobody here writes dom16 0 and nothing about it is checked (a test writes it).
     bool write_dom16_0 = true;
 };

@@ -35,7 +35,9 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::milliseconds;
 
-constexpr auto serial_timeout = 30ms;
+// 50 ms: on a busy 2-core machine the simulator can be starved of CPU for tens of ms, which a
+// master cannot tell from a module answering two timeouts late (see the README).
+constexpr auto serial_timeout = 50ms;
 constexpr int slot_dim16_1 = 1;
 constexpr int slot_dom16_2 = 10;
 
@@ -120,6 +122,7 @@ class Faults : public ::testing::Test {
         settings.sim_control = hub.control();
         settings.clients = clients;
         settings.write_share = write_share;
+        settings.timeout = serial_timeout;
         return std::make_unique<bench::Workload>(settings);
     }
 
@@ -135,7 +138,7 @@ TEST_F(Faults, RandomGarbageShortLongLateErrorAckAndSilenceOn1To10PercentOfTrans
     auto load = workload();
     ASSERT_TRUE(load->start());
     // Every 250 ms each module gets a new fault kind at a new probability between 1 and 10 %.
-    // Late answers come 45 ms after the request: after the 30 ms timeout, inside the silence
+    // Late answers come 75 ms after the request: after the 50 ms timeout, inside the silence
     // the link waits for after a failure (answers later than twice the timeout cannot be told
     // from the next module's: see the README).
     const std::vector<std::string> kinds{"silent", "error-ack", "garbage",
@@ -151,7 +154,7 @@ TEST_F(Faults, RandomGarbageShortLongLateErrorAckAndSilenceOn1To10PercentOfTrans
             const auto& kind = kinds[random() % kinds.size()];
             const double probability = std::uniform_real_distribution<double>(0.01, 0.10)(random);
             hub.ctl(fmt::format("fault {} {} {:.3f}{}", module, kind, probability,
-                                kind == "delay" ? " 45ms" : ""));
+                                kind == "delay" ? " 75ms" : ""));
         }
         ++changes;
         pace_until(started + changes * 250ms);
@@ -277,8 +280,9 @@ TEST_F(Faults, AModuleThatStopsAnsweringMidRunAndComesBack) {
     EXPECT_LT(detected, 1s);
     // Writes go first (gateway.md §4), and each write to the silent module takes the line for
     // (retries + 1) timeouts and a silence: a client that writes to it without pause delays
-    // every poll in between by that much. The other modules' age stays bounded all the same.
-    EXPECT_LT(worst_age, 1000);
+    // every poll in between by that much. The other modules' age stays bounded all the same:
+    // here by about ten such writes.
+    EXPECT_LT(worst_age, 10 * 3 * serial_timeout.count());
     EXPECT_GT(report.writes_0b, 0U);
     EXPECT_GT(report.reads_stale, 0U);
     EXPECT_LT(all_back, 4500ms);  // back-off is at most 4 s
@@ -461,6 +465,7 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
         }
         crowd_done = true;
         std::vector<std::unique_ptr<RawClient>> clients;
+        clients.reserve(1000);
         for (int i = 0; i < 1000; ++i)
             clients.push_back(std::make_unique<RawClient>(port));
         for (auto& client : clients)
@@ -500,9 +505,10 @@ class PlainLibmodbusServer {
         address.sin_family = AF_INET;
         address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
         socklen_t length = sizeof address;
-        ::bind(listener_, reinterpret_cast<sockaddr*>(&address), sizeof address);
-        ::listen(listener_, 16);
-        ::getsockname(listener_, reinterpret_cast<sockaddr*>(&address), &length);
+        if (::bind(listener_, reinterpret_cast<sockaddr*>(&address), sizeof address) != 0 ||
+            ::listen(listener_, 16) != 0 ||
+            ::getsockname(listener_, reinterpret_cast<sockaddr*>(&address), &length) != 0)
+            ADD_FAILURE() << "the plain libmodbus server cannot listen";
         port_ = ntohs(address.sin_port);
         thread_ = std::thread([this] { serve(); });
     }
@@ -676,6 +682,7 @@ TEST_F(ManyConnections, MoreThan1024AreServedLikeTheRest) {
     ASSERT_TRUE(load.start());
 
     std::vector<std::unique_ptr<RawClient>> clients;
+    clients.reserve(connections);
     for (int i = 0; i < connections; ++i) {
         clients.push_back(std::make_unique<RawClient>(gateway->port()));
         ASSERT_TRUE(clients.back()->connected()) << "connection " << i;
