@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <memory>
 #include <random>
 #include <sstream>
 #include <string>
@@ -241,12 +242,19 @@ int main(int argc, char** argv) {
     Process sim({options->sim, "--link", link, "--control", control_path, "--hub",
                  ioport::bench::hub_sim_modules(), "--seed", std::to_string(options->seed)},
                 (dir / "sim.log").string());
-    ioport::sim::ControlClient control;
-    if (!wait_for([&] { return std::filesystem::exists(control_path); }, 10s) ||
-        !control.connect(control_path)) {
+    // The socket file appears at bind(), a moment before the simulator listens: connect until
+    // it answers.
+    std::unique_ptr<ioport::sim::ControlClient> connected;
+    if (!wait_for(
+            [&] {
+                connected = std::make_unique<ioport::sim::ControlClient>();
+                return connected->connect(control_path).has_value();
+            },
+            10s)) {
         std::cerr << "ioportd-soak: the simulator did not start\n";
         return 1;
     }
+    auto& control = *connected;
     const auto daemon_log = (dir / "ioportd.log").string();
     const auto start_daemon = [&] {
         auto daemon = std::make_unique<Process>(
