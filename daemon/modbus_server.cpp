@@ -1,13 +1,17 @@
 #include "daemon/modbus_server.hpp"
 
+#include <linux/sockios.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <sys/ioctl.h>
 
 #include <algorithm>
 #include <cstring>
 #include <new>
 
 #include <fmt/format.h>
+
+#include "daemon/descriptors.hpp"
 
 namespace ioport::daemon {
 namespace {
@@ -38,14 +42,11 @@ std::string describe(const tcp::endpoint& endpoint) {
 // libmodbus answers function + 0x80, which for a request function code of 0x80 or above wraps
 // to a byte without the exception bit (0xFF → 0x7F, a normal-looking response). The exception
 // response is the request's function code with its high bit set, whatever the code.
-int reply_exception(modbus_t* context, std::span<std::uint8_t> request, unsigned code) {
+Result<Bytes> reply_exception(ReplyBuilder& replies, std::span<std::uint8_t> request,
+                              unsigned code) {
     request[modbus::mbap_length] &= 0x7F;
-    return modbus_reply_exception(context, request.data(), code);
+    return replies.exception(request, code);
 }
-
-struct ModbusFree {
-    void operator()(modbus_t* context) const { modbus_free(context); }
-};
 
 }  // namespace
 
@@ -53,19 +54,31 @@ struct ModbusServer::Connection {
     Connection(tcp::socket s, const tcp::endpoint& from)
         : socket(std::move(s)),
           timer(socket.get_executor()),
-          context(modbus_new_tcp(nullptr, 0)),
           address(from.address()),
-          peer(describe(from)) {
-        if (!context) throw std::bad_alloc();
-        modbus_set_socket(context.get(), socket.native_handle());
-    }
+          peer(describe(from)) {}
 
     Clock::time_point deadline(std::chrono::microseconds idle_timeout) const {
+        if (sending) return drained + send_timeout;
         if (busy) return Clock::time_point::max();
         if (partial) return frame_started + frame_timeout;
         if (idle_timeout.count() == 0) return Clock::time_point::max();
         return last_activity + idle_timeout;
     }
+
+    // Whether the client took data since it was last seen to: the bytes it has not
+    // acknowledged (SIOCOUTQ) are none, or fewer by a few KB. Whether the socket accepts more is
+    // no measure (the kernel takes small writes into its buffers long after the client's window
+    // shut), and neither is any decrease: a client's kernel that compacts its receive queue
+    // acknowledges a KB or so now and then while the client reads nothing.
+    bool client_took_data() {
+        int bytes = 0;
+        if (::ioctl(socket.native_handle(), SIOCOUTQ, &bytes) != 0) return true;
+        const bool took = bytes == 0 || bytes + reading_evidence <= unacknowledged;
+        if (took || bytes > unacknowledged) unacknowledged = bytes;
+        if (took) drained = Clock::now();
+        return took;
+    }
+    static constexpr int reading_evidence = 4096;
 
     // Moves the start of a pipelined or partial request to the front of the buffer.
     void compact() {
@@ -84,8 +97,7 @@ struct ModbusServer::Connection {
     }
 
     tcp::socket socket;
-    asio::steady_timer timer;  // the watchdog: idle timeout and frame timeout
-    std::unique_ptr<modbus_t, ModbusFree> context;
+    asio::steady_timer timer;  // the watchdog: idle, frame and send timeouts
     asio::ip::address address;
     std::string peer;
     // Pipelined requests are framed from here; larger than a frame so one always fits.
@@ -94,9 +106,12 @@ struct ModbusServer::Connection {
     std::size_t end = 0;
     Clock::time_point last_activity = Clock::now();
     Clock::time_point frame_started{};
+    Clock::time_point drained = Clock::now();  // the client was last seen taking data
+    int unacknowledged = 0;
     Clock::time_point armed = Clock::time_point::max();  // the watchdog's current expiry
     bool partial = false;
-    bool busy = false;
+    bool busy = false;     // a request is being decided (a write waits for the device)
+    bool sending = false;  // its response is being written
     bool open = true;
 };
 
@@ -113,6 +128,7 @@ ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::Modbus
 }
 
 void ModbusServer::set_units(const Units& units) {
+    ports_ = units.size();
     units_.fill(nullptr);
     for (const auto& unit : units)
         units_[static_cast<std::size_t>(unit->config().unit_id)] = unit;
@@ -151,10 +167,25 @@ Result<ModbusServer::Acceptor> ModbusServer::listen(const config::ModbusSettings
 }
 
 Result<> ModbusServer::start() {
+    auto replies = ReplyBuilder::create();
+    if (!replies) return Unexpected(replies.error());
+    replies_ = std::move(*replies);
+    make_room();
     auto acceptor = listen(settings_);
     if (!acceptor) return Unexpected(acceptor.error());
     accept_on(std::move(*acceptor));
     return {};
+}
+
+void ModbusServer::make_room() {
+    const auto room =
+        make_room_for_clients(static_cast<std::size_t>(settings_.max_connections), ports_);
+    max_clients_ = room.clients;
+    if (room.shortfall)
+        log_.warn({}, "{}", *room.shortfall);
+    else if (room.raised)
+        log_.info({}, "file descriptor limit raised to {} for max_connections {}", room.soft_limit,
+                  settings_.max_connections);
 }
 
 void ModbusServer::accept_on(Acceptor acceptor) {
@@ -183,6 +214,7 @@ void ModbusServer::apply(config::ModbusSettings next, const Units& units) {
     settings_ = std::move(next);
     policy_ = {settings_.read_only, settings_.stale};
     set_units(units);
+    make_room();
     if (next_acceptor_) accept_on(std::exchange(next_acceptor_, nullptr));
     for (auto* connection : connections_) {
         if (!allowed(connection->address)) {
@@ -203,7 +235,7 @@ void ModbusServer::shut_down() {
     if (next_acceptor_) next_acceptor_->close(ignored);
     accept_retry_.cancel();
     for (auto* connection : connections_)
-        if (!connection->busy) connection->close();
+        if (!connection->busy && !connection->sending) connection->close();
 }
 
 void ModbusServer::stop() {
@@ -218,8 +250,10 @@ tcp::endpoint ModbusServer::local_endpoint() const {
 }
 
 std::optional<std::string> ModbusServer::refusal(const tcp::endpoint& peer) const {
-    if (connections_.size() >= static_cast<std::size_t>(settings_.max_connections))
-        return fmt::format("max_connections ({}) reached", settings_.max_connections);
+    if (connections_.size() >= max_clients_)
+        return max_clients_ < static_cast<std::size_t>(settings_.max_connections)
+                   ? fmt::format("out of file descriptors for more than {} clients", max_clients_)
+                   : fmt::format("max_connections ({}) reached", settings_.max_connections);
     if (allowed(peer.address())) return std::nullopt;
     return std::string("not in modbus.allow");
 }
@@ -303,9 +337,12 @@ asio::awaitable<void> ModbusServer::watch(ConnectionPtr c) {
         if (!c->open) break;
         // Re-armed lazily: activity only moves the deadline, the timer catches up here.
         if (Clock::now() < c->deadline(settings_.idle_timeout)) continue;
+        // A slow reader may leave the socket unwritable for long: it still reads.
+        if (c->sending && c->client_took_data()) continue;
         log_.debug({.client = c->peer}, "Modbus client {}: {}", c->peer,
-                   c->partial ? "request not complete within 1 s of its first byte, closed"
-                              : "idle timeout, closed");
+                   c->sending   ? "it read nothing for 5 s while a response waited, closed"
+                   : c->partial ? "request not complete within 1 s of its first byte, closed"
+                                : "idle timeout, closed");
         c->close();
     }
 }
@@ -326,16 +363,30 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             const std::size_t total = modbus::mbap_length - 1 + header.length;
             if (c->end - c->begin < total) break;
             c->busy = true;
-            const bool keep = co_await handle(*c, {&c->rx[c->begin], total});
+            const auto response = co_await handle(*c, {&c->rx[c->begin], total});
             c->busy = false;
+            if (response && c->open) {
+                // Whole, at the client's pace: while it does not read, nothing more is read
+                // from it either, and the watchdog closes it once it has taken no data for
+                // send_timeout.
+                c->sending = true;
+                c->client_took_data();
+                if (c->drained + send_timeout < c->armed) c->timer.cancel();
+                boost::system::error_code ec;
+                co_await asio::async_write(c->socket, asio::buffer(*response),
+                                           redirect_error(use_awaitable, ec));
+                c->sending = false;
+                if (ec && c->open) why = fmt::format("sending a response: {}", ec.message());
+                if (ec) c->close();
+            }
             c->last_activity = Clock::now();
             if (stopping_) {
-                why = "the gateway is shutting down";
+                if (c->open) why = "the gateway is shutting down";
                 c->close();
                 break;
             }
-            if (!keep) {
-                if (c->open) why = "the response could not be sent whole";
+            if (!response || !c->open) {
+                if (!response && c->open) why = "no response could be built";
                 c->close();
                 break;
             }
@@ -366,24 +417,30 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     log_.debug({.client = c->peer}, "Modbus client {} disconnected: {}", c->peer, why);
 }
 
-asio::awaitable<bool> ModbusServer::handle(Connection& c, std::span<const std::uint8_t> adu) {
+asio::awaitable<std::optional<Bytes>> ModbusServer::handle(Connection& c,
+                                                           std::span<const std::uint8_t> adu) {
     // libmodbus may look past a short request; it only ever sees zeros there.
     std::array<std::uint8_t, modbus::max_adu_length + 4> request{};
     std::memcpy(request.data(), adu.data(), adu.size());
     const int length = static_cast<int>(adu.size());
-    auto* context = c.context.get();
+    const auto built = [&](Result<Bytes> reply) -> std::optional<Bytes> {
+        if (reply) return std::move(*reply);
+        log_.error({.client = c.peer}, "Modbus client {}: {}", c.peer, reply.error().message);
+        return std::nullopt;
+    };
     const auto unit_id = adu[modbus::mbap_length - 1];
     const auto unit = units_[unit_id];  // held: a reload may replace the link meanwhile
-    if (!unit) co_return reply_exception(context, request, MODBUS_EXCEPTION_GATEWAY_PATH) > 0;
+    if (!unit) co_return built(reply_exception(*replies_, request, MODBUS_EXCEPTION_GATEWAY_PATH));
     auto plan = gateway::plan(unit->state(), policy_, adu.subspan(modbus::mbap_length));
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
-        co_return reply_exception(context, request, static_cast<unsigned>(*exception)) > 0;
+        co_return built(reply_exception(*replies_, request, static_cast<unsigned>(*exception)));
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan))
-        co_return modbus_reply(context, request.data(), length, unit->image(read->diagnostics)) > 0;
+        co_return built(replies_->reply(request, length, unit->image(read->diagnostics)));
     const auto failed = co_await unit->write(std::get<gateway::WritePlan>(std::move(plan)));
-    if (!c.open) co_return false;
-    if (failed) co_return reply_exception(context, request, static_cast<unsigned>(*failed)) > 0;
-    co_return modbus_reply(context, request.data(), length, scratch_) > 0;
+    if (!c.open) co_return std::nullopt;
+    if (failed)
+        co_return built(reply_exception(*replies_, request, static_cast<unsigned>(*failed)));
+    co_return built(replies_->reply(request, length, scratch_));
 }
 
 }  // namespace ioport::daemon

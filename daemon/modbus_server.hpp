@@ -4,8 +4,11 @@
 // Per connection: one request at a time, in order, so a write's response can wait for the
 // device's acknowledgement while every other connection goes on being served. Reads never wait
 // on a serial line. libmodbus is only ever given complete, validated requests in a zero-padded
-// buffer (modbus_reply / modbus_reply_exception) and never selects or receives: all socket
-// reads and timeouts are Asio's.
+// buffer (modbus_reply / modbus_reply_exception), builds the response into memory (see
+// reply_builder.hpp) and never touches a client's socket: all socket reads, writes and timeouts
+// are Asio's. A response is written whole; a client that does not read its responses is not
+// read from either (TCP flow control does the rest) and is closed when it has read nothing for
+// `send_timeout` while a response waits.
 #pragma once
 
 #include <array>
@@ -20,12 +23,16 @@
 
 #include "config/gateway_config.hpp"
 #include "daemon/link_scheduler.hpp"
+#include "daemon/reply_builder.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {
 
 // A request must be complete within this time of its first byte (gateway.md §3.5).
 inline constexpr std::chrono::microseconds frame_timeout = 1s;
+// A response must make progress into the client's socket within this time. The socket buffers
+// hold hundreds of responses, so only a client that stopped reading altogether gets here.
+inline constexpr std::chrono::microseconds send_timeout = 5s;
 
 class ModbusServer {
   public:
@@ -68,7 +75,12 @@ class ModbusServer {
     void configure(asio::ip::tcp::socket& socket) const;
     asio::awaitable<void> serve(ConnectionPtr connection);
     asio::awaitable<void> watch(ConnectionPtr connection);
-    asio::awaitable<bool> handle(Connection& connection, std::span<const std::uint8_t> adu);
+    // The response to one request, or nullopt when none can be sent (the connection closed
+    // while a write was in flight, or libmodbus failed).
+    asio::awaitable<std::optional<Bytes>> handle(Connection& connection,
+                                                 std::span<const std::uint8_t> adu);
+    // Takes the descriptors that settings_.max_connections clients need (see descriptors.hpp).
+    void make_room();
     std::optional<std::string> refusal(const asio::ip::tcp::endpoint& peer) const;
     bool allowed(const asio::ip::address& address) const;
     void log_refusal(const asio::ip::address& address, const std::string& why);
@@ -84,6 +96,9 @@ class ModbusServer {
     std::unordered_set<Connection*> connections_;
     std::unordered_map<std::string, Clock::time_point> refused_logged_;
     modbus_mapping_t* scratch_;  // write responses are built here, never in an image
+    std::unique_ptr<ReplyBuilder> replies_;
+    std::size_t max_clients_ = 0;  // max_connections, or fewer when descriptors are short
+    std::size_t ports_ = 0;
     bool stopping_ = false;
 };
 

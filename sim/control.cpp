@@ -121,12 +121,17 @@ ControlReply log(DeviceModel& model, const std::vector<std::string_view>& words)
         model.clear_log();
         return ok();
     }
-    if (words.size() != 1) return error("log takes nothing or 'clear'");
+    // "take" reads and clears in one command: between a "log" and a "log clear" the master's
+    // next transactions would be lost, and a long run must drain the log before it is full.
+    const bool take = words.size() == 2 && words[1] == "take";
+    if (words.size() != 1 && !take) return error("log takes nothing, 'clear' or 'take'");
     std::string text;
     for (const auto& entry : model.log())
         text += fmt::format("{} {} {}\n", entry.at.count(), printable(entry.request),
                             entry.answer.empty() ? "-" : printable(entry.answer));
-    return {text + fmt::format("ok {}\n", model.log().size()), std::nullopt};
+    const auto count = model.log().size();
+    if (take) model.clear_log();
+    return {text + fmt::format("ok {}\n", count), std::nullopt};
 }
 
 ControlReply module_command(DeviceModel& model, const std::vector<std::string_view>& words) {
@@ -163,6 +168,13 @@ ControlReply execute(DeviceModel& model, std::string_view line) {
     }
     if (verb == "fault") return fault(model, words);
     if (verb == "log") return log(model, words);
+    if (verb == "faults") {
+        std::string text;
+        for (std::size_t kind = 1; kind < model.injected().size(); ++kind)
+            text += fmt::format("{}{} {}", kind == 1 ? "" : " ", name(static_cast<FaultKind>(kind)),
+                                model.injected()[kind]);
+        return ok(text + "\n");
+    }
     if (verb == "unplug") {
         PortAction action{PortAction::Kind::unplug, std::nullopt};
         if (words.size() == 2) {

@@ -7,7 +7,12 @@
 //   set stop 0|1 | set count N | get stop | get count | pulse N       (ID-2)
 //   fault MODULE|all|device KIND [PROBABILITY] [DELAY]   KIND: none silent error-ack garbage
 //                                                        short long delay
-//   log | log clear           the request log: "<µs since start> <request> <answer>"
+//   log | log clear | log take   the request log: "<µs since start> <request> <answer>";
+//                             take = read and clear at once
+//   faults                    how many transactions each fault kind hit since the start:
+//                             "silent N error-ack N garbage N short N long N delay N"
+//   clock                     "<start> <now>": the simulator's start on CLOCK_MONOTONIC and the
+//                             time since then, in µs, to put log times on another process's clock
 //   unplug [DURATION] | replug
 //   help
 //
@@ -41,6 +46,6 @@ inline constexpr std::string_view control_help =
     "set stop 0|1 | set count N | get stop | get count | pulse N      (ID-2)\n"
     "fault MODULE|all|device KIND [PROBABILITY] [DELAY]\n"
     "      KIND: none silent error-ack garbage short long delay\n"
-    "log | log clear | unplug [DURATION] | replug | help\n";
+    "log | log clear | log take | faults | clock | unplug [DURATION] | replug | help\n";
 
 }  // namespace ioport::sim

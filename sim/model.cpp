@@ -126,6 +126,7 @@ std::optional<Answer> DeviceModel::apply_fault(const Fault& fault, std::string g
         return Answer{std::move(good), {}};
     const char terminator = good.back();
     apply = fault.kind == FaultKind::delay;
+    ++injected_[static_cast<std::size_t>(fault.kind)];
     switch (fault.kind) {
         case FaultKind::silent:
             return std::nullopt;

@@ -85,6 +85,9 @@ class DeviceModel {
     // A fault on every module (hub) or on the device (ID-2).
     void set_fault_all(Fault fault);
 
+    // Faults that hit a transaction since the start, by kind (index: FaultKind).
+    const std::array<std::uint64_t, 7>& injected() const { return injected_; }
+
     const std::deque<LogEntry>& log() const { return log_; }
     void clear_log() { log_.clear(); }
 
@@ -103,6 +106,7 @@ class DeviceModel {
     std::uint16_t counter_ = 0;
     Fault id2_fault_;
     std::mt19937_64 rng_;
+    std::array<std::uint64_t, 7> injected_{};
     std::deque<LogEntry> log_;
 };
 

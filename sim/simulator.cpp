@@ -203,6 +203,19 @@ asio::awaitable<void> Simulator::serve_control(asio::local::stream_protocol::soc
         std::string line(asio::buffers_begin(input.data()),
                          asio::buffers_begin(input.data()) + static_cast<std::ptrdiff_t>(n) - 1);
         input.consume(n);
+        // The clock is the simulator's, not the model's: the model only sees the times it is
+        // given. steady_clock is CLOCK_MONOTONIC, the same in every process on the machine.
+        if (line == "clock" || line == "clock\r") {
+            const auto micros = [](Clock::duration d) {
+                return std::chrono::duration_cast<std::chrono::microseconds>(d).count();
+            };
+            const auto text = fmt::format("{} {}\nok\n", micros(started_.time_since_epoch()),
+                                          micros(Clock::now() - started_));
+            co_await asio::async_write(socket, asio::buffer(text),
+                                       redirect_error(use_awaitable, ec));
+            if (ec) co_return;
+            continue;
+        }
         auto reply = execute(model_, line);
         if (reply.action) apply(*reply.action);
         co_await asio::async_write(socket, asio::buffer(reply.text),

@@ -336,6 +336,7 @@ TEST_F(ContractTest, AnalogModulesRawAndExactFloat32) {
     ASSERT_TRUE(register_becomes(client, 79, 54321));  // dcvim 7: 72 + 7
     ASSERT_TRUE(register_becomes(client, 64, 12345));  // dccim 0
     ASSERT_TRUE(register_becomes(client, 41, 32768));  // acm3c 0 channel 1: 40 + 0 * 3 + 1
+    ASSERT_TRUE(register_becomes(client, 17, 100));    // acm3p 0 channel 1: 16 + 0 * 3 + 1
     EXPECT_EQ(ir_values(client, 40, 3), (std::vector<std::uint16_t>{1, 32768, 65535}));
     EXPECT_EQ(ir_values(client, 16, 3), (std::vector<std::uint16_t>{0, 100, 65534}));
 

@@ -30,6 +30,7 @@ class GatewayProcess {
     GatewayProcess& operator=(const GatewayProcess&) = delete;
 
     std::uint16_t port() const { return port_; }
+    pid_t pid() const { return pid_; }
     // The configuration file the daemon was started with; rewrite it before a SIGHUP.
     std::string config_path() const { return dir_ / "ioportd.yaml"; }
     void rewrite_config(const std::string& yaml) const;

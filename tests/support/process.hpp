@@ -71,6 +71,8 @@ class SimProcess {
     SimProcess(const std::string& device_flag, const std::string& modules,
                std::vector<std::string> extra = {});
     const std::string& link() const { return link_; }
+    // The control socket, for clients of its own (one per thread: ControlClient blocks).
+    const std::string& control() const { return control_; }
     // Sends a control command; fails the test on an error reply.
     std::string ctl(std::string_view command);
     Result<std::string> try_ctl(std::string_view command);

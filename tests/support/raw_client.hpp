@@ -52,10 +52,15 @@ struct Response {
 
 class RawClient {
   public:
-    explicit RawClient(std::uint16_t port, const std::string& host = "127.0.0.1") {
+    // `receive_buffer`: SO_RCVBUF in bytes before connecting (0: the system's), so that a client
+    // that does not read fills its window quickly.
+    explicit RawClient(std::uint16_t port, const std::string& host = "127.0.0.1",
+                       int receive_buffer = 0) {
         const bool v6 = host.find(':') != std::string::npos;
         fd_ = ::socket(v6 ? AF_INET6 : AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
         if (fd_ < 0) return;
+        if (receive_buffer > 0)
+            ::setsockopt(fd_, SOL_SOCKET, SO_RCVBUF, &receive_buffer, sizeof receive_buffer);
         sockaddr_storage storage{};
         socklen_t length = 0;
         if (v6) {

@@ -67,6 +67,13 @@ TEST_F(ControlTest, LogAndPortActions) {
     EXPECT_EQ(run(hub, "log"), "5 a0 0000\n5 a7 -\nok 2\n");
     EXPECT_EQ(run(hub, "log clear"), "ok\n");
     EXPECT_EQ(run(hub, "log"), "ok 0\n");
+    (void)hub.receive("a0\r", 7us);
+    EXPECT_EQ(run(hub, "log take"), "7 a0 0000\nok 1\n");  // read and cleared in one step
+    EXPECT_EQ(run(hub, "log"), "ok 0\n");
+    EXPECT_EQ(run(hub, "log drop"), "error log takes nothing, 'clear' or 'take'\n");
+    EXPECT_EQ(run(hub, "fault dim16:0 garbage"), "ok\n");
+    (void)hub.receive("a0\ra0\r", 9us);
+    EXPECT_EQ(run(hub, "faults"), "silent 0 error-ack 0 garbage 2 short 0 long 0 delay 0\nok\n");
     const auto unplug = execute(hub, "unplug 2s");
     ASSERT_TRUE(unplug.action);
     EXPECT_EQ(unplug.action->kind, PortAction::Kind::unplug);

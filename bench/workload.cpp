@@ -1,0 +1,849 @@
+#include "bench/workload.hpp"
+
+#include <sys/select.h>
+#include <algorithm>
+
+#include <cerrno>
+#include <cstring>
+#include <limits>
+#include <random>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <modbus/modbus.h>
+
+namespace ioport::bench {
+
+// --- The hub ------------------------------------------------------------------------------
+
+namespace {
+
+struct ModuleInfo {
+    ModuleAddress address;
+    bool output;
+    int words;  // registers of its data: 3 for acm3p, else 1
+    std::uint16_t initial;
+};
+
+// Indices into this table name modules below. Inputs first.
+constexpr int input_module_count = 5;
+const std::array<ModuleInfo, 11> modules{{
+    {{ModuleType::dim16, 0}, false, 1, 0},
+    {{ModuleType::dim16, 1}, false, 1, 0},
+    {{ModuleType::lim16, 0}, false, 1, 0},
+    {{ModuleType::acm3p, 0}, false, 3, 0},
+    {{ModuleType::dccim, 0}, false, 1, 0},
+    {{ModuleType::dom16, 0}, true, 1, 0x00F0},
+    {{ModuleType::dom16, 1}, true, 1, 0},
+    {{ModuleType::dom16, 2}, true, 1, 0},
+    {{ModuleType::dom16, 3}, true, 1, 0},
+    {{ModuleType::rgbdm, 0}, true, 1, 2},
+    {{ModuleType::mux8m, 0}, true, 1, 0x0707},
+}};
+
+std::string sim_name(ModuleAddress address) {
+    return fmt::format("{}:{}", name(address.type), address.number);
+}
+
+std::optional<int> module_index(ModuleAddress address) {
+    for (std::size_t i = 0; i < modules.size(); ++i)
+        if (modules[i].address == address) return static_cast<int>(i);
+    return std::nullopt;
+}
+
+// --- Reads ----------------------------------------------------------------------------------
+
+enum class Table { coils, discrete_inputs, holding_registers, input_registers };
+
+struct ReadKind {
+    Table table;
+    int address;
+    int count;
+    std::vector<int> samples;  // the modules it reads, in address order; none: diagnostics
+};
+
+const std::vector<ReadKind> read_kinds{
+    {Table::input_registers, 0, 2, {0, 1}},          // two dim16 words
+    {Table::discrete_inputs, 0, 16, {0}},            // dim16 0 bit by bit
+    {Table::input_registers, 8, 1, {2}},             // lim16 0
+    {Table::input_registers, 16, 3, {3}},            // acm3p 0, three channels
+    {Table::input_registers, 64, 1, {4}},            // dccim 0
+    {Table::holding_registers, 0, 4, {5, 6, 7, 8}},  // four dom16 words
+    {Table::coils, 16, 16, {6}},                     // dom16 1 bit by bit
+    {Table::holding_registers, 8, 1, {9}},           // rgbdm 0
+    {Table::holding_registers, 16, 1, {10}},         // mux8m 0
+    {Table::input_registers, 1000, 10, {}},          // diagnostics: must always answer
+};
+
+// --- Writes ---------------------------------------------------------------------------------
+
+// A write job: one owner writes these targets (module, bits) together.
+struct Job {
+    std::vector<int> targets;
+};
+// Targets: 0 dom16 0 word; 1–16 dom16 1 bit 0–15; 17, 18 dom16 2 and 3 words (one FC16);
+// 19 rgbdm 0; 20 mux8m 0.
+struct TargetInfo {
+    int module;
+    std::uint16_t mask;
+};
+std::vector<TargetInfo> target_infos() {
+    std::vector<TargetInfo> targets{{5, 0xFFFF}};
+    for (int bit = 0; bit < 16; ++bit)
+        targets.push_back({6, static_cast<std::uint16_t>(1U << bit)});
+    targets.push_back({7, 0xFFFF});
+    targets.push_back({8, 0xFFFF});
+    targets.push_back({9, 0xFFFF});
+    targets.push_back({10, 0xFFFF});
+    return targets;
+}
+std::vector<Job> jobs() {
+    std::vector<Job> list{{{0}}};
+    for (int bit = 0; bit < 16; ++bit)
+        list.push_back({{1 + bit}});
+    list.push_back({{17, 18}});
+    list.push_back({{19}});
+    list.push_back({{20}});
+    return list;
+}
+const std::vector<TargetInfo> all_targets = target_infos();
+const std::vector<Job> all_jobs = jobs();
+
+constexpr auto no_request = std::numeric_limits<Clock::rep>::max();
+constexpr std::size_t max_problems = 40;
+constexpr std::uint64_t problems_per_kind = 8;
+constexpr auto histogram_bin = 100us;
+constexpr std::size_t histogram_bins = 20000;  // 2 s; slower ones count in the last bin
+
+std::size_t bin_of(std::chrono::microseconds latency) {
+    return std::min<std::size_t>(static_cast<std::size_t>(latency / histogram_bin),
+                                 histogram_bins - 1);
+}
+
+Latency latency_of(const std::vector<std::uint64_t>& histogram, std::chrono::microseconds max) {
+    Latency latency;
+    latency.max = max;
+    for (const auto count : histogram)
+        latency.count += count;
+    std::uint64_t seen = 0;
+    for (std::size_t i = 0; i < histogram.size(); ++i) {
+        seen += histogram[i];
+        if (seen * 100 >= latency.count * 99) {
+            latency.p99 = histogram_bin * static_cast<int>(i + 1);
+            break;
+        }
+    }
+    return latency;
+}
+
+// The value an input module is given in its n-th state: unique per module (3 tag bits), and
+// the three acm3p channels tied together so that a mix of two answers is caught.
+std::array<std::uint16_t, 3> input_state(int module, std::uint32_t n) {
+    const auto first = static_cast<std::uint16_t>((module + 1) << 13 | (n & 0x1FFF));
+    return {first, static_cast<std::uint16_t>(n * 7 + 1), static_cast<std::uint16_t>(~first)};
+}
+
+double ms_since(Clock::time_point start, Clock::time_point at) {
+    return std::chrono::duration<double, std::milli>(at - start).count();
+}
+
+}  // namespace
+
+std::string hub_sim_modules() {
+    std::string list;
+    for (const auto& module : modules)
+        list += (list.empty() ? "" : ",") + sim_name(module.address);
+    return list;
+}
+
+std::string hub_link_yaml(const std::string& device, std::chrono::milliseconds timeout, int retries,
+                          std::chrono::milliseconds refresh) {
+    std::string text = fmt::format(
+        "  - name: hub0\n    protocol: ioport\n    device: {}\n    unit_id: 1\n    timeout: {}ms\n"
+        "    retries: {}\n    modules:\n",
+        device, timeout.count(), retries);
+    for (const auto& module : modules) {
+        std::string extra;
+        if (module.output)
+            extra =
+                fmt::format(", initial: 0x{:04X}, refresh: {}ms", module.initial, refresh.count());
+        else if (module.address.type == ModuleType::dccim)
+            extra = ", poll: 100ms";  // a module that is not read every cycle
+        text += fmt::format("      - {{ type: {}, number: {}{} }}\n", name(module.address.type),
+                            module.address.number, extra);
+    }
+    return text;
+}
+
+bool Report::clean() const {
+    return wrong_values == 0 && lost_writes == 0 && failed_writes_pushed == 0 &&
+           unanswered_writes == 0 && transport_errors == 0 && unexpected_exceptions == 0;
+}
+
+std::string Report::summary() const {
+    std::string text = fmt::format(
+        "reads {} (ok {}, 0B {}), writes {} (acknowledged {}, 04 {}, 0B {}), serial "
+        "transactions {}, commands applied {}, input states {}\n"
+        "wrong values {}, lost writes {}, failed writes pushed later {}, unanswered writes {}, "
+        "transport errors {}, unexpected exceptions {}; failed writes the device applied late "
+        "{}\n"
+        "read latency max {:.1f} ms p99 {:.1f} ms; write latency max {:.1f} ms p99 {:.1f} ms\n",
+        reads, reads_ok, reads_stale, writes, writes_acked, writes_04, writes_0b, transactions,
+        commands_applied, input_states, wrong_values, lost_writes, failed_writes_pushed,
+        unanswered_writes, transport_errors, unexpected_exceptions, failed_writes_applied_late,
+        static_cast<double>(read_latency.max.count()) / 1000.0,
+        static_cast<double>(read_latency.p99.count()) / 1000.0,
+        static_cast<double>(write_latency.max.count()) / 1000.0,
+        static_cast<double>(write_latency.p99.count()) / 1000.0);
+    for (const auto& problem : problems)
+        text += "  " + problem + "\n";
+    return text;
+}
+
+Result<SimClock> sim_clock(const std::string& control) {
+    sim::ControlClient client;
+    if (auto connected = client.connect(control); !connected) return Unexpected(connected.error());
+    const auto reply = client.command("clock");
+    if (!reply) return Unexpected(reply.error());
+    std::istringstream words(*reply);
+    std::int64_t start = 0;
+    if (!(words >> start)) return fail(Errc::malformed, "clock: " + *reply);
+    return SimClock(Clock::time_point(std::chrono::microseconds(start)));
+}
+
+// --- State ----------------------------------------------------------------------------------
+
+struct Workload::Op {
+    Clock::time_point sent;
+    Clock::time_point received;
+    int outcome = 0;  // 0 normal response, 1–255 exception code, < 0 −errno (no response)
+    bool write = false;
+    int kind = 0;  // read kind or write job
+    // Reads: the words per sample in order (acm3p: three). Writes: per target of the job, the
+    // value written under the target's mask.
+    std::array<std::uint16_t, 4> words{};
+};
+
+struct Workload::ClientSlot {
+    std::atomic<Clock::rep> in_flight{no_request};
+    std::mutex mutex;
+    std::vector<Op> done;
+};
+
+struct Window {
+    Clock::time_point sent;
+    Clock::time_point received;
+    std::uint16_t value;
+    enum class Outcome { acknowledged, failed, unknown } outcome;
+    bool spans_modules;
+    bool timed_out;
+    int seen = 0;  // commands carrying `value` applied inside the window
+};
+
+// A write answered 04/0B whose own transmissions the device may still apply after the answer:
+// the simulator reads the line when it gets the CPU, so a command the gateway gave up on after
+// its timeout can reach the device later (as on a real line with a slow module). Those are the
+// write's own retries, not desired state: at most `retries + 1` of them, before any command
+// that carries the desired value again, and within `late_grace`.
+struct LateTransmissions {
+    std::uint16_t value;
+    int remaining;
+    Clock::time_point until;
+};
+constexpr auto late_grace = 1s;
+
+struct Workload::Target {
+    TargetInfo info;
+    std::deque<Window> windows;
+    std::vector<std::uint16_t> allowed;  // outside the windows: what commands may carry
+    std::unordered_set<std::uint16_t> confirmable;
+    std::optional<std::uint16_t> last_failed;
+    std::optional<LateTransmissions> late;
+};
+
+Workload::Workload(WorkloadSettings settings) : settings_(std::move(settings)) {
+    for (int i = 0; i < settings_.clients; ++i)
+        slots_.push_back(std::make_unique<ClientSlot>());
+    carried_.resize(static_cast<std::size_t>(settings_.clients));
+    newest_served_.assign(static_cast<std::size_t>(settings_.clients),
+                          std::vector<std::size_t>(input_module_count, 0));
+    applied_.resize(modules.size());
+    input_history_.resize(input_module_count);
+    input_index_.resize(input_module_count);
+    for (int m = 0; m < input_module_count; ++m) {
+        // The power-on state, had from the start.
+        input_history_[static_cast<std::size_t>(m)].push_back({{}, {}, {0, 0, 0}});
+        input_index_[static_cast<std::size_t>(m)][0].push_back(0);
+    }
+    for (const auto& info : all_targets) {
+        const auto initial = static_cast<std::uint16_t>(
+            modules[static_cast<std::size_t>(info.module)].initial & info.mask);
+        targets_.push_back(Target{info, {}, {initial}, {initial}, std::nullopt, std::nullopt});
+    }
+    read_histogram_.assign(histogram_bins, 0);
+    write_histogram_.assign(histogram_bins, 0);
+}
+
+Workload::~Workload() {
+    if (!stop_) (void)finish();
+}
+
+Result<> Workload::start() {
+    auto clock = sim_clock(settings_.sim_control);
+    if (!clock) return Unexpected(clock.error());
+    sim_clock_ = *clock;
+    checker_control_ = std::make_unique<sim::ControlClient>();
+    if (auto connected = checker_control_->connect(settings_.sim_control); !connected)
+        return connected;
+    // The log is not cleared: the commands from before the start (the gateway setting the
+    // outputs to `initial`) are part of what the device had.
+    started_ = Clock::now();
+    inputs_ = std::thread([this] { run_inputs(); });
+    for (int i = 0; i < settings_.clients; ++i)
+        clients_.emplace_back([this, i] { run_client(i); });
+    checker_ = std::thread([this] { run_checker(); });
+    return {};
+}
+
+bool Workload::write_in_flight() const {
+    return write_in_flight_.load() > 0;
+}
+
+Report Workload::finish() {
+    stop_ = true;
+    for (auto& client : clients_)
+        if (client.joinable()) client.join();
+    inputs_stop_ = true;
+    if (inputs_.joinable()) inputs_.join();
+    if (checker_.joinable()) checker_.join();
+    std::lock_guard lock(check_mutex_);
+    if (checker_control_) {
+        check();
+        // Windows still open: every client has stopped, so they all have ended.
+        for (auto& target : targets_)
+            finalize_windows(target, Clock::time_point::max());
+    }
+    return current_report();
+}
+
+Report Workload::snapshot() const {
+    std::lock_guard lock(check_mutex_);
+    return current_report();
+}
+
+Report Workload::current_report() const {
+    auto report = report_;
+    report.read_latency = latency_of(read_histogram_, max_read_latency_);
+    report.write_latency = latency_of(write_histogram_, max_write_latency_);
+    {
+        std::lock_guard lock(inputs_mutex_);
+        report.input_states = input_states_;
+    }
+    return report;
+}
+
+void Workload::problem(std::uint64_t Report::*counter, std::string text) {
+    // The first few of every kind: one kind in bulk must not hide another.
+    if (++(report_.*counter) <= problems_per_kind && report_.problems.size() < max_problems)
+        report_.problems.push_back(std::move(text));
+}
+
+// --- Input driver ---------------------------------------------------------------------------
+
+void Workload::run_inputs() {
+    sim::ControlClient control;
+    if (auto connected = control.connect(settings_.sim_control); !connected) return;
+    std::uint32_t n = 0;
+    while (!inputs_stop_) {
+        const auto period_start = Clock::now();
+        ++n;
+        for (int m = 0; m < input_module_count && !inputs_stop_; ++m) {
+            const auto words = input_state(m, n);
+            const auto& module = modules[static_cast<std::size_t>(m)];
+            std::string command = "set " + sim_name(module.address);
+            for (int w = 0; w < module.words; ++w)
+                command += fmt::format(" {}", words[static_cast<std::size_t>(w)]);
+            const auto before = Clock::now();
+            const auto reply = control.command(command);
+            const auto after = Clock::now();
+            if (!reply) continue;  // never set: never expected
+            std::lock_guard lock(inputs_mutex_);
+            auto& history = input_history_[static_cast<std::size_t>(m)];
+            input_index_[static_cast<std::size_t>(m)][words[0]].push_back(history.size());
+            history.push_back({before, after, words});
+            ++input_states_;
+        }
+        const auto next = period_start + settings_.input_period;
+        while (!inputs_stop_ && Clock::now() < next)
+            std::this_thread::sleep_for(std::min<Clock::duration>(next - Clock::now(), 5ms));
+    }
+}
+
+// --- Clients --------------------------------------------------------------------------------
+
+namespace {
+
+struct ModbusFree {
+    void operator()(modbus_t* context) const {
+        modbus_close(context);
+        modbus_free(context);
+    }
+};
+using Context = std::unique_ptr<modbus_t, ModbusFree>;
+
+int outcome_of(int rc) {
+    if (rc >= 0) return 0;
+    const int err = errno;
+    if (err > MODBUS_ENOBASE && err <= MODBUS_ENOBASE + 11) return err - MODBUS_ENOBASE;
+    return -err;
+}
+
+}  // namespace
+
+void Workload::run_client(int index) {
+    std::mt19937_64 random(settings_.seed * 1000003 + static_cast<std::uint64_t>(index));
+    auto& slot = *slots_[static_cast<std::size_t>(index)];
+    std::vector<int> owned;
+    for (int job = 0; job < static_cast<int>(all_jobs.size()); ++job)
+        if (job % settings_.clients == index && (job != 0 || settings_.write_dom16_0))
+            owned.push_back(job);
+    // What this client believes each of its targets holds: the last value acknowledged.
+    std::vector<std::uint16_t> desired;
+    for (const auto& target : targets_)
+        desired.push_back(target.allowed.front());
+    std::uint16_t next_word = static_cast<std::uint16_t>(0x1000 + index * 0x800);
+
+    const auto connect = [&]() -> Context {
+        while (!stop_) {
+            Context context(modbus_new_tcp("127.0.0.1", static_cast<int>(settings_.port)));
+            if (!context) return nullptr;
+            const auto timeout = settings_.response_timeout.count();
+            modbus_set_response_timeout(context.get(), static_cast<std::uint32_t>(timeout / 1000),
+                                        static_cast<std::uint32_t>(timeout % 1000 * 1000));
+            modbus_set_slave(context.get(), 1);
+            // libmodbus select()s on its socket: a descriptor above FD_SETSIZE would overflow
+            // its fd_set (a test may hold more than 1024 descriptors).
+            if (modbus_connect(context.get()) == 0 && modbus_get_socket(context.get()) < FD_SETSIZE)
+                return context;
+            std::this_thread::sleep_for(20ms);
+        }
+        return nullptr;
+    };
+    auto context = connect();
+    while (!stop_ && context) {
+        Op op;
+        const bool write = !owned.empty() && std::uniform_real_distribution<double>(0, 1)(random) <
+                                                 settings_.write_share;
+        std::array<std::uint16_t, 2> values{};  // the job's new values, whole words
+        int rc = 0;
+        // Published before `sent` is taken: the checker's horizon never passes a request that
+        // is still out (see check()).
+        slot.in_flight.store(Clock::now().time_since_epoch().count());
+        if (write) {
+            op.write = true;
+            op.kind =
+                owned[std::uniform_int_distribution<std::size_t>(0, owned.size() - 1)(random)];
+            const auto& job = all_jobs[static_cast<std::size_t>(op.kind)];
+            const auto first = static_cast<std::size_t>(job.targets[0]);
+            const bool multiple = std::uniform_int_distribution<int>(0, 1)(random) == 1;
+            ++write_in_flight_;
+            if (op.kind == 0 || op.kind == 17) {
+                // Unique words, so that each one names its write in the simulator's log.
+                do {
+                    values[0] = next_word++;
+                } while (values[0] == desired[first] || values[0] == modules[5].initial);
+                values[1] = static_cast<std::uint16_t>(values[0] ^ 0xFFFF);
+                op.words = {values[0], values[1]};
+                op.sent = Clock::now();
+                rc = op.kind == 17 ? modbus_write_registers(context.get(), 2, 2, values.data())
+                     : multiple    ? modbus_write_registers(context.get(), 0, 1, values.data())
+                                   : modbus_write_register(context.get(), 0, values[0]);
+            } else if (op.kind <= 16) {
+                const int bit = op.kind - 1;
+                const auto mask = all_targets[first].mask;
+                const std::uint8_t on = (desired[first] & mask) != 0 ? 0 : 1;
+                op.words[0] = on != 0 ? mask : 0;
+                op.sent = Clock::now();
+                rc = multiple ? modbus_write_bits(context.get(), 16 + bit, 1, &on)
+                              : modbus_write_bit(context.get(), 16 + bit, on);
+            } else {
+                const bool rgb = op.kind == 18;
+                std::uint16_t value = 0;
+                do {
+                    value = rgb ? static_cast<std::uint16_t>(
+                                      std::uniform_int_distribution<int>(0, 7)(random))
+                                : static_cast<std::uint16_t>(
+                                      std::uniform_int_distribution<int>(0, 7)(random) << 8 |
+                                      std::uniform_int_distribution<int>(0, 7)(random));
+                } while (value == desired[first]);
+                op.words[0] = value;
+                op.sent = Clock::now();
+                rc = modbus_write_register(context.get(), rgb ? 8 : 16, value);
+            }
+            op.received = Clock::now();
+            op.outcome = outcome_of(rc);
+            --write_in_flight_;
+            if (op.outcome == 0)
+                for (std::size_t t = 0; t < job.targets.size(); ++t) {
+                    auto& held = desired[static_cast<std::size_t>(job.targets[t])];
+                    const auto mask = all_targets[static_cast<std::size_t>(job.targets[t])].mask;
+                    held = static_cast<std::uint16_t>((held & ~mask) | op.words[t]);
+                }
+        } else {
+            op.kind = std::uniform_int_distribution<int>(
+                0, static_cast<int>(read_kinds.size()) - 1)(random);
+            const auto& kind = read_kinds[static_cast<std::size_t>(op.kind)];
+            std::array<std::uint16_t, 16> registers{};
+            std::array<std::uint8_t, 16> bits{};
+            op.sent = Clock::now();
+            switch (kind.table) {
+                case Table::coils:
+                    rc = modbus_read_bits(context.get(), kind.address, kind.count, bits.data());
+                    break;
+                case Table::discrete_inputs:
+                    rc = modbus_read_input_bits(context.get(), kind.address, kind.count,
+                                                bits.data());
+                    break;
+                case Table::holding_registers:
+                    rc = modbus_read_registers(context.get(), kind.address, kind.count,
+                                               registers.data());
+                    break;
+                case Table::input_registers:
+                    rc = modbus_read_input_registers(context.get(), kind.address, kind.count,
+                                                     registers.data());
+                    break;
+            }
+            op.received = Clock::now();
+            op.outcome = outcome_of(rc);
+            if (op.outcome == 0) {
+                if (kind.table == Table::coils || kind.table == Table::discrete_inputs) {
+                    std::uint16_t word = 0;
+                    for (int b = 0; b < 16; ++b)
+                        if (bits[static_cast<std::size_t>(b)] != 0)
+                            word = static_cast<std::uint16_t>(word | 1U << b);
+                    op.words[0] = word;
+                } else {
+                    std::copy_n(registers.begin(), op.words.size(), op.words.begin());
+                }
+            }
+        }
+        {
+            std::lock_guard lock(slot.mutex);
+            slot.done.push_back(op);
+        }
+        slot.in_flight.store(no_request);
+        ++completed_;
+        if (op.outcome < 0) {
+            // No answer: the connection is in an unknown state (a late response would be taken
+            // for the next request's), so start a new one.
+            context.reset();
+            context = connect();
+        }
+        const auto pause = std::chrono::microseconds(
+            std::uniform_int_distribution<long long>(0, settings_.pause.count())(random));
+        if (pause.count() > 0) std::this_thread::sleep_for(pause);
+    }
+}
+
+// --- Checker --------------------------------------------------------------------------------
+
+void Workload::run_checker() {
+    while (!stop_) {
+        const auto next = Clock::now() + 200ms;
+        while (!stop_ && Clock::now() < next)
+            std::this_thread::sleep_for(10ms);
+        std::lock_guard lock(check_mutex_);
+        check();
+    }
+}
+
+void Workload::finalize_windows(Target& target, Clock::time_point until) {
+    while (!target.windows.empty() && target.windows.front().received <= until) {
+        const auto window = target.windows.front();
+        target.windows.pop_front();
+        switch (window.outcome) {
+            case Window::Outcome::acknowledged:
+                if (window.seen == 0)
+                    problem(&Report::lost_writes,
+                            fmt::format(
+                                "lost write: {} bits {:04X} = {:04X} acknowledged "
+                                "(sent at {:.1f} ms, answered at {:.1f} ms) but never "
+                                "applied by the device in between",
+                                to_string(
+                                    modules[static_cast<std::size_t>(target.info.module)].address),
+                                target.info.mask, window.value, ms_since(started_, window.sent),
+                                ms_since(started_, window.received)));
+                target.allowed = {window.value};
+                break;
+            case Window::Outcome::failed:
+                target.last_failed = window.value;
+                if (window.spans_modules) target.allowed.push_back(window.value);
+                // Only a write that timed out (0B after every attempt's timeout) leaves
+                // transmissions behind; a 0B for a closed port sent nothing, and an error ack
+                // means the device read the command.
+                if (window.timed_out && window.seen <= settings_.retries)
+                    target.late =
+                        LateTransmissions{window.value, settings_.retries + 1 - window.seen,
+                                          window.received + late_grace};
+                break;
+            case Window::Outcome::unknown:
+                target.allowed.push_back(window.value);
+                break;
+        }
+    }
+}
+
+void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t value) {
+    finalize_windows_before(target, at);
+    const auto bits = static_cast<std::uint16_t>(value & target.info.mask);
+    const auto allowed = std::ranges::find(target.allowed, bits) != target.allowed.end();
+    const bool inside = !target.windows.empty() && target.windows.front().sent <= at;
+    if (inside && bits == target.windows.front().value) {
+        ++target.windows.front().seen;  // the write itself
+        return;
+    }
+    // Before the rest: the owner may have sent its next write before the late transmission of
+    // the one that failed reached the device.
+    if (!allowed && target.late && bits == target.late->value && target.late->remaining > 0 &&
+        at <= target.late->until) {
+        --target.late->remaining;
+        ++report_.failed_writes_applied_late;
+        return;
+    }
+    if (inside) {
+        if (allowed) return;  // a refresh of the old value while the write waits
+    } else if (allowed) {
+        target.allowed = {bits};
+        target.late.reset();  // the gateway has moved on: a failed value from now on is pushed
+        return;
+    }
+    const auto what = to_string(modules[static_cast<std::size_t>(target.info.module)].address);
+    if (target.last_failed && bits == *target.last_failed)
+        problem(&Report::failed_writes_pushed,
+                fmt::format("failed write pushed: {} bits {:04X} = {:04X} was answered with an "
+                            "exception, yet the device was sent it at {:.1f} ms",
+                            what, target.info.mask, bits, ms_since(started_, at)));
+    else
+        problem(&Report::wrong_values,
+                fmt::format("wrong state: {} bits {:04X} = {:04X} sent to the device at {:.1f} ms, "
+                            "expected {:04X}",
+                            what, target.info.mask, bits, ms_since(started_, at),
+                            target.allowed.empty() ? 0 : target.allowed.front()));
+    target.allowed.push_back(bits);  // report a wrong state once, not every refresh after it
+}
+
+void Workload::finalize_windows_before(Target& target, Clock::time_point at) {
+    while (!target.windows.empty() && target.windows.front().received < at)
+        finalize_windows(target, target.windows.front().received);
+}
+
+bool Workload::checked(int module) const {
+    return module != 5 || settings_.write_dom16_0;
+}
+
+void Workload::check() {
+    // The horizon: every request sent before it has been answered (or has failed) and is in a
+    // slot's list, and every command the device applied before it is in the simulator's log.
+    const auto now = Clock::now();
+    auto horizon = now;
+    for (const auto& slot : slots_) {
+        const auto sent = slot->in_flight.load();
+        if (sent != no_request)
+            horizon = std::min(horizon, Clock::time_point(Clock::duration(sent)));
+    }
+    const auto log = checker_control_->command("log take");
+    if (!log) {
+        problem(&Report::transport_errors,
+                fmt::format("the simulator's log could not be read: {}", log.error().message));
+        return;
+    }
+    // Commands the device acknowledged: "<µs> <request> 1".
+    std::vector<Applied> commands = std::move(carried_commands_);
+    carried_commands_.clear();
+    std::istringstream lines(*log);
+    std::string line;
+    while (std::getline(lines, line)) {
+        std::istringstream fields(line);
+        std::int64_t at = 0;
+        std::string request;
+        std::string answer;
+        if (!(fields >> at >> request >> answer)) continue;  // the count after "ok"
+        ++report_.transactions;
+        if (answer != "1") continue;
+        const auto parsed = parse_request(request);
+        if (!parsed || !is_output(parsed->module.type)) continue;
+        const auto module = module_index(parsed->module);
+        if (!module) continue;
+        commands.push_back({sim_clock_.at(at), *module, parsed->output_value});
+    }
+    std::ranges::sort(commands, {}, &Applied::at);
+    const auto later =
+        std::ranges::find_if(commands, [&](const Applied& a) { return a.at > horizon; });
+    carried_commands_.assign(later, commands.end());
+    commands.erase(later, commands.end());
+
+    // Every client's finished requests.
+    for (std::size_t c = 0; c < slots_.size(); ++c) {
+        std::lock_guard lock(slots_[c]->mutex);
+        auto& done = slots_[c]->done;
+        carried_[c].insert(carried_[c].end(), done.begin(), done.end());
+        done.clear();
+    }
+
+    // Writes sent before the horizon have all been answered: their windows go to their targets.
+    for (std::size_t c = 0; c < carried_.size(); ++c) {
+        auto& ops = carried_[c];
+        for (auto& op : ops) {
+            if (!op.write || op.sent >= horizon) continue;
+            const auto& job = all_jobs[static_cast<std::size_t>(op.kind)];
+            const auto latency =
+                std::chrono::duration_cast<std::chrono::microseconds>(op.received - op.sent);
+            ++report_.writes;
+            ++write_histogram_[bin_of(latency)];
+            max_write_latency_ = std::max(max_write_latency_, latency);
+            auto outcome = Window::Outcome::failed;
+            const auto& first = modules[static_cast<std::size_t>(
+                all_targets[static_cast<std::size_t>(job.targets[0])].module)];
+            if (op.outcome == 0) {
+                ++report_.writes_acked;
+                outcome = Window::Outcome::acknowledged;
+            } else if (op.outcome == MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE) {
+                ++report_.writes_04;
+            } else if (op.outcome == MODBUS_EXCEPTION_GATEWAY_TARGET) {
+                ++report_.writes_0b;
+            } else {
+                outcome = Window::Outcome::unknown;
+                if (op.outcome > 0)
+                    problem(&Report::unexpected_exceptions,
+                            fmt::format("client {}: write to {} answered exception {:02X}", c,
+                                        to_string(first.address), op.outcome));
+                else
+                    problem(&Report::unanswered_writes,
+                            fmt::format("client {}: write to {} sent at {:.1f} ms got no "
+                                        "answer: {}",
+                                        c, to_string(first.address), ms_since(started_, op.sent),
+                                        modbus_strerror(-op.outcome)));
+            }
+            for (std::size_t t = 0; t < job.targets.size(); ++t) {
+                auto& target = targets_[static_cast<std::size_t>(job.targets[t])];
+                const bool spans = job.targets.size() > 1;
+                const bool timed_out =
+                    op.outcome == MODBUS_EXCEPTION_GATEWAY_TARGET &&
+                    op.received - op.sent >= (settings_.retries + 1) * settings_.timeout;
+                target.windows.push_back(
+                    {op.sent, op.received, op.words[t], outcome, spans, timed_out, 0});
+                // What the image may show from now on: a value the device acknowledged.
+                if (outcome != Window::Outcome::failed || spans)
+                    target.confirmable.insert(op.words[t]);
+            }
+            op.kind = -1;  // taken
+        }
+        std::erase_if(ops, [](const Op& op) { return op.write && op.kind == -1; });
+    }
+
+    // The device's commands, in order, against each target's windows.
+    for (const auto& command : commands) {
+        ++report_.commands_applied;
+        applied_[static_cast<std::size_t>(command.module)].try_emplace(command.value, command.at);
+        for (auto& target : targets_)
+            if (target.info.module == command.module && checked(target.info.module))
+                apply_command(target, command.at, command.value);
+    }
+    for (auto& target : targets_)
+        finalize_windows(target, horizon);
+
+    // Reads answered before the horizon.
+    std::lock_guard inputs_lock(inputs_mutex_);
+    for (std::size_t c = 0; c < carried_.size(); ++c) {
+        auto& ops = carried_[c];
+        std::erase_if(ops, [&](const Op& op) {
+            if (op.write || op.received > horizon) return false;
+            check_read(static_cast<int>(c), op);
+            return true;
+        });
+    }
+}
+
+void Workload::check_read(int client, const Op& op) {
+    const auto& kind = read_kinds[static_cast<std::size_t>(op.kind)];
+    const auto latency =
+        std::chrono::duration_cast<std::chrono::microseconds>(op.received - op.sent);
+    ++report_.reads;
+    ++read_histogram_[bin_of(latency)];
+    max_read_latency_ = std::max(max_read_latency_, latency);
+    if (op.outcome == MODBUS_EXCEPTION_GATEWAY_TARGET && !kind.samples.empty()) {
+        ++report_.reads_stale;
+        return;
+    }
+    if (op.outcome > 0) {
+        problem(&Report::unexpected_exceptions,
+                fmt::format("client {}: read of {} at {} answered exception {:02X}", client,
+                            kind.count, kind.address, op.outcome));
+        return;
+    }
+    if (op.outcome < 0) {
+        problem(&Report::transport_errors,
+                fmt::format("client {}: read sent at {:.1f} ms got no answer: {}", client,
+                            ms_since(started_, op.sent), modbus_strerror(-op.outcome)));
+        return;
+    }
+    ++report_.reads_ok;
+    std::size_t word = 0;
+    for (const int m : kind.samples) {
+        const auto& module = modules[static_cast<std::size_t>(m)];
+        const auto served =
+            std::span(op.words).subspan(word, static_cast<std::size_t>(module.words));
+        word += static_cast<std::size_t>(module.words);
+        if (module.output) {
+            if (!checked(m)) continue;
+            const auto value = served[0];
+            const auto& applied = applied_[static_cast<std::size_t>(m)];
+            const auto first = applied.find(value);
+            const bool had = value == 0 || (first != applied.end() && first->second < op.received);
+            bool confirmed = true;
+            for (const auto& target : targets_)
+                if (target.info.module == m &&
+                    !target.confirmable.contains(
+                        static_cast<std::uint16_t>(value & target.info.mask)))
+                    confirmed = false;
+            if (!had || !confirmed)
+                problem(
+                    &Report::wrong_values,
+                    fmt::format("client {}: {} read {:04X} (answered at {:.1f} ms): {}", client,
+                                to_string(module.address), value, ms_since(started_, op.received),
+                                !had ? "the device never had it before"
+                                     : "no write of it was acknowledged"));
+            continue;
+        }
+        const auto& history = input_history_[static_cast<std::size_t>(m)];
+        const auto& index = input_index_[static_cast<std::size_t>(m)];
+        std::optional<std::size_t> best;
+        if (const auto found = index.find(served[0]); found != index.end())
+            for (const auto k : found->second) {
+                const auto& state = history[k];
+                if (state.set_after < op.received &&
+                    std::equal(served.begin(), served.end(), state.words.begin()))
+                    best = std::max(best.value_or(0), k);
+            }
+        auto& newest =
+            newest_served_[static_cast<std::size_t>(client)][static_cast<std::size_t>(m)];
+        if (!best) {
+            problem(
+                &Report::wrong_values,
+                fmt::format("client {}: {} read {:04X} {:04X} {:04X} (answered at {:.1f} ms): "
+                            "not a state the device had",
+                            client, to_string(module.address), served[0],
+                            served.size() > 1 ? served[1] : 0, served.size() > 2 ? served[2] : 0,
+                            ms_since(started_, op.received)));
+        } else if (*best < newest) {
+            problem(&Report::wrong_values,
+                    fmt::format("client {}: {} read state {} after it had been served state {}: "
+                                "back in time",
+                                client, to_string(module.address), *best, newest));
+        } else {
+            newest = *best;
+        }
+    }
+}
+
+}  // namespace ioport::bench

@@ -1,0 +1,725 @@
+// Faults, against the real ioportd and the real simulator: the serial line misbehaving, the
+// port unplugged, a module going silent, and Modbus clients misbehaving. Each scenario runs the
+// checked workload of bench/workload.hpp meanwhile and asserts its three things:
+//   1. the daemon stays up and keeps serving: it is running at the end, and every request of the
+//      workload's clients got a response (no timeout, no reset);
+//   2. no value served to a client was ever different from a state the simulated device really
+//      had (every read held against the simulator's history, see workload.hpp);
+//   3. every write a client saw acknowledged reached the device (a command carrying it was
+//      applied between request and response), and every write that did not answered an
+//      exception (04 or 0B); a write answered with an exception never became desired state.
+// The figures each scenario measures are printed (and recorded as test properties) for the
+// README's "Faults and recovery".
+#include <sys/resource.h>
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <atomic>
+#include <filesystem>
+#include <iostream>
+#include <random>
+#include <thread>
+
+#include <fmt/format.h>
+#include <modbus/modbus.h>
+
+#include "bench/workload.hpp"
+#include "tests/support/gateway.hpp"
+#include "tests/support/process.hpp"
+#include "tests/support/raw_client.hpp"
+
+namespace ioport::test {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using std::chrono::milliseconds;
+
+// 50 ms: on a busy 2-core machine the simulator can be starved of CPU for tens of ms, which a
+// master cannot tell from a module answering two timeouts late (see the README).
+constexpr auto serial_timeout = 50ms;
+constexpr int slot_dim16_1 = 1;
+constexpr int slot_dom16_2 = 10;
+
+milliseconds since(Clock::time_point start) {
+    return std::chrono::duration_cast<milliseconds>(Clock::now() - start);
+}
+
+// The scenario's own clock: faults are injected on a schedule, so this waits for a time, not
+// for a condition (there is none to wait for).
+void pace_until(Clock::time_point when) {
+    while (Clock::now() < when)
+        std::this_thread::sleep_for(std::min<Clock::duration>(when - Clock::now(), 5ms));
+}
+
+std::string gateway_config(const std::string& device, const std::string& modbus_extra = "") {
+    return fmt::format("modbus:\n  listen: \"127.0.0.1:0\"\n{}\nlinks:\n{}", modbus_extra,
+                       bench::hub_link_yaml(device, serial_timeout, 1));
+}
+
+// A figure for the README: printed, and kept in the test's XML properties.
+void figure(const std::string& name, const std::string& value) {
+    ::testing::Test::RecordProperty(name, value);
+    std::cout << "[ figure   ] " << name << ": " << value << "\n";
+}
+std::string ms(milliseconds value) {
+    return fmt::format("{} ms", value.count());
+}
+std::string ms(std::chrono::microseconds value) {
+    return fmt::format("{:.1f} ms", std::chrono::duration<double, std::milli>(value).count());
+}
+
+// Median and maximum of measured times.
+std::pair<milliseconds, milliseconds> median_max(std::vector<milliseconds> times) {
+    if (times.empty()) return {};
+    std::ranges::sort(times);
+    return {times[times.size() / 2], times.back()};
+}
+
+std::uint16_t register_or(ModbusClient& client, int address, std::uint16_t otherwise) {
+    const auto value = client.read_input_registers(address, 1);
+    return value ? (*value)[0] : otherwise;
+}
+
+bool all_online(ModbusClient& client, milliseconds deadline = 5s) {
+    return eventually([&] { return register_or(client, 1000, 0) == 1; }, deadline);
+}
+
+std::uint32_t read_u32(ModbusClient& client, int address) {
+    const auto words = client.read_input_registers(address, 2);
+    return words ? static_cast<std::uint32_t>((*words)[0]) << 16 | (*words)[1] : 0;
+}
+
+// Every fault kind the simulator has and how many transactions it hit.
+std::string injected(SimProcess& sim) {
+    auto text = sim.ctl("faults");
+    if (!text.empty() && text.back() == '\n') text.pop_back();
+    return text;
+}
+
+// The three assertions every scenario ends with.
+void expect_three_things(const bench::Report& report, const GatewayProcess& gateway) {
+    EXPECT_TRUE(gateway.running()) << "ioportd died";
+    EXPECT_GT(report.reads_ok, 100U);
+    EXPECT_GT(report.writes_acked, 20U);
+    EXPECT_EQ(report.transport_errors, 0U) << report.summary();
+    EXPECT_EQ(report.unexpected_exceptions, 0U) << report.summary();
+    EXPECT_EQ(report.wrong_values, 0U) << report.summary();
+    EXPECT_EQ(report.lost_writes, 0U) << report.summary();
+    EXPECT_EQ(report.unanswered_writes, 0U) << report.summary();
+    EXPECT_EQ(report.failed_writes_pushed, 0U) << report.summary();
+    std::cout << report.summary();
+}
+
+class Faults : public ::testing::Test {
+  protected:
+    explicit Faults(const std::string& modbus_extra = "", const std::string& log_level = "info")
+        : gateway(gateway_config(hub.link(), modbus_extra), {"--log-level", log_level}) {}
+
+    std::unique_ptr<bench::Workload> workload(int clients = 6, double write_share = 0.3) {
+        bench::WorkloadSettings settings;
+        settings.port = gateway.port();
+        settings.sim_control = hub.control();
+        settings.clients = clients;
+        settings.write_share = write_share;
+        settings.timeout = serial_timeout;
+        return std::make_unique<bench::Workload>(settings);
+    }
+
+    SimProcess hub{"--hub", bench::hub_sim_modules(), {"--no-line-timing", "--seed", "7"}};
+    GatewayProcess gateway;
+    ModbusClient diagnostics{gateway.port()};
+};
+
+// --- The serial line ------------------------------------------------------------------------
+
+TEST_F(Faults, RandomGarbageShortLongLateErrorAckAndSilenceOn1To10PercentOfTransactions) {
+    ASSERT_TRUE(all_online(diagnostics));
+    auto load = workload();
+    ASSERT_TRUE(load->start());
+    // Every 250 ms each module gets a new fault kind at a new probability between 1 and 10 %.
+    // Late answers come 75 ms after the request: after the 50 ms timeout, inside the silence
+    // the link waits for after a failure (answers later than twice the timeout cannot be told
+    // from the next module's: see the README).
+    const std::vector<std::string> kinds{"silent", "error-ack", "garbage",
+                                         "short",  "long",      "delay"};
+    std::mt19937 random(11);
+    const auto modules = bench::hub_sim_modules();
+    const auto started = Clock::now();
+    int changes = 0;
+    while (since(started) < 7s) {
+        std::istringstream list(modules);
+        std::string module;
+        while (std::getline(list, module, ',')) {
+            const auto& kind = kinds[random() % kinds.size()];
+            const double probability = std::uniform_real_distribution<double>(0.01, 0.10)(random);
+            hub.ctl(fmt::format("fault {} {} {:.3f}{}", module, kind, probability,
+                                kind == "delay" ? " 75ms" : ""));
+        }
+        ++changes;
+        pace_until(started + changes * 250ms);
+    }
+    hub.ctl("fault all none");
+    const auto faults_stopped = Clock::now();
+    EXPECT_TRUE(all_online(diagnostics));
+    const auto recovered = since(faults_stopped);
+    // A refresh period with every module online, so that the last states are checked too.
+    pace_until(Clock::now() + 500ms);
+    const auto report = load->finish();
+
+    expect_three_things(report, gateway);
+    const auto failed = read_u32(diagnostics, 1006);
+    const auto ok = read_u32(diagnostics, 1004);
+    figure("serial fault rounds", std::to_string(changes));
+    figure("faults injected", injected(hub));
+    figure("transactions ok / failed (IR 1004, 1006)", fmt::format("{} / {}", ok, failed));
+    figure("writes answered 04 / 0B", fmt::format("{} / {}", report.writes_04, report.writes_0b));
+    figure("reads answered 0B (stale)", std::to_string(report.reads_stale));
+    figure("all online again after the faults stopped", ms(recovered));
+    std::istringstream counts(injected(hub));
+    std::string kind;
+    std::uint64_t count = 0;
+    while (counts >> kind >> count)
+        EXPECT_GT(count, 0U) << kind << " was never injected";
+    EXPECT_GT(failed, 0U);
+    EXPECT_GT(report.writes_04, 0U);  // error acks reached clients as 04
+}
+
+// --- The port -------------------------------------------------------------------------------
+
+TEST_F(Faults, FiftyUnplugReplugCyclesAtRandomMomentsIncludingDuringWrites) {
+    ASSERT_TRUE(all_online(diagnostics));
+    const auto opens_before = read_u32(diagnostics, 1008);
+    auto load = workload(6, 0.5);
+    ASSERT_TRUE(load->start());
+    std::mt19937 random(5);
+    std::vector<milliseconds> recoveries;
+    int during_write = 0;
+    for (int cycle = 0; cycle < 50; ++cycle) {
+        SCOPED_TRACE(cycle);
+        // A random moment: every other cycle the moment a write is on its way to the device.
+        const auto wait = milliseconds(random() % 40);
+        const auto from = Clock::now();
+        eventually(
+            [&] { return since(from) >= wait && (cycle % 2 == 0 || load->write_in_flight()); }, 1s);
+        const auto out_for = milliseconds(1 + random() % 60);
+        const auto opens = read_u32(diagnostics, 1008);
+        if (load->write_in_flight()) ++during_write;
+        hub.ctl("unplug");
+        pace_until(Clock::now() + out_for);  // out for a random time
+        hub.ctl("replug");
+        const auto replugged = Clock::now();
+        // Back: the port reopened once more, and every module is online again.
+        ASSERT_TRUE(eventually(
+            [&] {
+                return register_or(diagnostics, 1000, 0) == 1 &&
+                       read_u32(diagnostics, 1008) == opens + 1;
+            },
+            5s))
+            << "not back after the replug";
+        recoveries.push_back(std::chrono::duration_cast<milliseconds>(Clock::now() - replugged));
+    }
+    const auto report = load->finish();
+    expect_three_things(report, gateway);
+    const auto [median, max] = median_max(recoveries);
+    figure("unplug cycles", "50");
+    figure("unplugs while a write was in flight", std::to_string(during_write));
+    figure("replug to every module online, median", ms(median));
+    figure("replug to every module online, max", ms(max));
+    figure("writes answered 0B", std::to_string(report.writes_0b));
+    EXPECT_EQ(read_u32(diagnostics, 1008), opens_before + 50);  // every replug reopened once
+    EXPECT_GE(during_write, 15);
+    EXPECT_GT(report.writes_0b, 0U);
+    // Reopen attempts at most every 2 s (gateway.md §4), then the restore; the rest is room for
+    // a busy machine's scheduling.
+    EXPECT_LT(max, 3s);
+}
+
+// --- A module -------------------------------------------------------------------------------
+
+TEST_F(Faults, AModuleThatStopsAnsweringMidRunAndComesBack) {
+    ASSERT_TRUE(all_online(diagnostics));
+    auto load = workload(6, 0.4);
+    ASSERT_TRUE(load->start());
+    ASSERT_TRUE(eventually([&] { return load->completed() > 200; }));
+    // An input and an output module go silent; the rest of the hub must not notice.
+    hub.ctl("fault dim16:1 silent");
+    hub.ctl("fault dom16:2 silent");
+    const auto silenced = Clock::now();
+    ASSERT_TRUE(eventually([&] { return register_or(diagnostics, 1100 + slot_dim16_1, 0) == 2; }));
+    const auto detected = since(silenced);
+    ASSERT_TRUE(eventually([&] { return register_or(diagnostics, 1100 + slot_dom16_2, 0) == 2; }));
+    const auto output_detected = since(silenced);
+    EXPECT_EQ(register_or(diagnostics, 1000, 0), 2);  // open, some module not online
+    // Meanwhile the other modules keep being polled: dim16 0's age stays small.
+    std::uint16_t worst_age = 0;
+    const auto outage_end = Clock::now() + 2s;
+    eventually(
+        [&] {
+            worst_age = std::max(worst_age, register_or(diagnostics, 1200, 65535));
+            return Clock::now() >= outage_end;
+        },
+        5s);
+    // The silent input answers 0B, not its last value.
+    const auto stale = diagnostics.read_input_registers(1, 1);
+    ASSERT_FALSE(stale);
+    EXPECT_EQ(stale.error(), 0x0B);
+    hub.ctl("fault dim16:1 none");
+    hub.ctl("fault dom16:2 none");
+    const auto back = Clock::now();
+    ASSERT_TRUE(eventually([&] { return register_or(diagnostics, 1100 + slot_dim16_1, 0) == 1; }));
+    const auto input_back = since(back);
+    ASSERT_TRUE(all_online(diagnostics));
+    const auto all_back = since(back);
+    pace_until(Clock::now() + 500ms);
+    const auto report = load->finish();
+
+    expect_three_things(report, gateway);
+    figure("silent input module marked no answer (status 2) after", ms(detected));
+    figure("silent output module marked no answer after", ms(output_detected));
+    figure("age of the other modules during the outage, worst", fmt::format("{} ms", worst_age));
+    figure("answering again to online (status 1), input module", ms(input_back));
+    figure("answering again to every module online", ms(all_back));
+    figure("writes answered 0B during the outage", std::to_string(report.writes_0b));
+    EXPECT_LT(detected, 3s);  // (retries + 1) timeouts and a silence, and a busy machine
+    // Writes go first (gateway.md §4), and each write to the silent module takes the line for
+    // (retries + 1) timeouts and a silence: a client that writes to it without pause delays
+    // every poll in between by that much. The other modules' age stays bounded all the same
+    // (by a generous margin: a busy machine stretches every step).
+    EXPECT_LT(milliseconds(worst_age), 60 * serial_timeout);
+    EXPECT_GT(report.writes_0b, 0U);
+    EXPECT_GT(report.reads_stale, 0U);
+    EXPECT_LT(all_back, 4500ms);  // back-off is at most 4 s
+}
+
+// --- Modbus clients -------------------------------------------------------------------------
+
+Bytes pdu(std::uint8_t function, std::initializer_list<std::uint16_t> words) {
+    Bytes bytes{function};
+    const auto fields = be16(words);
+    bytes.insert(bytes.end(), fields.begin(), fields.end());
+    return bytes;
+}
+
+// Runs `body` over and over in its own thread until stopped; counts its rounds and failures.
+class Misbehaviour {
+  public:
+    // A round at most every 5 ms: misbehaving, not a denial of service on a 2-core machine.
+    Misbehaviour(std::string name, std::function<std::optional<std::string>()> body)
+        : name_(std::move(name)), thread_([this, body = std::move(body)] {
+              while (!stop_) {
+                  pace_until(Clock::now() + 5ms);
+                  if (auto failure = body()) {
+                      std::lock_guard lock(mutex_);
+                      if (failures_.size() < 5) failures_.push_back(*failure);
+                      ++failed_;
+                  }
+                  ++rounds_;
+              }
+          }) {}
+    ~Misbehaviour() { stop(); }
+    Misbehaviour(const Misbehaviour&) = delete;
+    Misbehaviour& operator=(const Misbehaviour&) = delete;
+    void stop() {
+        stop_ = true;
+        if (thread_.joinable()) thread_.join();
+    }
+    void expect_ok() {
+        stop();
+        EXPECT_GT(rounds_.load(), 0) << name_;
+        EXPECT_EQ(failed_.load(), 0)
+            << name_ << ": " << fmt::format("{}", fmt::join(failures_, "; "));
+        figure("rounds of " + name_, std::to_string(rounds_.load()));
+    }
+    bool stopping() const { return stop_; }
+
+  private:
+    std::string name_;
+    std::atomic<bool> stop_{false};
+    std::atomic<int> rounds_{0};
+    std::atomic<int> failed_{0};
+    std::mutex mutex_;
+    std::vector<std::string> failures_;
+    std::thread thread_;
+};
+
+class MisbehavingClients : public Faults {
+  protected:
+    MisbehavingClients() : Faults("  max_connections: 1100", "debug") {}
+};
+
+TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
+    ASSERT_TRUE(all_online(diagnostics));
+    auto load = workload();
+    ASSERT_TRUE(load->start());
+    const auto port = gateway.port();
+    std::mt19937 seed_random(3);
+    const auto closes_silently = [port](const Bytes& bytes,
+                                        milliseconds within) -> std::optional<std::string> {
+        RawClient client(port);
+        if (!client.connected()) return "could not connect";
+        client.send(bytes);
+        if (!client.closed_silently(within)) return "not closed silently";
+        return std::nullopt;
+    };
+    std::mt19937 header_random(seed_random());
+    Misbehaviour malformed("malformed MBAP headers", [&] {
+        // A protocol id other than 0, or a length field of 0 or 1.
+        const bool protocol = header_random() % 2 == 0;
+        const auto header =
+            protocol ? be16({1, static_cast<std::uint16_t>(1 + header_random() % 0xFFFF), 6})
+                     : be16({1, 0, static_cast<std::uint16_t>(header_random() % 2)});
+        auto frame = header;
+        frame.insert(frame.end(), {1, 4, 0x03, 0xE8, 0, 1});
+        return closes_silently(frame, 2s);
+    });
+    std::mt19937 length_random(seed_random());
+    Misbehaviour oversize("oversize lengths", [&] {
+        auto frame = be16({2, 0, static_cast<std::uint16_t>(255 + length_random() % 65281)});
+        frame.insert(frame.end(), {1, 4, 0x03, 0xE8, 0, 1});
+        return closes_silently(frame, 2s);
+    });
+    std::mt19937 function_random(seed_random());
+    Misbehaviour unknown("unknown function codes", [&]() -> std::optional<std::string> {
+        RawClient client(port);
+        for (int i = 0; i < 20; ++i) {
+            std::uint8_t function = 0;
+            do {
+                function = static_cast<std::uint8_t>(function_random() % 256);
+            } while (function == 0 || (function >= 1 && function <= 6) || function == 15 ||
+                     function == 16);
+            const auto transaction = static_cast<std::uint16_t>(function_random());
+            const auto response = client.ask(1, {function, 0, 0, 0, 1}, transaction);
+            if (!response || response->transaction != transaction ||
+                response->pdu != Bytes{static_cast<std::uint8_t>(function | 0x80), 0x01})
+                return fmt::format("function {:02X} not answered 01", function);
+        }
+        return std::nullopt;
+    });
+    std::mt19937 quantity_random(seed_random());
+    Misbehaviour quantities("quantities out of range", [&]() -> std::optional<std::string> {
+        RawClient client(port);
+        for (int i = 0; i < 20; ++i) {
+            const std::uint8_t function = quantity_random() % 2 == 0 ? 3 : 1;
+            const auto limit = function == 3 ? 125 : 2000;
+            const auto quantity = static_cast<std::uint16_t>(
+                quantity_random() % 3 == 0 ? 0 : limit + 1 + quantity_random() % (65535 - limit));
+            const auto response = client.ask(1, pdu(function, {0, quantity}));
+            if (!response || response->exception() != 0x03)
+                return fmt::format("FC{:02X} quantity {} not answered 03", function, quantity);
+        }
+        return std::nullopt;
+    });
+    Misbehaviour half("half a frame then silence", [&]() -> std::optional<std::string> {
+        RawClient client(port);
+        const auto frame = adu(9, 1, pdu(4, {1000, 1}));
+        client.send(Bytes(frame.begin(), frame.begin() + 5));
+        const auto sent = Clock::now();
+        if (!client.closed_silently(3s)) return "not closed";
+        const auto after = since(sent);
+        if (after < 900ms || after > 1600ms)
+            return fmt::format("closed after {} ms", after.count());
+        return std::nullopt;
+    });
+    std::mt19937 pipeline_random(seed_random());
+    Misbehaviour pipelined("pipelined requests", [&]() -> std::optional<std::string> {
+        RawClient client(port);
+        Bytes burst;
+        std::vector<std::uint16_t> transactions;
+        for (int i = 0; i < 50; ++i) {
+            const auto transaction = static_cast<std::uint16_t>(pipeline_random());
+            transactions.push_back(transaction);
+            const auto request = i % 3 == 0 ? pdu(4, {1000, 10}) : pdu(2, {1000, 72});
+            const auto frame = adu(transaction, 1, request);
+            burst.insert(burst.end(), frame.begin(), frame.end());
+        }
+        client.send(burst);
+        for (const auto transaction : transactions) {
+            const auto response = client.receive();
+            if (!response || response->transaction != transaction || response->exception() != 0)
+                return std::string("answered out of order, wrongly or not at all");
+        }
+        return std::nullopt;
+    });
+    // Reads of 125 registers, never read back: MBs of responses, more than the socket buffers
+    // hold. The daemon stops reading its requests and closes it once it has read nothing for
+    // 5 s.
+    std::atomic<int> deaf_closed{0};
+    Misbehaviour deaf("never reading the responses", [&]() -> std::optional<std::string> {
+        RawClient client(port, "127.0.0.1", 4096);
+        Bytes burst;
+        for (int i = 0; i < 20000; ++i) {
+            const auto frame = adu(static_cast<std::uint16_t>(i), 1, pdu(4, {200, 125}));
+            burst.insert(burst.end(), frame.begin(), frame.end());
+        }
+        client.send(burst);
+        const auto sent = Clock::now();
+        // The deaf client is closed by the daemon; it finds out by reading, much later.
+        eventually([&] { return deaf.stopping() || since(sent) >= 7s; }, 10s);
+        if (since(sent) >= 7s && gateway.log().find("read nothing for 5 s") != std::string::npos)
+            ++deaf_closed;
+        return std::nullopt;
+    });
+    std::atomic<int> crowd_served{0};
+    std::atomic<bool> crowd_done{false};
+    Misbehaviour crowd("1000 connections at once", [&]() -> std::optional<std::string> {
+        if (crowd_done) {  // once: each round leaves 1000 ports in TIME_WAIT
+            eventually([&] { return crowd.stopping(); }, 20s);
+            return std::nullopt;
+        }
+        crowd_done = true;
+        std::vector<std::unique_ptr<RawClient>> clients;
+        clients.reserve(1000);
+        for (int i = 0; i < 1000; ++i)
+            clients.push_back(std::make_unique<RawClient>(port));
+        for (auto& client : clients)
+            client->send(adu(1, 1, pdu(4, {1000, 1})));
+        for (auto& client : clients) {
+            if (!client->receive(3s)) return std::string("a connection was not served");
+            ++crowd_served;
+        }
+        return std::nullopt;
+    });
+    // About 8 s, paced by the workload: the deaf client needs 5 s to be closed.
+    const auto started = Clock::now();
+    EXPECT_TRUE(eventually([&] { return since(started) >= 8s; }, 20s));
+    for (auto* misbehaviour :
+         {&malformed, &oversize, &unknown, &quantities, &half, &pipelined, &deaf, &crowd})
+        misbehaviour->expect_ok();
+    const auto report = load->finish();
+    expect_three_things(report, gateway);
+    figure("crowd connections served", std::to_string(crowd_served.load()));
+    figure("read latency of the well-behaved clients, max", ms(report.read_latency.max));
+    figure("read latency of the well-behaved clients, p99", ms(report.read_latency.p99));
+    EXPECT_EQ(crowd_served.load(), 1000);
+    EXPECT_GT(deaf_closed.load(), 0);
+    EXPECT_LT(report.read_latency.p99, 50ms);
+}
+
+// --- A client that trickles its request ----------------------------------------------------
+
+// The classic libmodbus server: select() over the listener and the clients, modbus_receive()
+// and modbus_reply() for the one that is readable. The yardstick for the trickle scenario.
+class PlainLibmodbusServer {
+  public:
+    PlainLibmodbusServer()
+        : context_(modbus_new_tcp("127.0.0.1", 0)), mapping_(modbus_mapping_new(0, 0, 0, 1100)) {
+        listener_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+        sockaddr_in address{};
+        address.sin_family = AF_INET;
+        address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+        socklen_t length = sizeof address;
+        if (::bind(listener_, reinterpret_cast<sockaddr*>(&address), sizeof address) != 0 ||
+            ::listen(listener_, 16) != 0 ||
+            ::getsockname(listener_, reinterpret_cast<sockaddr*>(&address), &length) != 0)
+            ADD_FAILURE() << "the plain libmodbus server cannot listen";
+        port_ = ntohs(address.sin_port);
+        thread_ = std::thread([this] { serve(); });
+    }
+    ~PlainLibmodbusServer() {
+        stop_ = true;
+        thread_.join();
+        for (int fd = 0; fd <= max_fd_; ++fd)
+            if (FD_ISSET(fd, &clients_)) ::close(fd);
+        ::close(listener_);
+        modbus_mapping_free(mapping_);
+        modbus_free(context_);
+    }
+    std::uint16_t port() const { return port_; }
+
+  private:
+    void serve() {
+        FD_ZERO(&clients_);
+        max_fd_ = listener_;
+        std::array<std::uint8_t, MODBUS_TCP_MAX_ADU_LENGTH> query{};
+        while (!stop_) {
+            fd_set ready = clients_;
+            FD_SET(listener_, &ready);
+            timeval tick{0, 50000};
+            if (::select(max_fd_ + 1, &ready, nullptr, nullptr, &tick) <= 0) continue;
+            if (FD_ISSET(listener_, &ready)) {
+                const int fd = ::accept4(listener_, nullptr, nullptr, SOCK_CLOEXEC);
+                if (fd >= 0 && fd < FD_SETSIZE) {
+                    FD_SET(fd, &clients_);
+                    max_fd_ = std::max(max_fd_, fd);
+                }
+            }
+            for (int fd = 0; fd <= max_fd_; ++fd) {
+                if (fd == listener_ || !FD_ISSET(fd, &ready)) continue;
+                modbus_set_socket(context_, fd);
+                const int rc = modbus_receive(context_, query.data());
+                if (rc > 0) {
+                    modbus_reply(context_, query.data(), rc, mapping_);
+                } else if (rc == -1) {
+                    ::close(fd);
+                    FD_CLR(fd, &clients_);
+                }
+            }
+        }
+    }
+
+    modbus_t* context_;
+    modbus_mapping_t* mapping_;
+    int listener_ = -1;
+    std::uint16_t port_ = 0;
+    fd_set clients_{};
+    int max_fd_ = 0;
+    std::atomic<bool> stop_{false};
+    std::thread thread_;
+};
+
+// Sends `frame` a byte every 0.4 s (after its first `at_once` bytes) while `other` asks for a
+// register again and again; the worst time `other` waited for an answer.
+milliseconds worst_wait_while_trickling(std::uint16_t port, const Bytes& frame,
+                                        std::size_t at_once) {
+    RawClient trickler(port);
+    RawClient other(port);
+    std::atomic<bool> trickled{false};
+    std::thread trickle([&] {
+        trickler.send(Bytes(frame.begin(), frame.begin() + static_cast<std::ptrdiff_t>(at_once)));
+        const auto started = Clock::now();
+        for (std::size_t sent = at_once; sent < frame.size(); ++sent) {
+            pace_until(started + (sent - at_once + 1) * 400ms);
+            trickler.send(Bytes{frame[sent]});
+        }
+        trickled = true;
+    });
+    milliseconds worst{};
+    eventually(
+        [&] {
+            const auto asked = Clock::now();
+            other.send(adu(5, 1, pdu(4, {1000, 1})));
+            if (!other.receive(5s)) return true;
+            worst = std::max(worst, since(asked));
+            return trickled.load();
+        },
+        10s);
+    trickle.join();
+    return worst;
+}
+
+TEST_F(Faults, AClientTricklingARequestAByteEvery400msFreezesNoOtherClient) {
+    ASSERT_TRUE(all_online(diagnostics));
+    // The header at once, then the PDU a byte every 0.4 s: 2 s for the whole request.
+    const auto frame = adu(4, 1, pdu(4, {1000, 1}));
+    milliseconds plain_worst{};
+    {
+        PlainLibmodbusServer plain;
+        plain_worst = worst_wait_while_trickling(plain.port(), frame, 7);
+    }
+    auto load = workload();
+    ASSERT_TRUE(load->start());
+    // ioportd closes the trickler 1 s after its first byte; it comes back once more.
+    milliseconds ioportd_worst{};
+    for (int i = 0; i < 2; ++i)
+        ioportd_worst =
+            std::max(ioportd_worst, worst_wait_while_trickling(gateway.port(), frame, 7));
+    const auto report = load->finish();
+    expect_three_things(report, gateway);
+    figure("plain libmodbus select() server: another client's worst wait", ms(plain_worst));
+    figure("ioportd: another client's worst wait", ms(ioportd_worst));
+    figure("ioportd: the workload's worst read latency meanwhile", ms(report.read_latency.max));
+    // Far from the yardstick's seconds, with room for a busy machine's scheduling.
+    EXPECT_GE(plain_worst, 1s) << "the yardstick did not freeze: the measurement is wrong";
+    EXPECT_LT(ioportd_worst, 250ms);
+    EXPECT_LT(report.read_latency.max, 500ms);
+}
+
+// --- More than 1024 connections -------------------------------------------------------------
+
+// Sets the soft RLIMIT_NOFILE for as long as it lives.
+class DescriptorLimit {
+  public:
+    explicit DescriptorLimit(rlim_t soft) {
+        ::getrlimit(RLIMIT_NOFILE, &saved_);
+        rlimit changed = saved_;
+        changed.rlim_cur = std::min(soft, saved_.rlim_max);
+        ::setrlimit(RLIMIT_NOFILE, &changed);
+    }
+    ~DescriptorLimit() { ::setrlimit(RLIMIT_NOFILE, &saved_); }
+    DescriptorLimit(const DescriptorLimit&) = delete;
+    DescriptorLimit& operator=(const DescriptorLimit&) = delete;
+
+  private:
+    rlimit saved_{};
+};
+
+std::size_t open_descriptors(pid_t pid) {
+    std::size_t count = 0;
+    std::error_code ec;
+    for (auto it = std::filesystem::directory_iterator(fmt::format("/proc/{}/fd", pid), ec);
+         !ec && it != std::filesystem::directory_iterator(); it.increment(ec))
+        ++count;
+    return count;
+}
+
+class ManyConnections : public ::testing::Test {
+  protected:
+    static constexpr int connections = 1100;
+    static bool enough_descriptors() {
+        rlimit limit{};
+        ::getrlimit(RLIMIT_NOFILE, &limit);
+        return limit.rlim_max == RLIM_INFINITY || limit.rlim_max >= 2 * connections + 200;
+    }
+
+    SimProcess hub{"--hub", bench::hub_sim_modules(), {"--no-line-timing"}};
+    // Started as systemd starts services: a soft limit of 1024 descriptors.
+    std::unique_ptr<GatewayProcess> gateway = [&] {
+        DescriptorLimit as_systemd(1024);
+        return std::make_unique<GatewayProcess>(
+            gateway_config(hub.link(), fmt::format("  max_connections: {}", connections + 20)));
+    }();
+    DescriptorLimit ours{RLIM_INFINITY};  // the test's own connections need more than 1024
+};
+
+TEST_F(ManyConnections, MoreThan1024AreServedLikeTheRest) {
+    if (!enough_descriptors()) GTEST_SKIP() << "the hard descriptor limit is too low here";
+    ModbusClient diagnostics(gateway->port());
+    ASSERT_TRUE(all_online(diagnostics));
+    // The workload's libmodbus clients select() on their sockets: they are made first, while
+    // the test's descriptors are still low. dom16 0 is left to the connections below.
+    bench::WorkloadSettings settings;
+    settings.port = gateway->port();
+    settings.sim_control = hub.control();
+    settings.clients = 4;
+    settings.write_dom16_0 = false;
+    bench::Workload load(settings);
+    ASSERT_TRUE(load.start());
+
+    std::vector<std::unique_ptr<RawClient>> clients;
+    clients.reserve(connections);
+    for (int i = 0; i < connections; ++i) {
+        clients.push_back(std::make_unique<RawClient>(gateway->port()));
+        ASSERT_TRUE(clients.back()->connected()) << "connection " << i;
+    }
+    EXPECT_TRUE(eventually([&] { return open_descriptors(gateway->pid()) > 1100; }));
+    // Every connection, the newest (highest descriptors) first: a read, and every fifth one a
+    // write that goes to the device.
+    int served = 0;
+    int written = 0;
+    std::uint16_t last_written = 0;
+    for (int i = connections - 1; i >= 0; --i) {
+        auto& client = *clients[static_cast<std::size_t>(i)];
+        const auto read = client.ask(1, pdu(4, {1000, 10}), static_cast<std::uint16_t>(i));
+        if (read && read->transaction == i && read->exception() == 0 && read->pdu.size() == 22)
+            ++served;
+        if (i % 5 != 0) continue;
+        const auto value = static_cast<std::uint16_t>(0x4000 + i);
+        const auto write = client.ask(1, pdu(6, {0, value}));
+        if (write && write->pdu == pdu(6, {0, value})) {
+            ++written;
+            last_written = value;
+        }
+    }
+    const auto report = load.finish();
+    EXPECT_EQ(served, connections);
+    EXPECT_EQ(written, connections / 5);
+    EXPECT_EQ(hub.ctl("get dom16:0"), fmt::format("{}\n", last_written));
+    EXPECT_TRUE(gateway->wait_for_log("file descriptor limit raised"));
+    figure("connections served", std::to_string(served));
+    figure("descriptors open in ioportd", std::to_string(open_descriptors(gateway->pid())));
+    expect_three_things(report, *gateway);
+}
+
+}  // namespace
+}  // namespace ioport::test
