@@ -314,19 +314,18 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     std::string why = "closed by the client";
     while (c->open) {
         bool completed_frame = false;
-        while (c->end - c->begin >= modbus::mbap_length) {
-            const auto header =
-                modbus::parse_mbap(std::span<const std::uint8_t, modbus::mbap_length>(
-                    &c->rx[c->begin], modbus::mbap_length));
-            if (auto valid = modbus::check_mbap(header); !valid) {
-                why = valid.error().message;
+        for (;;) {
+            const auto next =
+                modbus::next_adu(std::span(c->rx).subspan(c->begin, c->end - c->begin));
+            if (!next) {
+                why = next.error().message;
                 c->close();
                 break;
             }
-            const std::size_t total = modbus::mbap_length - 1 + header.length;
-            if (c->end - c->begin < total) break;
+            if (!*next) break;  // the rest of the request is still on its way
+            const auto adu = **next;
             c->busy = true;
-            const bool keep = co_await handle(*c, {&c->rx[c->begin], total});
+            const bool keep = co_await handle(*c, adu);
             c->busy = false;
             c->last_activity = Clock::now();
             if (stopping_) {
@@ -339,7 +338,7 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
                 c->close();
                 break;
             }
-            c->begin += total;
+            c->begin += adu.size();
             completed_frame = true;
         }
         if (!c->open) break;
