@@ -9,6 +9,8 @@
 
 #include <fmt/format.h>
 
+#include "daemon/modbus_reply.hpp"
+
 namespace ioport::daemon {
 namespace {
 
@@ -33,14 +35,6 @@ std::string describe(const tcp::endpoint& endpoint) {
     const auto address = endpoint.address();
     return address.is_v6() ? fmt::format("[{}]:{}", address.to_string(), endpoint.port())
                            : fmt::format("{}:{}", address.to_string(), endpoint.port());
-}
-
-// libmodbus answers function + 0x80, which for a request function code of 0x80 or above wraps
-// to a byte without the exception bit (0xFF → 0x7F, a normal-looking response). The exception
-// response is the request's function code with its high bit set, whatever the code.
-int reply_exception(modbus_t* context, std::span<std::uint8_t> request, unsigned code) {
-    request[modbus::mbap_length] &= 0x7F;
-    return modbus_reply_exception(context, request.data(), code);
 }
 
 struct ModbusFree {
@@ -107,8 +101,7 @@ ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::Modbus
       policy_{settings_.read_only, settings_.stale},
       log_(log),
       accept_retry_(executor),
-      scratch_(modbus_mapping_new(gateway::coil_count, 0, gateway::holding_register_count, 0)) {
-    if (!scratch_) throw std::bad_alloc();
+      scratch_(scratch_mapping()) {
     set_units(units);
 }
 
@@ -119,9 +112,7 @@ void ModbusServer::set_units(const Units& units) {
     if (units.size() == 1) units_[0] = units_[255] = units.front();
 }
 
-ModbusServer::~ModbusServer() {
-    modbus_mapping_free(scratch_);
-}
+ModbusServer::~ModbusServer() = default;
 
 Result<ModbusServer::Acceptor> ModbusServer::listen(const config::ModbusSettings& settings) {
     boost::system::error_code ec;
@@ -366,23 +357,22 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
 }
 
 asio::awaitable<bool> ModbusServer::handle(Connection& c, std::span<const std::uint8_t> adu) {
-    // libmodbus may look past a short request; it only ever sees zeros there.
-    std::array<std::uint8_t, modbus::max_adu_length + 4> request{};
-    std::memcpy(request.data(), adu.data(), adu.size());
-    const int length = static_cast<int>(adu.size());
+    const PaddedRequest request(adu);
     auto* context = c.context.get();
     const auto unit_id = adu[modbus::mbap_length - 1];
     const auto unit = units_[unit_id];  // held: a reload may replace the link meanwhile
-    if (!unit) co_return reply_exception(context, request, MODBUS_EXCEPTION_GATEWAY_PATH) > 0;
+    if (!unit)
+        co_return reply_exception(context, request, modbus::Exception::gateway_path_unavailable) >
+            0;
     auto plan = gateway::plan(unit->state(), policy_, adu.subspan(modbus::mbap_length));
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
-        co_return reply_exception(context, request, static_cast<unsigned>(*exception)) > 0;
+        co_return reply_exception(context, request, *exception) > 0;
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan))
-        co_return modbus_reply(context, request.data(), length, unit->image(read->diagnostics)) > 0;
+        co_return reply(context, request, unit->image(read->diagnostics)) > 0;
     const auto failed = co_await unit->write(std::get<gateway::WritePlan>(std::move(plan)));
     if (!c.open) co_return false;
-    if (failed) co_return reply_exception(context, request, static_cast<unsigned>(*failed)) > 0;
-    co_return modbus_reply(context, request.data(), length, scratch_) > 0;
+    if (failed) co_return reply_exception(context, request, *failed) > 0;
+    co_return reply(context, request, scratch_.get()) > 0;
 }
 
 }  // namespace ioport::daemon

@@ -20,6 +20,7 @@
 
 #include "config/gateway_config.hpp"
 #include "daemon/link_scheduler.hpp"
+#include "daemon/modbus_reply.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {
@@ -83,7 +84,7 @@ class ModbusServer {
     asio::steady_timer accept_retry_;
     std::unordered_set<Connection*> connections_;
     std::unordered_map<std::string, Clock::time_point> refused_logged_;
-    modbus_mapping_t* scratch_;  // write responses are built here, never in an image
+    Mapping scratch_;  // write responses are built here, never in an image
     bool stopping_ = false;
 };
 
