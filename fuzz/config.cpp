@@ -57,7 +57,10 @@ void check_modbus(const config::ModbusSettings& modbus) {
     check_duration(modbus.keepalive);
     for (const auto& network : modbus.allow) {
         check(network.prefix >= 0 && network.prefix <= (network.v6 ? 128 : 32), "prefix length");
-        // No host bits: the network contains its own address, and only with its prefix.
+        // CIDR: no bit set after the prefix (the loader says "did you mean …" otherwise).
+        const std::size_t bits = network.v6 ? 128 : 32;
+        for (auto bit = static_cast<std::size_t>(network.prefix); bit < bits; ++bit)
+            check((network.address[bit / 8] >> (7 - bit % 8) & 1U) == 0, "no host bits");
         check(config::contains(network, network.address, network.v6), "a network contains itself");
     }
 }

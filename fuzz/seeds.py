@@ -68,6 +68,42 @@ example = gateway_md.split("```yaml\n", 1)[1].split("```", 1)[0]
 write("config", "gateway-md-example.yaml", example.encode())
 for path in sorted((REPO / "config").glob("*.yaml")):
     write("config", path.name, path.read_bytes())
+write("config", "every-setting.yaml", b"""\
+modbus:
+  listen: "[::]:1502"
+  max_connections: 4
+  idle_timeout: 0
+  allow: ["10.0.0.0/8", "192.168.1.7", "fd00::/8", "::1/128", "0.0.0.0/0"]
+  read_only: true
+  word_order: little
+  stale: hold
+  keepalive: 90s
+on_shutdown: initial
+log_level: debug
+links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/serial/by-id/usb-FTDI_hub0
+    baud: 38400
+    unit_id: 247
+    timeout: 1500us
+    retries: 10
+    modules:
+      - { type: dim16, number: 7, poll: 250ms }
+      - { type: dom16, number: 1, initial: 0b1010, refresh: 10ms }
+      - { type: rgbdm, number: 2, initial: magenta, refresh: 2m }
+      - { type: mux8m, number: 3, initial: 0x0702 }
+      - { type: acm3c, number: 4 }
+      - { type: dccim, number: 5, poll: 0 }
+      - { type: dcvim, number: 6 }
+      - { type: lim16, number: 0 }
+      - { type: acm3p, number: 1 }
+  - name: press
+    protocol: id2
+    device: /dev/ttyS0
+    timeout: 10s
+    retries: 0
+""")
 write("config", "errors.yaml", b"""\
 modbus:
   listen: "[::1]:70000"
