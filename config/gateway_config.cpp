@@ -9,10 +9,12 @@
 #include <limits>
 #include <map>
 #include <span>
+#include <sstream>
 #include <system_error>
 #include <utility>
 
 #include <fmt/format.h>
+#include <yaml-cpp/eventhandler.h>
 #include <yaml-cpp/yaml.h>
 
 #include "config/duration.hpp"
@@ -687,6 +689,76 @@ void Loader::check_unique(const Fields& f, const LinkConfig& link, bool unit_id_
     }
 }
 
+// --- Documents ------------------------------------------------------------------------------
+
+// yaml-cpp 0.7's LoadAll never returns on some invalid text, a ',' outside [ ] or { } for one
+// (jbeder/yaml-cpp#1040, fixed upstream after 0.8): its parser stops consuming the text and
+// yields the same empty document over and over, and LoadAll keeps each one until memory runs
+// out. So the documents are counted here, a bounded number of them, and one that starts where the
+// previous one did is a syntax error.
+class DocumentStarts : public YAML::EventHandler {
+  public:
+    struct Document {
+        YAML::Mark start;
+        std::optional<YAML::Mark> root;  // of its root node, where LoadAll's Node has its mark
+    };
+    std::vector<Document> documents;
+
+    void OnDocumentStart(const YAML::Mark& mark) override { documents.push_back({mark, {}}); }
+    void OnDocumentEnd() override {}
+    void OnNull(const YAML::Mark& mark, YAML::anchor_t) override { node(mark); }
+    void OnAlias(const YAML::Mark& mark, YAML::anchor_t) override { node(mark); }
+    void OnScalar(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                  const std::string&) override {
+        node(mark);
+    }
+    void OnSequenceStart(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                         YAML::EmitterStyle::value) override {
+        node(mark);
+    }
+    void OnSequenceEnd() override {}
+    void OnMapStart(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                    YAML::EmitterStyle::value) override {
+        node(mark);
+    }
+    void OnMapEnd() override {}
+
+  private:
+    void node(const YAML::Mark& mark) {
+        if (!documents.empty() && !documents.back().root) documents.back().root = mark;
+    }
+};
+
+struct Documents {
+    std::optional<YAML::Mark> second;    // the root of a second document
+    std::optional<YAML::Mark> stuck_at;  // where the parser stopped making progress
+};
+
+Documents scan_documents(const std::string& text) {
+    std::istringstream stream(text);
+    YAML::Parser parser(stream);
+    DocumentStarts starts;
+    auto& documents = starts.documents;
+    // Three are enough to tell a second document from a parser stuck at the first or second.
+    while (documents.size() < 3 && parser.HandleNextDocument(starts)) {
+        const auto count = documents.size();
+        if (count >= 2 && documents[count - 1].start.pos == documents[count - 2].start.pos)
+            return {std::nullopt, documents[count - 1].start};
+    }
+    if (documents.size() < 2) return {};
+    return {documents[1].root.value_or(documents[1].start), std::nullopt};
+}
+
+std::string stuck_message(const std::string& text, const YAML::Mark& mark) {
+    const auto at = static_cast<std::size_t>(std::max(mark.pos, 0));
+    if (at < text.size() && text[at] == ',')
+        return fmt::format(
+            "YAML syntax error at column {}: a ',' separates the items of a [ ] or {{ }} "
+            "list, and there is none here",
+            mark.column + 1);
+    return fmt::format("YAML syntax error at column {}: no value can start here", mark.column + 1);
+}
+
 Parsed<std::string> read_file(const std::filesystem::path& path) {
     const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
     if (fd < 0) return Unexpected(std::generic_category().message(errno));
@@ -736,13 +808,19 @@ std::string resolve_device(const std::string& device) {
 ConfigResult parse_config(std::string_view yaml, const std::string& file,
                           const DeviceResolver& resolve) {
     Loader loader(file, resolve);
+    const std::string text(yaml);
     // yaml-cpp reports syntax errors by throwing; from here on they are values.
     try {
-        const auto documents = YAML::LoadAll(std::string(yaml));
-        if (documents.size() > 1)
-            loader.add(line_of(documents[1]), "",
+        const auto documents = scan_documents(text);
+        if (documents.stuck_at) {
+            const auto& mark = *documents.stuck_at;
+            return Unexpected(
+                std::vector{ConfigError{file, mark.line + 1, "", stuck_message(text, mark)}});
+        }
+        if (documents.second)
+            loader.add(documents.second->line + 1, "",
                        "one YAML document only: remove the second '---' and what follows");
-        return loader.load(documents.empty() ? YAML::Node() : documents.front());
+        return loader.load(YAML::Load(text));  // the first document, or null for none
     } catch (const YAML::Exception& e) {
         return Unexpected(std::vector{
             ConfigError{file, e.mark.line + 1, "", fmt::format("YAML syntax error: {}", e.msg)}});

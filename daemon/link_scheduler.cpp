@@ -1,7 +1,6 @@
 #include "daemon/link_scheduler.hpp"
 
 #include <algorithm>
-#include <new>
 
 namespace ioport::daemon {
 namespace {
@@ -34,18 +33,6 @@ bool is_port_failure(Errc code) {
 }
 
 }  // namespace
-
-UnitImage::UnitImage()
-    : mapping_(modbus_mapping_new_start_address(
-          0, gateway::coil_count, 0, gateway::discrete_input_count, 0,
-          gateway::holding_register_count, 0, gateway::input_register_count)) {
-    if (!mapping_) throw std::bad_alloc();
-    auto* m = mapping_.get();
-    tables_ = {{m->tab_bits, gateway::coil_count},
-               {m->tab_input_bits, gateway::discrete_input_count},
-               {m->tab_registers, gateway::holding_register_count},
-               {m->tab_input_registers, gateway::input_register_count}};
-}
 
 struct LinkScheduler::PendingWrite {
     PendingWrite(const asio::any_io_executor& executor, gateway::WritePlan write_plan)
@@ -283,8 +270,7 @@ asio::awaitable<std::optional<Exception>> LinkScheduler::apply(
     if (!entry) co_return Exception::illegal_data_address;  // the planner rules this out
     auto& module = entries_[*entry];
     // Merged now, not when the request arrived: another client's write may have come first.
-    const auto value =
-        static_cast<std::uint16_t>((module.desired & ~change.mask) | (change.value & change.mask));
+    const auto value = gateway::merged(module.desired, change);
     const auto result = co_await transact(*entry, value);
     if (result) {
         module.desired = value;

@@ -22,6 +22,7 @@
 
 #include "config/gateway_config.hpp"
 #include "daemon/log.hpp"
+#include "daemon/modbus_reply.hpp"
 #include "daemon/poll_plan.hpp"
 #include "link/asio.hpp"
 #include "link/serial_link.hpp"
@@ -31,21 +32,6 @@ namespace ioport::daemon {
 
 inline constexpr std::chrono::microseconds first_reopen_delay = 100ms;
 inline constexpr std::chrono::microseconds max_reopen_delay = 2s;
-
-// A unit's four tables in a libmodbus mapping, so modbus_reply() answers reads straight from it.
-class UnitImage {
-  public:
-    UnitImage();
-    modbus_mapping_t* mapping() const { return mapping_.get(); }
-    const gateway::Tables& tables() const { return tables_; }
-
-  private:
-    struct Free {
-        void operator()(modbus_mapping_t* mapping) const { modbus_mapping_free(mapping); }
-    };
-    std::unique_ptr<modbus_mapping_t, Free> mapping_;
-    gateway::Tables tables_;
-};
 
 class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
   public:

@@ -7,7 +7,6 @@
 
 #include <algorithm>
 #include <cstring>
-#include <new>
 
 #include <fmt/format.h>
 
@@ -37,15 +36,6 @@ std::string describe(const tcp::endpoint& endpoint) {
     const auto address = endpoint.address();
     return address.is_v6() ? fmt::format("[{}]:{}", address.to_string(), endpoint.port())
                            : fmt::format("{}:{}", address.to_string(), endpoint.port());
-}
-
-// libmodbus answers function + 0x80, which for a request function code of 0x80 or above wraps
-// to a byte without the exception bit (0xFF → 0x7F, a normal-looking response). The exception
-// response is the request's function code with its high bit set, whatever the code.
-Result<Bytes> reply_exception(ReplyBuilder& replies, std::span<std::uint8_t> request,
-                              unsigned code) {
-    request[modbus::mbap_length] &= 0x7F;
-    return replies.exception(request, code);
 }
 
 }  // namespace
@@ -122,8 +112,7 @@ ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::Modbus
       policy_{settings_.read_only, settings_.stale},
       log_(log),
       accept_retry_(executor),
-      scratch_(modbus_mapping_new(gateway::coil_count, 0, gateway::holding_register_count, 0)) {
-    if (!scratch_) throw std::bad_alloc();
+      scratch_(scratch_mapping()) {
     set_units(units);
 }
 
@@ -135,9 +124,7 @@ void ModbusServer::set_units(const Units& units) {
     if (units.size() == 1) units_[0] = units_[255] = units.front();
 }
 
-ModbusServer::~ModbusServer() {
-    modbus_mapping_free(scratch_);
-}
+ModbusServer::~ModbusServer() = default;
 
 Result<ModbusServer::Acceptor> ModbusServer::listen(const config::ModbusSettings& settings) {
     boost::system::error_code ec;
@@ -351,19 +338,18 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     std::string why = "closed by the client";
     while (c->open) {
         bool completed_frame = false;
-        while (c->end - c->begin >= modbus::mbap_length) {
-            const auto header =
-                modbus::parse_mbap(std::span<const std::uint8_t, modbus::mbap_length>(
-                    &c->rx[c->begin], modbus::mbap_length));
-            if (auto valid = modbus::check_mbap(header); !valid) {
-                why = valid.error().message;
+        for (;;) {
+            const auto next =
+                modbus::next_adu(std::span(c->rx).subspan(c->begin, c->end - c->begin));
+            if (!next) {
+                why = next.error().message;
                 c->close();
                 break;
             }
-            const std::size_t total = modbus::mbap_length - 1 + header.length;
-            if (c->end - c->begin < total) break;
+            if (!*next) break;  // the rest of the request is still on its way
+            const auto adu = **next;
             c->busy = true;
-            const auto response = co_await handle(*c, {&c->rx[c->begin], total});
+            const auto response = co_await handle(*c, adu);
             c->busy = false;
             if (response && c->open) {
                 // Whole, at the client's pace: while it does not read, nothing more is read
@@ -390,7 +376,7 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
                 c->close();
                 break;
             }
-            c->begin += total;
+            c->begin += adu.size();
             completed_frame = true;
         }
         if (!c->open) break;
@@ -419,28 +405,25 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
 
 asio::awaitable<std::optional<Bytes>> ModbusServer::handle(Connection& c,
                                                            std::span<const std::uint8_t> adu) {
-    // libmodbus may look past a short request; it only ever sees zeros there.
-    std::array<std::uint8_t, modbus::max_adu_length + 4> request{};
-    std::memcpy(request.data(), adu.data(), adu.size());
-    const int length = static_cast<int>(adu.size());
-    const auto built = [&](Result<Bytes> reply) -> std::optional<Bytes> {
-        if (reply) return std::move(*reply);
-        log_.error({.client = c.peer}, "Modbus client {}: {}", c.peer, reply.error().message);
+    const PaddedRequest request(adu);
+    const auto built = [&](Result<Bytes> response) -> std::optional<Bytes> {
+        if (response) return std::move(*response);
+        log_.error({.client = c.peer}, "Modbus client {}: {}", c.peer, response.error().message);
         return std::nullopt;
     };
     const auto unit_id = adu[modbus::mbap_length - 1];
     const auto unit = units_[unit_id];  // held: a reload may replace the link meanwhile
-    if (!unit) co_return built(reply_exception(*replies_, request, MODBUS_EXCEPTION_GATEWAY_PATH));
+    if (!unit)
+        co_return built(replies_->exception(request, modbus::Exception::gateway_path_unavailable));
     auto plan = gateway::plan(unit->state(), policy_, adu.subspan(modbus::mbap_length));
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
-        co_return built(reply_exception(*replies_, request, static_cast<unsigned>(*exception)));
+        co_return built(replies_->exception(request, *exception));
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan))
-        co_return built(replies_->reply(request, length, unit->image(read->diagnostics)));
+        co_return built(replies_->reply(request, unit->image(read->diagnostics)));
     const auto failed = co_await unit->write(std::get<gateway::WritePlan>(std::move(plan)));
     if (!c.open) co_return std::nullopt;
-    if (failed)
-        co_return built(reply_exception(*replies_, request, static_cast<unsigned>(*failed)));
-    co_return built(replies_->reply(request, length, scratch_));
+    if (failed) co_return built(replies_->exception(request, *failed));
+    co_return built(replies_->reply(request, scratch_.get()));
 }
 
 }  // namespace ioport::daemon

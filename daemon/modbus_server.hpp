@@ -5,7 +5,7 @@
 // device's acknowledgement while every other connection goes on being served. Reads never wait
 // on a serial line. libmodbus is only ever given complete, validated requests in a zero-padded
 // buffer (modbus_reply / modbus_reply_exception), builds the response into memory (see
-// reply_builder.hpp) and never touches a client's socket: all socket reads, writes and timeouts
+// modbus_reply.hpp) and never touches a client's socket: all socket reads, writes and timeouts
 // are Asio's. A response is written whole; a client that does not read its responses is not
 // read from either (TCP flow control does the rest) and is closed when it has read nothing for
 // `send_timeout` while a response waits.
@@ -23,7 +23,7 @@
 
 #include "config/gateway_config.hpp"
 #include "daemon/link_scheduler.hpp"
-#include "daemon/reply_builder.hpp"
+#include "daemon/modbus_reply.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {
@@ -95,7 +95,7 @@ class ModbusServer {
     asio::steady_timer accept_retry_;
     std::unordered_set<Connection*> connections_;
     std::unordered_map<std::string, Clock::time_point> refused_logged_;
-    modbus_mapping_t* scratch_;  // write responses are built here, never in an image
+    Mapping scratch_;  // write responses are built here, never in an image
     std::unique_ptr<ReplyBuilder> replies_;
     std::size_t max_clients_ = 0;  // max_connections, or fewer when descriptors are short
     std::size_t ports_ = 0;

@@ -584,6 +584,10 @@ float engineering_float(ModuleType type, std::uint16_t raw) {
 
 // --- Requests -------------------------------------------------------------------------------
 
+std::uint16_t merged(std::uint16_t desired, const OutputChange& change) {
+    return static_cast<std::uint16_t>((desired & ~change.mask) | (change.value & change.mask));
+}
+
 Plan plan(const UnitState& unit, const Policy& policy, std::span<const std::uint8_t> pdu) {
     const auto request = modbus::parse_request(pdu);
     if (!request) return request.error();

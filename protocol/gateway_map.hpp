@@ -80,6 +80,8 @@ struct OutputChange {
     std::uint16_t value = 0;
     friend bool operator==(const OutputChange&, const OutputChange&) = default;
 };
+// The value to command: the bits of `change.mask` from `change.value`, the rest as `desired`.
+std::uint16_t merged(std::uint16_t desired, const OutputChange& change);
 
 // Answer from the tables as they are. `diagnostics`: the request touches the diagnostics
 // blocks, whose time-dependent values must be brought up to date first.

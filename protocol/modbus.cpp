@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <utility>
 
 namespace ioport::modbus {
 namespace {
@@ -143,6 +144,17 @@ Result<> check_mbap(const Mbap& header) {
                     fmt::format("MBAP length {} (transaction {}) is outside {}-{}", header.length,
                                 header.transaction, min_mbap_length, max_mbap_length));
     return {};
+}
+
+Result<std::optional<std::span<const std::uint8_t>>> next_adu(
+    std::span<const std::uint8_t> buffered) {
+    if (buffered.size() < mbap_length) return std::nullopt;
+    const auto header = parse_mbap(buffered.first<mbap_length>());
+    if (auto valid = check_mbap(header); !valid) return Unexpected(std::move(valid).error());
+    // The length field counts the unit id, the last byte of the MBAP header.
+    const std::size_t total = mbap_length - 1 + header.length;
+    if (buffered.size() < total) return std::nullopt;
+    return buffered.first(total);
 }
 
 Expected<Request, Exception> parse_request(std::span<const std::uint8_t> pdu) {

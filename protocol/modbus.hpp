@@ -59,6 +59,15 @@ Mbap parse_mbap(std::span<const std::uint8_t, mbap_length> header);
 // field and its value. A malformed header closes the connection; it is never answered.
 Result<> check_mbap(const Mbap& header);
 
+// Frames a TCP byte stream into requests by their MBAP header. `buffered` holds the bytes
+// received and not yet handled, oldest first. Returns the complete request at its front (MBAP
+// header, unit id and PDU: the prefix of `buffered` that the length field announces), nullopt
+// when more bytes are needed, or check_mbap's error when the header at the front is malformed.
+// A request is at most max_adu_length bytes, so a buffer that long always has room for the rest
+// of an unfinished one.
+Result<std::optional<std::span<const std::uint8_t>>> next_adu(
+    std::span<const std::uint8_t> buffered);
+
 // A decoded request PDU. Only the function code is checked here, so that the gateway can apply
 // the exception precedence of gateway.md §4 (read_only before quantity, and so on).
 struct Request {

@@ -28,6 +28,7 @@
 #include "tests/support/gateway.hpp"
 #include "tests/support/process.hpp"
 #include "tests/support/raw_client.hpp"
+#include "tests/support/timing.hpp"
 
 namespace ioport::test {
 namespace {
@@ -232,7 +233,7 @@ TEST_F(Faults, FiftyUnplugReplugCyclesAtRandomMomentsIncludingDuringWrites) {
     EXPECT_GT(report.writes_0b, 0U);
     // Reopen attempts at most every 2 s (gateway.md §4), then the restore; the rest is room for
     // a busy machine's scheduling.
-    EXPECT_LT(max, 3s);
+    EXPECT_LT(max, 3s * slowdown);
 }
 
 // --- A module -------------------------------------------------------------------------------
@@ -281,7 +282,7 @@ TEST_F(Faults, AModuleThatStopsAnsweringMidRunAndComesBack) {
     figure("answering again to online (status 1), input module", ms(input_back));
     figure("answering again to every module online", ms(all_back));
     figure("writes answered 0B during the outage", std::to_string(report.writes_0b));
-    EXPECT_LT(detected, 3s);  // (retries + 1) timeouts and a silence, and a busy machine
+    EXPECT_LT(detected, 3s * slowdown);  // (retries + 1) timeouts and a silence, and a busy machine
     // Writes go first (gateway.md §4), and each write to the silent module takes the line for
     // (retries + 1) timeouts and a silence: a client that writes to it without pause delays
     // every poll in between by that much. The other modules' age stays bounded all the same
@@ -289,7 +290,7 @@ TEST_F(Faults, AModuleThatStopsAnsweringMidRunAndComesBack) {
     EXPECT_LT(milliseconds(worst_age), 60 * serial_timeout);
     EXPECT_GT(report.writes_0b, 0U);
     EXPECT_GT(report.reads_stale, 0U);
-    EXPECT_LT(all_back, 4500ms);  // back-off is at most 4 s
+    EXPECT_LT(all_back, 4500ms * slowdown);  // back-off is at most 4 s
 }
 
 // --- Modbus clients -------------------------------------------------------------------------
@@ -417,7 +418,7 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
         const auto sent = Clock::now();
         if (!client.closed_silently(3s)) return "not closed";
         const auto after = since(sent);
-        if (after < 900ms || after > 1600ms)
+        if (after < 900ms || after > 1600ms * slowdown)
             return fmt::format("closed after {} ms", after.count());
         return std::nullopt;
     });
@@ -493,7 +494,7 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
     figure("read latency of the well-behaved clients, p99", ms(report.read_latency.p99));
     EXPECT_EQ(crowd_served.load(), 1000);
     EXPECT_GT(deaf_closed.load(), 0);
-    EXPECT_LT(report.read_latency.p99, 50ms);
+    EXPECT_LT(report.read_latency.p99, 50ms * slowdown);
 }
 
 // --- A client that trickles its request ----------------------------------------------------
@@ -621,8 +622,8 @@ TEST_F(Faults, AClientTricklingARequestAByteEvery400msFreezesNoOtherClient) {
     figure("ioportd: the workload's worst read latency meanwhile", ms(report.read_latency.max));
     // Far from the yardstick's seconds, with room for a busy machine's scheduling.
     EXPECT_GE(plain_worst, 1s) << "the yardstick did not freeze: the measurement is wrong";
-    EXPECT_LT(ioportd_worst, 250ms);
-    EXPECT_LT(report.read_latency.max, 500ms);
+    EXPECT_LT(ioportd_worst, 250ms * slowdown);
+    EXPECT_LT(report.read_latency.max, 500ms * slowdown);
 }
 
 // --- More than 1024 connections -------------------------------------------------------------

@@ -294,6 +294,29 @@ TEST(GatewayConfigErrors, AYamlSyntaxErrorIsOneErrorWithItsLine) {
     expect_one_error({"links:\n  - name: a\n\tprotocol: id2\n", 3, "", "tab"});
 }
 
+// Found by fuzz/config: yaml-cpp 0.7's LoadAll loops on these, keeping an empty document per turn
+// until memory runs out (jbeder/yaml-cpp#1040). They are syntax errors at the stray comma.
+TEST(GatewayConfigErrors, AStrayCommaIsASyntaxErrorNotALoop) {
+    expect_one_error({",#", 1, "", "YAML syntax error at column 1: a ','"});
+    expect_one_error({",", 1, "", "YAML syntax error at column 1: a ','"});
+    expect_one_error({hub + "...\n  ,\n", 8, "", "YAML syntax error at column 3: a ','"});
+    expect_one_error({"- a\n,\n", 2, "", "YAML syntax error"});
+    expect_one_error({"&anchor ,", 1, "", "YAML syntax error at column 9: a ','"});
+    expect_one_error({"!tag ,", 1, "", "YAML syntax error"});
+    expect_one_error({"%YAML 1.2\n,", 2, "", "YAML syntax error"});
+}
+
+// Two documents that are empty start at different '---': a second document, not a loop.
+TEST(GatewayConfigErrors, EmptyDocumentsAreDocuments) {
+    const auto config = parse("---\n---\n");
+    ASSERT_FALSE(config);
+    ASSERT_EQ(config.error().size(), 2u) << describe(config.error());
+    EXPECT_EQ(config.error()[0].line, 0);
+    EXPECT_NE(config.error()[0].message.find("empty"), std::string::npos);
+    EXPECT_EQ(config.error()[1].line, 3);  // an empty document's root: the end of the text
+    EXPECT_NE(config.error()[1].message.find("one YAML document"), std::string::npos);
+}
+
 TEST(GatewayConfigErrors, TheFileAsAWhole) {
     expect_one_error({"", 0, "links", "empty"});
     expect_one_error({"# only a comment\n", 0, "links", "empty"});

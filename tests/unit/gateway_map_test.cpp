@@ -633,6 +633,16 @@ TEST(GatewayPlan, WriteCoilsAcrossTwoDom16SendsOneChangePerModule) {
               changes({{dom16(0), 0xFFFF, 0x800F}, {dom16(1), 0xFFFF, 0x8000}}));
 }
 
+// The scheduler merges a change into the module's desired state when it sends the command.
+TEST(GatewayPlan, AChangeReplacesTheBitsOfItsMaskOnly) {
+    const ModuleAddress dom16{ModuleType::dom16, 0};
+    EXPECT_EQ(merged(0x00FF, {dom16, 0x0010, 0x0000}), 0x00EF);  // coil 4 off
+    EXPECT_EQ(merged(0x00FF, {dom16, 0x0100, 0x0100}), 0x01FF);  // coil 8 on
+    EXPECT_EQ(merged(0x00FF, {dom16, 0xFF00, 0xAB00}), 0xABFF);  // coils 8-15
+    EXPECT_EQ(merged(0x1234, {dom16, 0xFFFF, 0x0007}), 0x0007);  // the whole register
+    EXPECT_EQ(merged(0x1234, {dom16, 0x0000, 0xFFFF}), 0x1234);  // nothing
+}
+
 TEST(GatewayPlan, WriteRegistersToEachOutputType) {
     const auto unit = ioport_unit({dom16(3), dom16(7), rgbdm(0), rgbdm(1), mux8m(0)});
     EXPECT_EQ(plan(unit, strict, write_register(3, 0xBEEF)), changes({{dom16(3), 0xFFFF, 0xBEEF}}));

@@ -110,6 +110,72 @@ TEST(ModbusMbap, LengthFieldMustBe2To254) {
         << failed.error().message;
 }
 
+// --- Framing a TCP stream ----------------------------------------------------------------------
+
+// An ADU: MBAP header with the length the PDU needs, then the PDU.
+Bytes adu(std::uint16_t transaction, std::uint8_t unit, const Bytes& pdu) {
+    const auto length = static_cast<std::uint16_t>(pdu.size() + 1);  // unit id + PDU
+    Bytes bytes{
+        high(transaction),
+        low(transaction),  // transaction id
+        0x00,
+        0x00,  // protocol id
+        high(length),
+        low(length),  // length
+        unit,         // unit id
+    };
+    bytes.insert(bytes.end(), pdu.begin(), pdu.end());
+    return bytes;
+}
+
+Bytes concat(Bytes a, const Bytes& b) {
+    a.insert(a.end(), b.begin(), b.end());
+    return a;
+}
+
+TEST(ModbusStream, ACompleteRequestIsTheFrontOfTheBuffer) {
+    const auto first = adu(1, 1, read_pdu(0x03, 0, 1));
+    const auto stream = concat(first, adu(2, 1, read_pdu(0x04, 8, 2)));  // pipelined
+    const auto next = next_adu(stream);
+    ASSERT_TRUE(next);
+    ASSERT_TRUE(*next);
+    EXPECT_EQ((*next)->data(), stream.data());
+    EXPECT_EQ((*next)->size(), first.size());
+    const auto second = next_adu(std::span(stream).subspan(first.size()));
+    ASSERT_TRUE(second && *second);
+    EXPECT_EQ((*second)->size(), stream.size() - first.size());
+}
+
+TEST(ModbusStream, AnUnfinishedRequestNeedsMoreBytes) {
+    const auto whole = adu(1, 1, read_pdu(0x03, 0, 1));
+    for (std::size_t size = 0; size < whole.size(); ++size) {
+        const auto next = next_adu(std::span(whole).first(size));
+        ASSERT_TRUE(next) << size << " bytes";
+        EXPECT_FALSE(*next) << size << " bytes";
+    }
+}
+
+TEST(ModbusStream, AMalformedHeaderIsAnErrorAsSoonAsItIsComplete) {
+    auto bad = adu(1, 1, read_pdu(0x03, 0, 1));
+    bad[3] = 0x01;                                                             // protocol id 1
+    EXPECT_TRUE(next_adu(std::span(bad).first(mbap_length - 1)).has_value());  // not yet known
+    const auto next = next_adu(std::span(bad).first(mbap_length));
+    ASSERT_FALSE(next);
+    EXPECT_NE(next.error().message.find("protocol id 1"), std::string::npos);
+    const Bytes too_long{0x00, 0x01, 0x00, 0x00, 0x00, 0xFF, 0x01};  // length 255
+    EXPECT_FALSE(next_adu(too_long));
+}
+
+TEST(ModbusStream, TheLongestRequestIsMaxAduLength) {
+    const Bytes pdu(max_mbap_length - 1, 0x10);  // the length field's 254 = unit id + 253
+    const auto whole = adu(7, 1, pdu);
+    ASSERT_EQ(whole.size(), max_adu_length);
+    const auto next = next_adu(whole);
+    ASSERT_TRUE(next && *next);
+    EXPECT_EQ((*next)->size(), max_adu_length);
+    EXPECT_FALSE(*next_adu(std::span(whole).first(max_adu_length - 1)));
+}
+
 // --- Each function code -------------------------------------------------------------------------
 
 TEST(ModbusRequest, ReadCoils) {

@@ -1,0 +1,163 @@
+// Fuzz target: the YAML configuration loader, on any text an operator (or an editor gone wrong)
+// might save as ioportd.yaml.
+//
+// Input: the file's text. parse_config() must return, never throw or crash. When it fails,
+// every error names the file and a line of it, in line order. When it succeeds, the
+// configuration keeps every rule of gateway.md §1 and §4 (checked here independently of the
+// loader), and --print-map's rows and formats can be made from it.
+#include <arpa/inet.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <set>
+#include <string>
+#include <string_view>
+
+#include "config/duration.hpp"
+#include "config/gateway_config.hpp"
+#include "fuzz/fuzz.hpp"
+#include "protocol/gateway_map.hpp"
+
+namespace ioport::fuzz {
+namespace {
+
+using namespace std::chrono_literals;
+using config::GatewayConfig;
+using config::Protocol;
+
+constexpr std::string_view file_name = "fuzz.yaml";
+
+// No file system: two spellings of one port, as a by-id symlink and the node it points to.
+std::string resolve(const std::string& device) {
+    constexpr std::string_view by_id = "/dev/serial/by-id/";
+    if (device.starts_with(by_id)) return "/dev/" + device.substr(by_id.size());
+    return device;
+}
+
+bool is_ip(const std::string& text) {
+    std::array<std::uint8_t, 16> bytes{};
+    return inet_pton(AF_INET, text.c_str(), bytes.data()) == 1 ||
+           inet_pton(AF_INET6, text.c_str(), bytes.data()) == 1;
+}
+
+// Durations are written back in messages and summaries; they must read back the same.
+void check_duration(std::chrono::microseconds duration) {
+    const auto again = parse_duration(format_duration(duration));
+    check(again.has_value() && *again == duration, "a duration formats to text that parses back");
+}
+
+void check_modbus(const config::ModbusSettings& modbus) {
+    check(is_ip(modbus.listen_host), "listen is an IP address");
+    check(modbus.max_connections >= 1 && modbus.max_connections <= 65535, "max_connections");
+    check(modbus.idle_timeout >= 0us, "idle_timeout");
+    check(modbus.keepalive >= 0us && modbus.keepalive <= 2h, "keepalive");
+    check_duration(modbus.idle_timeout);
+    check_duration(modbus.keepalive);
+    for (const auto& network : modbus.allow) {
+        check(network.prefix >= 0 && network.prefix <= (network.v6 ? 128 : 32), "prefix length");
+        // CIDR: no bit set after the prefix (the loader says "did you mean …" otherwise).
+        const std::size_t bits = network.v6 ? 128 : 32;
+        for (auto bit = static_cast<std::size_t>(network.prefix); bit < bits; ++bit)
+            check((network.address[bit / 8] >> (7 - bit % 8) & 1U) == 0, "no host bits");
+        check(config::contains(network, network.address, network.v6), "a network contains itself");
+    }
+}
+
+void check_link(const config::LinkConfig& link) {
+    check(!link.name.empty() && !link.device.empty(), "a link has a name and a device");
+    check(link.unit_id >= 1 && link.unit_id <= 247, "unit_id 1..247");
+    check(link.timeout >= 1ms && link.timeout <= 10s, "timeout 1ms..10s");
+    check(link.retries >= 0 && link.retries <= 10, "retries 0..10");
+    check_duration(link.timeout);
+    if (link.protocol == Protocol::id2) {
+        check(link.baud == 9600, "an id2 link runs at 9600 baud");
+        check(link.modules.empty(), "an id2 link has no modules");
+        return;
+    }
+    check(link.baud == 38400 || link.baud == 115200, "an ioport link runs at 38400 or 115200");
+    check(!link.modules.empty(), "an ioport link has a module");
+    std::set<int> slots;
+    for (const auto& module : link.modules) {
+        check(module.address.number < modules_per_type, "module number 0..7");
+        check(slots.insert(slot(module.address)).second, "a module is configured once per link");
+        if (is_output(module.address.type)) {
+            check(validate_output_value(module.address.type, module.initial).has_value(),
+                  "initial is a value the module can be commanded");
+            check(module.refresh >= 10ms, "refresh at least 10ms");
+            check(module.poll == 0us, "an output module is not polled");
+            check_duration(module.refresh);
+        } else {
+            check(module.initial == 0 && module.refresh == 1s, "an input module has no output");
+            check(module.poll >= 0us, "poll");
+            check_duration(module.poll);
+        }
+    }
+}
+
+// --print-map, as ioportd's main() makes it.
+void check_map(const config::LinkConfig& link) {
+    gateway::UnitMap unit{
+        link.protocol == Protocol::id2 ? gateway::UnitKind::id2 : gateway::UnitKind::ioport,
+        link.unit_id,
+        link.name,
+        {}};
+    for (const auto& module : link.modules)
+        unit.modules.push_back(module.address);
+    const auto rows = gateway::map_rows(unit);
+    check(!rows.empty(), "every unit has rows, its diagnostics at least");
+    check(std::is_sorted(rows.begin(), rows.end(),
+                         [](const gateway::MapRow& a, const gateway::MapRow& b) {
+                             return std::pair{a.table, a.address} < std::pair{b.table, b.address};
+                         }),
+          "rows are in table and address order");
+    const auto csv = gateway::format_csv(rows);
+    const auto markdown = gateway::format_markdown(rows);
+    // Link names are free text: quotes, commas and line breaks in them must stay inside a field.
+    check(csv.ends_with("\r\n") && markdown.ends_with("|\n"), "the formats end their last line");
+}
+
+void check_config(const GatewayConfig& config) {
+    check(config.file == file_name, "the configuration names its file");
+    check(!config.links.empty(), "at least one link");
+    check_modbus(config.modbus);
+    std::set<std::string> names;
+    std::set<std::string> devices;
+    std::set<int> unit_ids;
+    for (const auto& link : config.links) {
+        check_link(link);
+        check(names.insert(link.name).second, "link names are unique");
+        check(devices.insert(resolve(link.device)).second, "devices are unique once resolved");
+        check(unit_ids.insert(link.unit_id).second, "unit ids are unique");
+        check_map(link);
+    }
+}
+
+void check_errors(const std::vector<config::ConfigError>& errors, std::string_view text) {
+    check(!errors.empty(), "a failure says why");
+    const auto lines = static_cast<int>(std::count(text.begin(), text.end(), '\n')) + 1;
+    for (const auto& error : errors) {
+        check(error.file == file_name, "an error names the file");
+        check(error.line >= 0 && error.line <= lines, "an error names a line of the file");
+        check(!error.message.empty(), "an error says what is wrong");
+        check(to_string(error).starts_with(file_name), "the message starts with the file");
+    }
+    check(std::is_sorted(errors.begin(), errors.end(),
+                         [](const auto& a, const auto& b) { return a.line < b.line; }),
+          "errors are in line order");
+}
+
+}  // namespace
+}  // namespace ioport::fuzz
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+    const std::string_view text(reinterpret_cast<const char*>(data), size);
+    const auto loaded = ioport::config::parse_config(text, std::string(ioport::fuzz::file_name),
+                                                     ioport::fuzz::resolve);
+    if (loaded)
+        ioport::fuzz::check_config(*loaded);
+    else
+        ioport::fuzz::check_errors(loaded.error(), text);
+    return 0;
+}

@@ -1,0 +1,217 @@
+#!/usr/bin/env python3
+"""Writes the seed inputs of the fuzz targets into fuzz/corpus/<target>/seed-*.
+
+The seeds are the wire examples of the shared spec (protocol.md §1 and §2, the seed documents'
+known typos included), the YAML example of gateway.md §1 and the repository's example
+configurations, and Modbus requests against the map of gateway.md §2 (the README's mbpoll
+examples among them). Run it again after changing it; the files it writes are committed.
+Everything else in the corpus directories was found by libFuzzer (fuzz/run merges it in).
+"""
+
+import pathlib
+import struct
+
+FUZZ = pathlib.Path(__file__).resolve().parent
+REPO = FUZZ.parent
+SPEC = REPO.parent / "shared" / "spec"
+
+TYPES = ["dim16", "dom16", "acm3p", "acm3c", "lim16", "rgbdm", "dccim", "dcvim", "mux8m"]
+
+
+def write(target, name, data):
+    directory = FUZZ / "corpus" / target
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / f"seed-{name}").write_bytes(data)
+
+
+# --- ioport_reply: byte 0 the module (type + 9 * number), byte 1 the read size - 1 -----------
+
+def ioport(name, module_type, number, stream, read_size=64):
+    write("ioport_reply", name,
+          bytes([TYPES.index(module_type) + 9 * number, read_size - 1]) + stream)
+
+
+ioport("dim16-only-i15", "dim16", 0, b"8000\r")
+ioport("lim16-lower-case", "lim16", 3, b"beef\r", read_size=1)
+ioport("dccim", "dccim", 0, b"FFFF\r")
+ioport("dcvim", "dcvim", 7, b"0000\r")
+ioport("acm3p-c1", "acm3p", 1, b"3398A0F30FFF\r")
+ioport("acm3p-seed-typo-11-digits", "acm3p", 0, b"04003F56FF5\r")
+ioport("dom16-ack", "dom16", 0, b"1\r")
+ioport("dom16-error-ack", "dom16", 1, b"0\r")
+ioport("rgbdm-ack", "rgbdm", 7, b"1\r", read_size=1)
+ioport("mux8m-ack", "mux8m", 0, b"1\r")
+ioport("noise-then-reply", "dim16", 0, b"\x00\xff\x13garbage\r8000\r", read_size=3)
+ioport("too-long", "acm3c", 2, b"3398A0F30FFF00\r3398A0F30FFF\r")
+# Requests as the simulator receives them (the device side of the same frames).
+ioport("requests", "dom16", 0,
+       b"b093D1\rb1596A\rc1\ri005\ri000\rf7O\rf0R\ra0\rh7\r", read_size=5)
+
+# --- id2_reply: byte 0 the command (I C R), byte 1 the read size - 1 --------------------------
+
+def id2(name, command, stream, read_size=64):
+    write("id2_reply", name, bytes(["ICR".index(command), read_size - 1]) + stream)
+
+
+id2("stop-low", "I", b"0\n")
+id2("stop-high", "I", b"1\n")
+id2("count-42", "C", b"00042\n", read_size=1)
+id2("count-max", "C", b"65535\n")
+id2("count-over", "C", b"65536\n")
+id2("reset-ok", "R", b"OK\n")
+id2("requests-and-noise", "C", b"ICR\x00\n12345\n", read_size=2)
+
+# --- config: the file's text ------------------------------------------------------------------
+
+gateway_md = (SPEC / "gateway.md").read_text()
+example = gateway_md.split("```yaml\n", 1)[1].split("```", 1)[0]
+write("config", "gateway-md-example.yaml", example.encode())
+for path in sorted((REPO / "config").glob("*.yaml")):
+    write("config", path.name, path.read_bytes())
+write("config", "every-setting.yaml", b"""\
+modbus:
+  listen: "[::]:1502"
+  max_connections: 4
+  idle_timeout: 0
+  allow: ["10.0.0.0/8", "192.168.1.7", "fd00::/8", "::1/128", "0.0.0.0/0"]
+  read_only: true
+  word_order: little
+  stale: hold
+  keepalive: 90s
+on_shutdown: initial
+log_level: debug
+links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/serial/by-id/usb-FTDI_hub0
+    baud: 38400
+    unit_id: 247
+    timeout: 1500us
+    retries: 10
+    modules:
+      - { type: dim16, number: 7, poll: 250ms }
+      - { type: dom16, number: 1, initial: 0b1010, refresh: 10ms }
+      - { type: rgbdm, number: 2, initial: magenta, refresh: 2m }
+      - { type: mux8m, number: 3, initial: 0x0702 }
+      - { type: acm3c, number: 4 }
+      - { type: dccim, number: 5, poll: 0 }
+      - { type: dcvim, number: 6 }
+      - { type: lim16, number: 0 }
+      - { type: acm3p, number: 1 }
+  - name: press
+    protocol: id2
+    device: /dev/ttyS0
+    timeout: 10s
+    retries: 0
+""")
+write("config", "errors.yaml", b"""\
+modbus:
+  listen: "[::1]:70000"
+  allow: ["10.0.0.1/8", "fd00::/8", "127.0.0.1"]
+  idle_timeout: 5x
+  read_only: "true"
+links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/serial/by-id/usb-FTDI_hub
+    baud: 9600
+    unit_id: 248
+    modules:
+      - { type: dom16, number: 0, initial: 0x10000, poll: 1s }
+      - { type: dom16, number: 0 }
+      - { type: rgbdm, number: 8, initial: purple }
+      - { type: mux8m, number: 1, initial: 0x0800, refresh: 1ms }
+      - { type: dim17, number: 0 }
+  - name: hub0
+    protocol: id2
+    device: /dev/usb-FTDI_hub
+    modules: []
+---
+links: []
+""")
+
+# --- modbus_request: an 11-byte scenario (fuzz/modbus_request.cpp), then the TCP stream -------
+
+def adu(transaction, unit, pdu):
+    return struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu
+
+
+def read(function, address, quantity):
+    return struct.pack(">BHH", function, address, quantity)
+
+
+def write_coils(address, bits):
+    packed = bytearray((len(bits) + 7) // 8)
+    for i, bit in enumerate(bits):
+        packed[i // 8] |= bit << (i % 8)
+    return struct.pack(">BHHB", 0x0F, address, len(bits), len(packed)) + bytes(packed)
+
+
+def write_registers(address, values):
+    return (struct.pack(">BHHB", 0x10, address, len(values), 2 * len(values))
+            + struct.pack(f">{len(values)}H", *values))
+
+
+EVERYDAY = bytes(11)
+
+
+def modbus(name, requests, scenario=EVERYDAY):
+    write("modbus_request", name, scenario + b"".join(requests))
+
+
+# The README's mbpoll examples, on unit 1 (the hub) and unit 2 (the ID-2).
+modbus("readme-examples", [
+    adu(1, 1, read(0x04, 0, 8)),                # input registers 0-7
+    adu(2, 1, read(0x04, 200, 6)),              # acm3p 0 in %, float32
+    adu(3, 1, struct.pack(">BHH", 0x05, 4, 0xFF00)),  # coil 4: dom16 0 o4 on
+    adu(4, 1, struct.pack(">BHH", 0x06, 8, 3)),  # rgbdm 0 blue
+    adu(5, 1, read(0x04, 1000, 10)),            # diagnostics
+])
+modbus("every-function", [
+    adu(0x0101, 1, read(0x01, 0, 32)),
+    adu(0x0102, 1, read(0x02, 0, 256)),
+    adu(0x0103, 1, read(0x03, 0, 24)),
+    adu(0x0104, 1, read(0x04, 1100, 72)),
+    adu(0x0105, 1, struct.pack(">BHH", 0x05, 17, 0x0000)),
+    adu(0x0106, 1, struct.pack(">BHH", 0x06, 16, 0x0102)),
+    adu(0x010F, 1, write_coils(10, [1, 0, 1, 1, 0, 0, 1, 1, 1, 0, 1, 0])),
+    adu(0x0110, 1, write_registers(0, [0x93D1, 0x596A])),
+])
+modbus("id2-unit", [
+    adu(7, 2, read(0x02, 0, 1)),
+    adu(8, 2, read(0x04, 0, 1)),
+    adu(9, 2, struct.pack(">BHH", 0x05, 0, 0xFF00)),  # reset the counter
+    adu(10, 2, struct.pack(">BHH", 0x05, 0, 0x0000)),  # does nothing
+    adu(11, 2, read(0x01, 0, 1)),
+    adu(12, 2, read(0x02, 1000, 72)),
+])
+modbus("exceptions", [
+    adu(20, 9, read(0x03, 0, 1)),       # 0A: no such unit
+    adu(21, 1, read(0x2B, 0, 1)),       # 01: unsupported function
+    adu(22, 1, bytes([0xFF])),          # 01, with the high bit already set
+    adu(23, 1, read(0x03, 0, 126)),     # 03: over the limit
+    adu(24, 1, read(0x04, 80, 1)),      # 02: outside every block
+    adu(25, 1, read(0x04, 70, 20)),     # 02: past the end of a block
+    adu(26, 1, struct.pack(">BHH", 0x06, 9, 8)),  # 03: colour 8
+    adu(27, 1, struct.pack(">BHH", 0x06, 5, 1)),  # 02: dom16 5 is not configured
+    adu(28, 1, read(0x04, 16, 1)),
+])
+modbus("read-only-stale-hold-offline", [
+    adu(30, 1, struct.pack(">BHH", 0x05, 0, 0xFF00)),
+    adu(31, 1, read(0x04, 0, 80)),
+], scenario=bytes([0b011, 0x55, 0xAA, 0xFF, 0x1B, 0xE4, 0, 0, 0, 0, 0]))
+modbus("ports-closed", [
+    adu(40, 1, write_registers(8, [1, 2])),
+    adu(41, 2, struct.pack(">BHH", 0x05, 0, 0xFF00)),
+    adu(42, 1, read(0x04, 1000, 10)),
+], scenario=bytes([0b011000, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]))
+modbus("one-link-devices-fail", [
+    adu(50, 0, write_coils(0, [1] * 32)),       # spans dom16 0 and 1; failing devices
+    adu(51, 255, write_registers(16, [0x0007])),
+    adu(52, 2, read(0x04, 0, 1)),               # no ID-2 now: 0A
+], scenario=bytes([0b100, 0, 0, 0, 0, 0, 0, 0, 0, 0b1110, 0b11100111]))
+modbus("pipelined-then-malformed", [
+    adu(60, 1, read(0x03, 0, 1)) + adu(61, 1, read(0x03, 1, 1)),
+    struct.pack(">HHHB", 62, 1, 6, 1) + read(0x03, 0, 1),  # protocol id 1: closed
+])
+modbus("unfinished", [adu(70, 1, read(0x03, 0, 1))[:10]])
