@@ -8,7 +8,9 @@
 
 #include <chrono>
 #include <cstdint>
+#include <memory>
 #include <string>
+#include <string_view>
 
 #include "link/asio.hpp"
 #include "protocol/error.hpp"
@@ -59,17 +61,27 @@ class SerialLink {
     std::chrono::microseconds last_round_trip() const { return last_round_trip_; }
 
   private:
+    using Clock = std::chrono::steady_clock;
+
     asio::awaitable<Result<>> wait_for_silence();
     asio::awaitable<Result<std::string>> read_frame(const Exchange& exchange);
     void arm_timeout(std::chrono::microseconds after);
     void disarm_timeout();
+    void wait_for_deadline();
     Error port_error(const boost::system::error_code& ec, std::string_view during);
 
     LinkSettings settings_;
     asio::serial_port port_;
+    // The timeout of the current attempt is `deadline_` (max: none). The timer is not re-armed
+    // for every attempt: it is armed when none is pending, and when it fires before the
+    // deadline (which has moved on with later attempts) it waits again.
     asio::steady_timer timer_;
-    std::uint64_t timer_generation_ = 0;  // a stale timer handler must not cancel a later read
+    Clock::time_point deadline_ = Clock::time_point::max();
+    bool timer_pending_ = false;
+    // Lets a timer completion that was already queued tell that this link is gone.
+    std::shared_ptr<SerialLink*> alive_ = std::make_shared<SerialLink*>(this);
     bool timed_out_ = false;
+    Clock::time_point last_input_{};  // when the last bytes were read
     bool needs_silence_ = false;
     bool busy_ = false;
     bool low_latency_ = false;
