@@ -100,6 +100,50 @@ boost::system::error_code write_now(int fd, std::string_view& bytes) {
     return {errno, boost::system::system_category()};
 }
 
+// The reply to one request as its bytes come in.
+class Reply {
+  public:
+    Reply(const Exchange& exchange, const std::string& device, std::chrono::microseconds timeout)
+        : exchange_(exchange),
+          device_(device),
+          timeout_(timeout),
+          framer_(exchange.terminator, exchange.reply_length) {}
+
+    // The frame (or why it is not one) once `bytes` completed it.
+    std::optional<Result<std::string>> feed(std::string_view bytes) {
+        if (received_.size() < 64) received_.append(bytes.substr(0, 64 - received_.size()));
+        std::optional<Result<std::string>> reply;
+        framer_.feed(bytes, [&](const Frame& frame) {
+            if (reply) return;
+            if (frame.overflowed)
+                reply = fail(Errc::malformed,
+                             fmt::format("answer \"{}…\" is too long: expected {} character(s)",
+                                         printable(frame.bytes), exchange_.reply_length));
+            else
+                reply = std::string(frame.bytes);
+        });
+        return reply;
+    }
+
+    Error no_answer() const {
+        return {Errc::timeout,
+                received_.empty()
+                    ? fmt::format("{} on {} did not answer within {} ms: check its address "
+                                  "switch, its power and the bus cable",
+                                  describe(exchange_.target), device_, as_ms(timeout_))
+                    : fmt::format("{} on {} sent an incomplete answer \"{}\" within {} ms",
+                                  describe(exchange_.target), device_, printable(received_),
+                                  as_ms(timeout_))};
+    }
+
+  private:
+    const Exchange& exchange_;
+    const std::string& device_;
+    std::chrono::microseconds timeout_;
+    LineFramer framer_;
+    std::string received_;  // for the error message of an incomplete answer
+};
+
 bool retryable(Errc code) {
     return code == Errc::timeout || code == Errc::malformed || code == Errc::line_noisy;
 }
@@ -202,15 +246,14 @@ Error SerialLink::port_error(const boost::system::error_code& ec, std::string_vi
                                         settings_.device, during, ec.message())};
 }
 
-asio::awaitable<Result<Reading>> SerialLink::transact(const Exchange& exchange) {
-    for (int attempt = 0;; ++attempt) {
-        auto reading = co_await transact_once(exchange);
-        if (reading || attempt >= settings_.retries || !retryable(reading.error().code))
-            co_return reading;
+asio::awaitable<Result<Reading>> SerialLink::attempts(Exchange exchange, int retries) {
+    for (int tried = 0;; ++tried) {
+        auto reading = co_await attempt(exchange);
+        if (reading || tried >= retries || !retryable(reading.error().code)) co_return reading;
     }
 }
 
-asio::awaitable<Result<Reading>> SerialLink::transact_once(const Exchange& exchange) {
+asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
     if (!is_open())
         co_return fail(Errc::port_closed, fmt::format("{} is not open", settings_.device));
     if (busy_)
@@ -254,9 +297,29 @@ asio::awaitable<Result<Reading>> SerialLink::transact_once(const Exchange& excha
                                     describe(exchange.target), as_ms(settings_.timeout))}
                 : port_error(ec, "sending"));
     }
-    auto frame = co_await read_frame(exchange);
-    Result<Reading> reading = frame ? decode(exchange, *frame) : Unexpected(frame.error());
-    if (frame)
+    // The reply is read here rather than in a coroutine of its own: one coroutine frame less to
+    // allocate and resume per transaction.
+    Reply reply(exchange, settings_.device, settings_.timeout);
+    std::optional<Result<std::string>> frame;
+    while (!frame) {
+        // The timer may have fired while the previous read was already complete.
+        if (timed_out_) {
+            frame = Unexpected(reply.no_answer());
+            break;
+        }
+        const std::size_t n = co_await port_.async_read_some(asio::buffer(read_buffer_),
+                                                             redirect_error(use_awaitable, ec));
+        if (ec) {
+            disarm_timeout();
+            frame = Unexpected(timed_out_ ? reply.no_answer() : port_error(ec, "reading"));
+            break;
+        }
+        last_input_ = Clock::now();
+        frame = reply.feed({read_buffer_.data(), n});
+        if (frame) disarm_timeout();
+    }
+    Result<Reading> reading = *frame ? decode(exchange, **frame) : Unexpected(frame->error());
+    if (*frame)
         last_round_trip_ =
             std::chrono::duration_cast<std::chrono::microseconds>(last_input_ - sent);
     if (reading) {
@@ -271,49 +334,6 @@ asio::awaitable<Result<Reading>> SerialLink::transact_once(const Exchange& excha
                                                   settings_.device, reading.error().message);
     }
     co_return reading;
-}
-
-asio::awaitable<Result<std::string>> SerialLink::read_frame(const Exchange& exchange) {
-    LineFramer framer(exchange.terminator, exchange.reply_length);
-    std::optional<Result<std::string>> reply;
-    std::string received;  // for the error message of an incomplete answer
-    const auto no_answer = [&] {
-        return fail(
-            Errc::timeout,
-            received.empty()
-                ? fmt::format("{} on {} did not answer within {} ms: check its address "
-                              "switch, its power and the bus cable",
-                              describe(exchange.target), settings_.device, as_ms(settings_.timeout))
-                : fmt::format("{} on {} sent an incomplete answer \"{}\" within {} ms",
-                              describe(exchange.target), settings_.device, printable(received),
-                              as_ms(settings_.timeout)));
-    };
-    while (!reply) {
-        // The timer may have fired while the previous read was already complete.
-        if (timed_out_) co_return no_answer();
-        boost::system::error_code ec;
-        const std::size_t n = co_await port_.async_read_some(asio::buffer(read_buffer_),
-                                                             redirect_error(use_awaitable, ec));
-        if (ec) {
-            disarm_timeout();
-            if (timed_out_) co_return no_answer();
-            co_return Unexpected(port_error(ec, "reading"));
-        }
-        last_input_ = Clock::now();
-        const std::string_view bytes(read_buffer_.data(), n);
-        if (received.size() < 64) received.append(bytes.substr(0, 64 - received.size()));
-        framer.feed(bytes, [&](const Frame& frame) {
-            if (reply) return;
-            if (frame.overflowed)
-                reply = fail(Errc::malformed,
-                             fmt::format("answer \"{}…\" is too long: expected {} character(s)",
-                                         printable(frame.bytes), exchange.reply_length));
-            else
-                reply = std::string(frame.bytes);
-        });
-    }
-    disarm_timeout();
-    co_return std::move(*reply);
 }
 
 asio::awaitable<Result<>> SerialLink::wait_for_silence() {

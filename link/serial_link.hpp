@@ -51,9 +51,13 @@ class SerialLink {
 
     // One transaction with up to `retries` extra attempts after a timeout or malformed reply.
     // An error ack is final at once; so is a port error (the port is closed then).
-    asio::awaitable<Result<Reading>> transact(const Exchange& exchange);
+    asio::awaitable<Result<Reading>> transact(Exchange exchange) {
+        return attempts(std::move(exchange), settings_.retries);
+    }
     // One attempt, no retry.
-    asio::awaitable<Result<Reading>> transact_once(const Exchange& exchange);
+    asio::awaitable<Result<Reading>> transact_once(Exchange exchange) {
+        return attempts(std::move(exchange), 0);
+    }
 
     const LinkSettings& settings() const { return settings_; }
     const LinkCounters& counters() const { return counters_; }
@@ -63,8 +67,12 @@ class SerialLink {
   private:
     using Clock = std::chrono::steady_clock;
 
+    // transact() and transact_once() hand back this coroutine instead of awaiting it in one of
+    // their own, which would cost a coroutine frame per transaction. It owns the exchange, so
+    // callers may pass a temporary.
+    asio::awaitable<Result<Reading>> attempts(Exchange exchange, int retries);
+    asio::awaitable<Result<Reading>> attempt(const Exchange& exchange);
     asio::awaitable<Result<>> wait_for_silence();
-    asio::awaitable<Result<std::string>> read_frame(const Exchange& exchange);
     void arm_timeout(std::chrono::microseconds after);
     void disarm_timeout();
     void wait_for_deadline();
