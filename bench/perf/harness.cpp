@@ -6,6 +6,8 @@
 #include <stdlib.h>
 #include <sys/prctl.h>
 #include <sys/wait.h>
+#include <termios.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -412,6 +414,64 @@ void InProcessSim::tick() {
     ticker_.async_wait([this](const boost::system::error_code& ec) {
         if (!ec) tick();
     });
+}
+
+namespace {
+
+std::chrono::nanoseconds thread_cpu_time() {
+    timespec t{};
+    ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return std::chrono::seconds(t.tv_sec) + std::chrono::nanoseconds(t.tv_nsec);
+}
+
+}  // namespace
+
+RawRate raw_ping_pong(const std::string& link, const std::vector<ModuleAddress>& modules,
+                      std::chrono::milliseconds window, std::optional<int> cpu) {
+    RawRate rate;
+    std::thread client([&] {
+        pin_this_thread(cpu);
+        const int fd = ::open(link.c_str(), O_RDWR | O_NOCTTY | O_CLOEXEC);
+        if (fd < 0) return;
+        termios tio{};
+        ::tcgetattr(fd, &tio);
+        ::cfmakeraw(&tio);
+        tio.c_cc[VMIN] = 1;
+        tio.c_cc[VTIME] = 0;
+        ::tcsetattr(fd, TCSANOW, &tio);
+        ::tcflush(fd, TCIOFLUSH);
+        std::vector<std::string> requests;
+        for (const auto module : modules)
+            requests.push_back(encode_request(module).value());
+        std::array<char, 64> buffer{};
+        const auto transact = [&](const std::string& request) {
+            if (::write(fd, request.data(), request.size()) != static_cast<ssize_t>(request.size()))
+                return false;
+            for (;;) {
+                const auto n = ::read(fd, buffer.data(), buffer.size());
+                if (n <= 0) return false;
+                if (buffer[static_cast<std::size_t>(n) - 1] == '\r') return true;
+            }
+        };
+        for (const auto& request : requests)  // a cycle to warm up
+            transact(request);
+        std::uint64_t done = 0;
+        const auto cpu_before = thread_cpu_time();
+        const auto start = Clock::now();
+        const auto end = start + window;
+        while (Clock::now() < end)
+            for (const auto& request : requests) {
+                if (!transact(request)) ++rate.failed;
+                ++done;
+            }
+        const auto elapsed = seconds(Clock::now() - start);
+        rate.per_second = static_cast<double>(done) / elapsed;
+        rate.cpu_us_per_transaction =
+            microseconds(thread_cpu_time() - cpu_before) / static_cast<double>(done);
+        ::close(fd);
+    });
+    client.join();
+    return rate;
 }
 
 Summary summarize(std::vector<double> values) {

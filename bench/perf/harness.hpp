@@ -238,6 +238,18 @@ class InProcessSim {
     std::thread thread_;
 };
 
+// --- The pty's own limit -------------------------------------------------------------------
+
+struct RawRate {
+    double per_second = 0;
+    double cpu_us_per_transaction = 0;  // of the raw client
+    std::uint64_t failed = 0;
+};
+// A minimal client of the simulator: blocking write() and read() until the CR, the requests of
+// `modules` in order, over and over for `window`, on a thread pinned to `cpu`.
+RawRate raw_ping_pong(const std::string& link, const std::vector<ModuleAddress>& modules,
+                      std::chrono::milliseconds window, std::optional<int> cpu);
+
 // --- Figures --------------------------------------------------------------------------------
 
 struct Summary {

@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include "bench/perf/benchmarks.hpp"
+#include "bench/perf/load.hpp"
 
 namespace {
 
@@ -24,12 +25,40 @@ unless a program could not be started.
   --scale X         multiply every measured window by X (default 1)
   --ioportd PATH    the ioportd to measure (default: the one built beside this program)
   --no-pin          do not pin servers and clients to CPUs 1 and 0
+
+       ioportd-bench load PORT CONNECTIONS SECONDS [reads|writes|mixed]
+The load client of benchmark 4 alone, against a server started by hand (for profiling it
+with perf, strace or callgrind): requests/s and latency percentiles.
 )";
+
+int load(int argc, char** argv) {
+    using namespace ioport::bench;
+    if (argc < 5) {
+        std::cerr << usage;
+        return 2;
+    }
+    const std::string_view mix = argc > 5 ? argv[5] : "reads";
+    LoadSpec spec;
+    spec.port = static_cast<std::uint16_t>(std::atoi(argv[2]));
+    spec.connections = std::atoi(argv[3]);
+    spec.window = std::chrono::milliseconds(static_cast<long>(std::atof(argv[4]) * 1000));
+    spec.mix = mix == "writes" ? Mix::writes : mix == "mixed" ? Mix::mixed : Mix::reads;
+    spec.server = ::getpid();
+    const auto result = run_load(spec);
+    if (!result.connected) return 1;
+    std::vector<double> latency(result.latency_us.begin(), result.latency_us.end());
+    const auto s = summarize(std::move(latency));
+    fmt::print(
+        "{:.0f} req/s, {} errors, latency µs p50 {:.0f} p99 {:.0f} p99.9 {:.0f} max {:.0f}\n",
+        result.per_second(), result.errors, s.p50, s.p99, s.p999, s.max);
+    return 0;
+}
 
 }  // namespace
 
 int main(int argc, char** argv) {
     using namespace ioport::bench;
+    if (argc > 1 && std::string_view(argv[1]) == "load") return load(argc, argv);
     Environment env;
     std::vector<std::string_view> chosen;
     bool pin = true;
