@@ -1,9 +1,10 @@
 // A serial link to an ioport hub or an ID-2: the one place that touches the tty.
 //
-// Exactly one transaction is in flight. Each one flushes stale input, sends the request and
-// frames the reply with a timeout; after any failure the link waits for the line to be silent
-// for a full timeout before the next request, so a late answer is never taken for another
-// module's. Port loss is an error value, the fd is closed, and open() may be called again.
+// Exactly one transaction is in flight. Each one flushes stale input (unless it follows the last
+// reply within a character time), sends the request and frames the reply with a timeout; after
+// any failure the link waits for the line to be silent for a full timeout before the next
+// request, so a late answer is never taken for another module's. Port loss is an error value, the
+// fd is closed, and open() may be called again.
 #pragma once
 
 #include <chrono>
