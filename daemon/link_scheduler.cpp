@@ -28,6 +28,10 @@ std::string duration_text(std::chrono::microseconds duration) {
     return fmt::format("{} ms", duration.count() / 1000);
 }
 
+asio::awaitable<Result<Reading>> failed(Error error) {
+    co_return Unexpected(std::move(error));
+}
+
 bool is_port_failure(Errc code) {
     return code == Errc::port_lost || code == Errc::port_closed || code == Errc::io_error;
 }
@@ -203,13 +207,14 @@ bool LinkScheduler::progressing(Clock::time_point now) const {
     return now < since + longest_step;
 }
 
+// Not a coroutine: it hands back the link's, which saves a coroutine frame per transaction.
 asio::awaitable<Result<Reading>> LinkScheduler::transact(std::size_t entry, std::uint16_t value) {
     const auto& target = entries_[entry].target;
     if (const auto* command = std::get_if<id2::Command>(&target))
-        co_return co_await link_.transact(make_exchange(*command));
+        return link_.transact(make_exchange(*command));
     auto exchange = make_exchange(std::get<ModuleAddress>(target), value);
-    if (!exchange) co_return Unexpected(exchange.error());
-    co_return co_await link_.transact(*exchange);
+    if (!exchange) return failed(std::move(exchange.error()));
+    return link_.transact(std::move(*exchange));
 }
 
 asio::awaitable<void> LinkScheduler::poll(std::size_t entry) {

@@ -14,8 +14,10 @@ std::chrono::microseconds backoff(int consecutive_failures) {
 
 PollPlan::PollPlan(const std::vector<PollEntry>& entries) {
     entries_.reserve(entries.size());
-    for (const auto& entry : entries)
+    for (const auto& entry : entries) {
+        if (entry.output) outputs_.push_back(entries_.size());
         entries_.push_back(State{entry, {}, 0});
+    }
 }
 
 void PollPlan::port_opened(Clock::time_point now) {
@@ -29,11 +31,9 @@ void PollPlan::port_opened(Clock::time_point now) {
 
 std::optional<std::size_t> PollPlan::due_refresh(Clock::time_point now) const {
     std::optional<std::size_t> earliest;
-    for (std::size_t i = 0; i < entries_.size(); ++i) {
+    for (const auto i : outputs_) {
         const auto& state = entries_[i];
-        if (state.entry.output && state.due <= now &&
-            (!earliest || state.due < entries_[*earliest].due))
-            earliest = i;
+        if (state.due <= now && (!earliest || state.due < entries_[*earliest].due)) earliest = i;
     }
     return earliest;
 }

@@ -61,6 +61,8 @@ class PollPlan {
     void finish_pass(Clock::time_point now);
 
     std::vector<State> entries_;
+    // The output entries: every step looks for a due refresh, and most entries are inputs.
+    std::vector<std::size_t> outputs_;
     std::size_t cursor_ = 0;
     bool pass_did_work_ = false;
     std::optional<Clock::time_point> last_completion_;

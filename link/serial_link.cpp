@@ -84,6 +84,66 @@ bool request_low_latency(int fd) {
     return ::ioctl(fd, TIOCSSERIAL, &serial) == 0;
 }
 
+// One character on the line: start bit, 8 data bits, stop bit.
+std::chrono::nanoseconds character_time(int baud) {
+    return std::chrono::nanoseconds(10'000'000'000LL / baud);
+}
+
+// Writes what the non-blocking `fd` takes now and drops it from `bytes`.
+boost::system::error_code write_now(int fd, std::string_view& bytes) {
+    const auto written = ::write(fd, bytes.data(), bytes.size());
+    if (written >= 0) {
+        bytes.remove_prefix(static_cast<std::size_t>(written));
+        return {};
+    }
+    if (errno == EAGAIN || errno == EINTR) return {};
+    return {errno, boost::system::system_category()};
+}
+
+// The reply to one request as its bytes come in.
+class Reply {
+  public:
+    Reply(const Exchange& exchange, const std::string& device, std::chrono::microseconds timeout)
+        : exchange_(exchange),
+          device_(device),
+          timeout_(timeout),
+          framer_(exchange.terminator, exchange.reply_length) {}
+
+    // The frame (or why it is not one) once `bytes` completed it.
+    std::optional<Result<std::string>> feed(std::string_view bytes) {
+        if (received_.size() < 64) received_.append(bytes.substr(0, 64 - received_.size()));
+        std::optional<Result<std::string>> reply;
+        framer_.feed(bytes, [&](const Frame& frame) {
+            if (reply) return;
+            if (frame.overflowed)
+                reply = fail(Errc::malformed,
+                             fmt::format("answer \"{}…\" is too long: expected {} character(s)",
+                                         printable(frame.bytes), exchange_.reply_length));
+            else
+                reply = std::string(frame.bytes);
+        });
+        return reply;
+    }
+
+    Error no_answer() const {
+        return {Errc::timeout,
+                received_.empty()
+                    ? fmt::format("{} on {} did not answer within {} ms: check its address "
+                                  "switch, its power and the bus cable",
+                                  describe(exchange_.target), device_, as_ms(timeout_))
+                    : fmt::format("{} on {} sent an incomplete answer \"{}\" within {} ms",
+                                  describe(exchange_.target), device_, printable(received_),
+                                  as_ms(timeout_))};
+    }
+
+  private:
+    const Exchange& exchange_;
+    const std::string& device_;
+    std::chrono::microseconds timeout_;
+    LineFramer framer_;
+    std::string received_;  // for the error message of an incomplete answer
+};
+
 bool retryable(Errc code) {
     return code == Errc::timeout || code == Errc::malformed || code == Errc::line_noisy;
 }
@@ -130,25 +190,45 @@ Result<> SerialLink::open() {
 
 void SerialLink::close() {
     disarm_timeout();
+    timer_.cancel();
+    timer_pending_ = false;
     boost::system::error_code ignored;
     port_.close(ignored);
 }
 
+// A transaction takes about a millisecond and its timeout is a hundred: arming the timer for
+// each one cost a timerfd_settime() call and the completion of the cancelled wait, about a sixth
+// of the daemon's CPU time while it polls. Deadlines only move later, so a timer armed for an
+// earlier one fires first and is armed again for the current deadline: about once a timeout.
 void SerialLink::arm_timeout(std::chrono::microseconds after) {
     timed_out_ = false;
-    const auto generation = ++timer_generation_;
-    timer_.expires_after(after);
-    timer_.async_wait([this, generation](const boost::system::error_code& ec) {
-        if (ec || generation != timer_generation_) return;
-        timed_out_ = true;
-        boost::system::error_code ignored;
-        port_.cancel(ignored);
-    });
+    deadline_ = Clock::now() + after;
+    if (!timer_pending_) wait_for_deadline();
 }
 
 void SerialLink::disarm_timeout() {
-    ++timer_generation_;
-    timer_.cancel();
+    deadline_ = Clock::time_point::max();
+}
+
+void SerialLink::wait_for_deadline() {
+    timer_pending_ = true;
+    timer_.expires_at(deadline_);
+    timer_.async_wait(
+        [alive = std::weak_ptr<SerialLink*>(alive_)](const boost::system::error_code& ec) {
+            const auto self = alive.lock();
+            if (ec || !self) return;  // cancelled: closed, or destroyed
+            auto& link = **self;
+            link.timer_pending_ = false;
+            if (link.deadline_ == Clock::time_point::max()) return;  // no attempt in flight: rest
+            if (Clock::now() < link.deadline_) {
+                link.wait_for_deadline();
+                return;
+            }
+            link.deadline_ = Clock::time_point::max();
+            link.timed_out_ = true;
+            boost::system::error_code ignored;
+            link.port_.cancel(ignored);
+        });
 }
 
 Error SerialLink::port_error(const boost::system::error_code& ec, std::string_view during) {
@@ -166,15 +246,14 @@ Error SerialLink::port_error(const boost::system::error_code& ec, std::string_vi
                                         settings_.device, during, ec.message())};
 }
 
-asio::awaitable<Result<Reading>> SerialLink::transact(const Exchange& exchange) {
-    for (int attempt = 0;; ++attempt) {
-        auto reading = co_await transact_once(exchange);
-        if (reading || attempt >= settings_.retries || !retryable(reading.error().code))
-            co_return reading;
+asio::awaitable<Result<Reading>> SerialLink::attempts(Exchange exchange, int retries) {
+    for (int tried = 0;; ++tried) {
+        auto reading = co_await attempt(exchange);
+        if (reading || tried >= retries || !retryable(reading.error().code)) co_return reading;
     }
 }
 
-asio::awaitable<Result<Reading>> SerialLink::transact_once(const Exchange& exchange) {
+asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
     if (!is_open())
         co_return fail(Errc::port_closed, fmt::format("{} is not open", settings_.device));
     if (busy_)
@@ -192,13 +271,23 @@ asio::awaitable<Result<Reading>> SerialLink::transact_once(const Exchange& excha
             co_return Unexpected(quiet.error());
         }
     }
-    ::tcflush(port_.native_handle(), TCIFLUSH);
+    // Bytes that came while the line was idle (noise, a stray byte) would be taken for the start
+    // of the reply: they are flushed. Within a character time of the last reply nothing can
+    // have come yet, so back-to-back polling skips this system call (a fifth of them).
+    auto sent = Clock::now();
+    if (sent - last_input_ >= character_time(settings_.baud)) {
+        ::tcflush(port_.native_handle(), TCIFLUSH);
+        sent = Clock::now();
+    }
 
     arm_timeout(settings_.timeout);
-    const auto sent = std::chrono::steady_clock::now();
-    boost::system::error_code ec;
-    co_await asio::async_write(port_, asio::buffer(exchange.request),
-                               redirect_error(use_awaitable, ec));
+    // A request is a few bytes into an empty output buffer: write() takes it whole, at once. An
+    // Asio write would cost a posted completion and another turn of the event loop (with an
+    // epoll_wait) per transaction; it only sends what write() did not take, if ever.
+    std::string_view unsent = exchange.request;
+    auto ec = write_now(port_.native_handle(), unsent);
+    if (!ec && !unsent.empty())
+        co_await asio::async_write(port_, asio::buffer(unsent), redirect_error(use_awaitable, ec));
     if (ec) {
         disarm_timeout();
         co_return Unexpected(
@@ -208,11 +297,31 @@ asio::awaitable<Result<Reading>> SerialLink::transact_once(const Exchange& excha
                                     describe(exchange.target), as_ms(settings_.timeout))}
                 : port_error(ec, "sending"));
     }
-    auto frame = co_await read_frame(exchange);
-    Result<Reading> reading = frame ? decode(exchange, *frame) : Unexpected(frame.error());
-    if (frame)
-        last_round_trip_ = std::chrono::duration_cast<std::chrono::microseconds>(
-            std::chrono::steady_clock::now() - sent);
+    // The reply is read here rather than in a coroutine of its own: one coroutine frame less to
+    // allocate and resume per transaction.
+    Reply reply(exchange, settings_.device, settings_.timeout);
+    std::optional<Result<std::string>> frame;
+    while (!frame) {
+        // The timer may have fired while the previous read was already complete.
+        if (timed_out_) {
+            frame = Unexpected(reply.no_answer());
+            break;
+        }
+        const std::size_t n = co_await port_.async_read_some(asio::buffer(read_buffer_),
+                                                             redirect_error(use_awaitable, ec));
+        if (ec) {
+            disarm_timeout();
+            frame = Unexpected(timed_out_ ? reply.no_answer() : port_error(ec, "reading"));
+            break;
+        }
+        last_input_ = Clock::now();
+        frame = reply.feed({read_buffer_.data(), n});
+        if (frame) disarm_timeout();
+    }
+    Result<Reading> reading = *frame ? decode(exchange, **frame) : Unexpected(frame->error());
+    if (*frame)
+        last_round_trip_ =
+            std::chrono::duration_cast<std::chrono::microseconds>(last_input_ - sent);
     if (reading) {
         ++counters_.transactions_ok;
     } else {
@@ -225,48 +334,6 @@ asio::awaitable<Result<Reading>> SerialLink::transact_once(const Exchange& excha
                                                   settings_.device, reading.error().message);
     }
     co_return reading;
-}
-
-asio::awaitable<Result<std::string>> SerialLink::read_frame(const Exchange& exchange) {
-    LineFramer framer(exchange.terminator, exchange.reply_length);
-    std::optional<Result<std::string>> reply;
-    std::string received;  // for the error message of an incomplete answer
-    const auto no_answer = [&] {
-        return fail(
-            Errc::timeout,
-            received.empty()
-                ? fmt::format("{} on {} did not answer within {} ms: check its address "
-                              "switch, its power and the bus cable",
-                              describe(exchange.target), settings_.device, as_ms(settings_.timeout))
-                : fmt::format("{} on {} sent an incomplete answer \"{}\" within {} ms",
-                              describe(exchange.target), settings_.device, printable(received),
-                              as_ms(settings_.timeout)));
-    };
-    while (!reply) {
-        // The timer may have fired while the previous read was already complete.
-        if (timed_out_) co_return no_answer();
-        boost::system::error_code ec;
-        const std::size_t n = co_await port_.async_read_some(asio::buffer(read_buffer_),
-                                                             redirect_error(use_awaitable, ec));
-        if (ec) {
-            disarm_timeout();
-            if (timed_out_) co_return no_answer();
-            co_return Unexpected(port_error(ec, "reading"));
-        }
-        const std::string_view bytes(read_buffer_.data(), n);
-        if (received.size() < 64) received.append(bytes.substr(0, 64 - received.size()));
-        framer.feed(bytes, [&](const Frame& frame) {
-            if (reply) return;
-            if (frame.overflowed)
-                reply = fail(Errc::malformed,
-                             fmt::format("answer \"{}…\" is too long: expected {} character(s)",
-                                         printable(frame.bytes), exchange.reply_length));
-            else
-                reply = std::string(frame.bytes);
-        });
-    }
-    disarm_timeout();
-    co_return std::move(*reply);
 }
 
 asio::awaitable<Result<>> SerialLink::wait_for_silence() {

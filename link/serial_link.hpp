@@ -1,14 +1,17 @@
 // A serial link to an ioport hub or an ID-2: the one place that touches the tty.
 //
-// Exactly one transaction is in flight. Each one flushes stale input, sends the request and
-// frames the reply with a timeout; after any failure the link waits for the line to be silent
-// for a full timeout before the next request, so a late answer is never taken for another
-// module's. Port loss is an error value, the fd is closed, and open() may be called again.
+// Exactly one transaction is in flight. Each one flushes stale input (unless it follows the last
+// reply within a character time), sends the request and frames the reply with a timeout; after
+// any failure the link waits for the line to be silent for a full timeout before the next
+// request, so a late answer is never taken for another module's. Port loss is an error value, the
+// fd is closed, and open() may be called again.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
+#include <memory>
 #include <string>
+#include <string_view>
 
 #include "link/asio.hpp"
 #include "protocol/error.hpp"
@@ -49,9 +52,13 @@ class SerialLink {
 
     // One transaction with up to `retries` extra attempts after a timeout or malformed reply.
     // An error ack is final at once; so is a port error (the port is closed then).
-    asio::awaitable<Result<Reading>> transact(const Exchange& exchange);
+    asio::awaitable<Result<Reading>> transact(Exchange exchange) {
+        return attempts(std::move(exchange), settings_.retries);
+    }
     // One attempt, no retry.
-    asio::awaitable<Result<Reading>> transact_once(const Exchange& exchange);
+    asio::awaitable<Result<Reading>> transact_once(Exchange exchange) {
+        return attempts(std::move(exchange), 0);
+    }
 
     const LinkSettings& settings() const { return settings_; }
     const LinkCounters& counters() const { return counters_; }
@@ -59,17 +66,31 @@ class SerialLink {
     std::chrono::microseconds last_round_trip() const { return last_round_trip_; }
 
   private:
+    using Clock = std::chrono::steady_clock;
+
+    // transact() and transact_once() hand back this coroutine instead of awaiting it in one of
+    // their own, which would cost a coroutine frame per transaction. It owns the exchange, so
+    // callers may pass a temporary.
+    asio::awaitable<Result<Reading>> attempts(Exchange exchange, int retries);
+    asio::awaitable<Result<Reading>> attempt(const Exchange& exchange);
     asio::awaitable<Result<>> wait_for_silence();
-    asio::awaitable<Result<std::string>> read_frame(const Exchange& exchange);
     void arm_timeout(std::chrono::microseconds after);
     void disarm_timeout();
+    void wait_for_deadline();
     Error port_error(const boost::system::error_code& ec, std::string_view during);
 
     LinkSettings settings_;
     asio::serial_port port_;
+    // The timeout of the current attempt is `deadline_` (max: none). The timer is not re-armed
+    // for every attempt: it is armed when none is pending, and when it fires before the
+    // deadline (which has moved on with later attempts) it waits again.
     asio::steady_timer timer_;
-    std::uint64_t timer_generation_ = 0;  // a stale timer handler must not cancel a later read
+    Clock::time_point deadline_ = Clock::time_point::max();
+    bool timer_pending_ = false;
+    // Lets a timer completion that was already queued tell that this link is gone.
+    std::shared_ptr<SerialLink*> alive_ = std::make_shared<SerialLink*>(this);
     bool timed_out_ = false;
+    Clock::time_point last_input_{};  // when the last bytes were read
     bool needs_silence_ = false;
     bool busy_ = false;
     bool low_latency_ = false;

@@ -173,11 +173,33 @@ std::optional<Location> locate(UnitKind kind, Table table, int address) {
     return std::nullopt;
 }
 
+// The end of the block that `list[i]` begins or continues: the regions of its table that meet.
+template <std::size_t N>
+constexpr std::array<int, N> block_ends(const std::array<Region, N>& list) {
+    std::array<int, N> ends{};
+    for (std::size_t i = 0; i < N; ++i) {
+        int end = list[i].end();
+        for (bool grew = true; grew;) {
+            grew = false;
+            for (const auto& next : list)
+                if (next.table == list[i].table && end >= next.first && end < next.end()) {
+                    end = next.end();
+                    grew = true;
+                }
+        }
+        ends[i] = end;
+    }
+    return ends;
+}
+
+// Computed once: walking the regions on every request was a fifth of a read's CPU time in user
+// space (IR 0-15 takes seven lookups to find that its block ends at 80).
+constexpr auto ioport_block_ends = block_ends(ioport_regions);
+constexpr auto id2_block_ends = block_ends(id2_regions);
+
 int block_end(UnitKind kind, const Region& region) {
-    int end = region.end();
-    while (const auto next = locate(kind, region.table, end))
-        end = next->region->end();
-    return end;
+    const auto index = static_cast<std::size_t>(&region - regions(kind).data());
+    return kind == UnitKind::ioport ? ioport_block_ends[index] : id2_block_ends[index];
 }
 
 // The request's first address, when the whole range lies inside one block.

@@ -3,6 +3,7 @@
 
 #include <fstream>
 #include <functional>
+#include <thread>
 
 #include "link/serial_link.hpp"
 #include "tests/support/pty_pair.hpp"
@@ -101,6 +102,20 @@ TEST_F(SerialLinkTest, StaleInputIsFlushedBeforeARequest) {
     const auto outcomes = transact_all(io, link, {read(dim0)});
     ASSERT_TRUE(outcomes.at(0).result) << outcomes[0].result.error().message;
     EXPECT_EQ(outcomes[0].result->raw[0], 0x0001);
+}
+
+// Between back-to-back transactions the flush is skipped (nothing can have come within a
+// character time of the last reply); bytes that came while the link was idle are still flushed.
+TEST_F(SerialLinkTest, InputThatCameWhileTheLinkWasIdleIsFlushed) {
+    device.serve([](const std::string&) { return std::vector<Reply>{{0ms, "0001\r"}}; });
+    const auto outcomes = transact_all(io, link, {read(dim0), read(dim0)}, [&](std::size_t i) {
+        if (i != 1) return;
+        device.send("FFFF\r");  // unasked, and on the line for longer than a character time
+        std::this_thread::sleep_for(2ms);
+    });
+    ASSERT_EQ(outcomes.size(), 2u);
+    ASSERT_TRUE(outcomes[1].result) << outcomes[1].result.error().message;
+    EXPECT_EQ(outcomes[1].result->raw[0], 0x0001);
 }
 
 TEST_F(SerialLinkTest, MalformedAndOverlongAnswersAreErrorsAndTheLinkRecovers) {

@@ -1,0 +1,22 @@
+// The five benchmarks of issue 6 (bench/README.md). Each prints its tables and one
+// machine-readable line per figure, and returns its figures against their targets.
+#pragma once
+
+#include <vector>
+
+#include "bench/perf/harness.hpp"
+
+namespace ioport::bench {
+
+// 1. The poll loop's transactions per second against a raw ping-pong on the same pty.
+std::vector<Verdict> serial_overhead(const Environment& env);
+// 2. Poll cycle time against the modelled wire time of a full bus; the data age clients see.
+std::vector<Verdict> scan_cycle(const Environment& env);
+// 3. Modbus write → device → response while a full bus is polled.
+std::vector<Verdict> write_latency(const Environment& env);
+// 4. Modbus TCP throughput, latency and server CPU against a plain libmodbus server.
+std::vector<Verdict> modbus_throughput(const Environment& env);
+// 5. Peak memory with 8 links and 256 clients; CPU while polling with no clients.
+std::vector<Verdict> footprint(const Environment& env);
+
+}  // namespace ioport::bench

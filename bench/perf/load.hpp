@@ -1,0 +1,52 @@
+// The Modbus load client of benchmarks 4 and 5: libmodbus, one thread and one connection each,
+// every thread sending its next request as soon as it has the response to the last one.
+#pragma once
+
+#include <sys/types.h>
+
+#include <chrono>
+#include <cstdint>
+
+#include "bench/perf/harness.hpp"
+
+namespace ioport::bench {
+
+enum class Mix {
+    reads,   // FC 03 holding registers 0–7, FC 04 input registers 0–15, FC 02 discrete inputs
+             // 0–127, in turn
+    writes,  // FC 06 holding register n, FC 05 a coil of dom16 n, in turn (n = connection % 8)
+    mixed,   // every 16th connection writes, the others read
+};
+
+struct LoadSpec {
+    std::uint16_t port = 0;
+    pid_t server = -1;  // whose CPU time is measured
+    int connections = 1;
+    Mix mix = Mix::reads;
+    int units = 1;  // connection i talks to unit 1 + i % units
+    std::chrono::milliseconds warmup = 500ms;
+    std::chrono::milliseconds window = 3s;
+    // Called once in the middle of the window (to sample a server's memory, say).
+    std::function<void()> midway;
+};
+
+struct LoadResult {
+    bool connected = false;
+    std::uint64_t requests = 0;  // answered normally within the window
+    std::uint64_t errors = 0;    // exceptions and transport failures within the window
+    double seconds = 0;
+    std::chrono::nanoseconds server_cpu{};
+    std::vector<float> latency_us;
+
+    double per_second() const { return static_cast<double>(requests) / seconds; }
+    double cpu_us_per_request() const {
+        return microseconds(server_cpu) / static_cast<double>(std::max<std::uint64_t>(requests, 1));
+    }
+    double cpu_percent() const { return microseconds(server_cpu) / 1e4 / seconds; }
+    // Adds another run of the same load.
+    void add(LoadResult other);
+};
+
+LoadResult run_load(const LoadSpec& spec);
+
+}  // namespace ioport::bench

@@ -1,0 +1,120 @@
+// ioportd-bench: the benchmarks of issue 6, described with their results in bench/README.md.
+// bench/perf/run builds and runs them all; this program runs one or all of them.
+#include <unistd.h>
+
+#include <cstdlib>
+#include <iostream>
+#include <string_view>
+
+#include <fmt/format.h>
+
+#include "bench/perf/benchmarks.hpp"
+#include "bench/perf/load.hpp"
+
+namespace {
+
+constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
+
+Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
+write, modbus, footprint, or all (the default). Prints Markdown tables, a "BENCH {json}" line
+per figure and a summary of every figure against its target. Asserts nothing: exit status 0
+unless a program could not be started.
+
+  --quick           every phase a fraction of a second: checks that everything runs, the
+                    figures mean nothing
+  --scale X         multiply every measured window by X (default 1)
+  --ioportd PATH    the ioportd to measure (default: the one built beside this program)
+  --no-pin          do not pin servers and clients to CPUs 1 and 0
+
+       ioportd-bench load PORT CONNECTIONS SECONDS [reads|writes|mixed]
+The load client of benchmark 4 alone, against a server started by hand (for profiling it
+with perf, strace or callgrind): requests/s and latency percentiles.
+)";
+
+int load(int argc, char** argv) {
+    using namespace ioport::bench;
+    if (argc < 5) {
+        std::cerr << usage;
+        return 2;
+    }
+    const std::string_view mix = argc > 5 ? argv[5] : "reads";
+    LoadSpec spec;
+    spec.port = static_cast<std::uint16_t>(std::atoi(argv[2]));
+    spec.connections = std::atoi(argv[3]);
+    spec.window = std::chrono::milliseconds(static_cast<long>(std::atof(argv[4]) * 1000));
+    spec.mix = mix == "writes" ? Mix::writes : mix == "mixed" ? Mix::mixed : Mix::reads;
+    spec.server = ::getpid();
+    const auto result = run_load(spec);
+    if (!result.connected) return 1;
+    std::vector<double> latency(result.latency_us.begin(), result.latency_us.end());
+    const auto s = summarize(std::move(latency));
+    fmt::print(
+        "{:.0f} req/s, {} errors, latency µs p50 {:.0f} p99 {:.0f} p99.9 {:.0f} max {:.0f}\n",
+        result.per_second(), result.errors, s.p50, s.p99, s.p999, s.max);
+    return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    using namespace ioport::bench;
+    if (argc > 1 && std::string_view(argv[1]) == "load") return load(argc, argv);
+    Environment env;
+    std::vector<std::string_view> chosen;
+    bool pin = true;
+    for (int i = 1; i < argc; ++i) {
+        const std::string_view arg = argv[i];
+        if (arg == "--quick") {
+            env.quick = true;
+        } else if (arg == "--no-pin") {
+            pin = false;
+        } else if (arg == "--scale" && i + 1 < argc) {
+            env.scale = std::atof(argv[++i]);
+        } else if (arg == "--ioportd" && i + 1 < argc) {
+            env.binaries.ioportd = argv[++i];
+        } else if (arg == "-h" || arg == "--help") {
+            std::cout << usage;
+            return 0;
+        } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
+                   arg == "footprint" || arg == "all") {
+            chosen.push_back(arg);
+        } else {
+            std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
+            return 2;
+        }
+    }
+    if (chosen.empty()) chosen.push_back("all");
+    if (pin && ::sysconf(_SC_NPROCESSORS_ONLN) >= 2) {
+        env.placement = {1, 0};
+        // This process (the clients, the in-process simulator) on the client CPU.
+        pin_this_thread(env.placement.client_cpu);
+    }
+    const auto wanted = [&](std::string_view name) {
+        return std::find(chosen.begin(), chosen.end(), name) != chosen.end() ||
+               std::find(chosen.begin(), chosen.end(), "all") != chosen.end();
+    };
+    std::vector<Verdict> verdicts;
+    const auto add = [&](std::vector<Verdict> more) {
+        verdicts.insert(verdicts.end(), more.begin(), more.end());
+    };
+    if (wanted("serial")) add(serial_overhead(env));
+    if (wanted("scan")) add(scan_cycle(env));
+    if (wanted("write")) add(write_latency(env));
+    if (wanted("modbus")) add(modbus_throughput(env));
+    if (wanted("footprint")) add(footprint(env));
+
+    fmt::print("\n## Summary{}\n", env.quick ? " (--quick: the figures mean nothing)" : "");
+    Table summary({"benchmark", "figure", "target", "met"});
+    bool all_met = true;
+    for (const auto& v : verdicts) {
+        summary.row({v.benchmark, v.figure, v.target, yes_no(v.met)});
+        all_met = all_met && v.met;
+    }
+    fmt::print("\n{}\n", all_met ? "Every target met." : "Some targets missed.");
+    machine_line(fmt::format(R"({{"bench":"summary","targets":{},"all_met":{}}})", verdicts.size(),
+                             all_met));
+    const bool ran = std::none_of(verdicts.begin(), verdicts.end(), [](const Verdict& v) {
+        return v.figure.find("did not start") != std::string::npos;
+    });
+    return ran ? 0 : 1;
+}

@@ -1,0 +1,149 @@
+// Benchmark 4, Modbus throughput and latency: the same load against ioportd and against the
+// plain select() libmodbus server (plain_server.cpp), both on the server CPU, in one run, while
+// ioportd polls a full bus and eight dom16 at 115200 baud with modelled line timing.
+#include <fmt/format.h>
+
+#include "bench/perf/benchmarks.hpp"
+#include "bench/perf/load.hpp"
+
+namespace ioport::bench {
+namespace {
+
+struct Row {
+    std::string server;
+    LoadResult load;
+    Summary latency;
+};
+
+Row measured(std::string server, std::optional<LoadResult> load) {
+    Row row{std::move(server), std::move(*load), {}};
+    std::vector<double> latency(row.load.latency_us.begin(), row.load.latency_us.end());
+    row.load.latency_us.clear();
+    row.latency = summarize(std::move(latency));
+    return row;
+}
+
+void print(const Table& table, int connections, const Row& row) {
+    table.row({fmt::format("{}", connections), row.server,
+               fmt::format("{:.0f}", row.load.per_second()), fmt::format("{:.0f}", row.latency.p50),
+               fmt::format("{:.0f}", row.latency.p99), fmt::format("{:.0f}", row.latency.p999),
+               fmt::format("{:.2f}", row.load.cpu_us_per_request()),
+               fmt::format("{:.0f} %", row.load.cpu_percent()),
+               fmt::format("{}", row.load.errors)});
+}
+
+}  // namespace
+
+std::vector<Verdict> modbus_throughput(const Environment& env) {
+    fmt::print(
+        "\n## 4. Modbus throughput and latency\n\nLoad client: libmodbus, one thread per "
+        "connection, on the client CPU; servers on the server CPU. Reads: FC 03 (8 holding "
+        "registers), FC 04 (16 input registers), FC 02 (128 discrete inputs) in turn. Writes: "
+        "FC 06 and FC 05 to dom16 modules. ioportd polls a full bus and dom16 0–7 at 115200 "
+        "baud (modelled, turnaround 0) throughout; the plain server answers from memory. "
+        "Server CPU: run time of the server's threads (schedstat) over the window.\n");
+    TempDir dir;
+    auto modules = full_bus();
+    const auto outputs = modules_of(ModuleType::dom16);
+    modules.insert(modules.end(), outputs.begin(), outputs.end());
+    SimProcess sim(env, dir / "tty", modules, {"--baud", "115200", "--turnaround", "0"});
+    Gateway gateway(env, dir, gateway_yaml({{dir / "tty", 115200, modules}}, 300));
+    PlainServer plain(env, dir);
+    if (!sim.ready() || !gateway.started() || plain.port() == 0 || !gateway.wait_until_polling())
+        return {{"4. Modbus", "servers did not start", "", false}};
+
+    const std::vector<int> counts = env.quick ? std::vector<int>{1, 8} : std::vector{1, 8, 64, 256};
+    const int rounds = env.quick ? 1 : 3;
+    const auto run = [&](int connections, Mix mix, bool ioportd) {
+        return run_load({ioportd ? gateway.port() : plain.port(),
+                         ioportd ? gateway.pid() : plain.pid(),
+                         connections,
+                         mix,
+                         1,
+                         env.quick ? 100ms : 500ms,
+                         env.window(3s),
+                         {}});
+    };
+    std::vector<Verdict> verdicts;
+
+    fmt::print("\n### Reads ({} rounds of {} ms per server and connection count, alternating)\n",
+               rounds, env.window(3s).count());
+    Table reads({"connections", "server", "req/s", "p50 µs", "p99 µs", "p99.9 µs",
+                 "server CPU µs/req", "server CPU", "errors"});
+    for (const int connections : counts) {
+        std::optional<LoadResult> on_plain, on_ioportd;
+        for (int round = 0; round < rounds; ++round)
+            for (const bool ioportd :
+                 round % 2 == 0 ? std::vector{false, true} : std::vector{true, false}) {
+                auto result = run(connections, Mix::reads, ioportd);
+                auto& total = ioportd ? on_ioportd : on_plain;
+                if (total)
+                    total->add(std::move(result));
+                else
+                    total = std::move(result);
+            }
+        const auto p = measured("plain", on_plain);
+        const auto d = measured("ioportd", on_ioportd);
+        print(reads, connections, p);
+        print(reads, connections, d);
+        const double rate = d.load.per_second() / p.load.per_second();
+        const double cpu = d.load.cpu_us_per_request() / p.load.cpu_us_per_request();
+        const double p99 = d.latency.p99 / p.latency.p99;
+        reads.row({fmt::format("{}", connections), "**ioportd / plain**",
+                   fmt::format("**{:.3f}**", rate),
+                   fmt::format("{:.2f}", d.latency.p50 / p.latency.p50), fmt::format("{:.2f}", p99),
+                   fmt::format("{:.2f}", d.latency.p999 / p.latency.p999),
+                   fmt::format("**{:.3f}**", cpu), "", ""});
+        const bool ok = d.load.connected && p.load.connected && d.load.errors == 0;
+        machine_line(fmt::format(
+            R"({{"bench":"modbus","mix":"reads","connections":{},"plain_rps":{:.0f},"ioportd_rps":{:.0f},"rps_ratio":{:.3f},"plain_cpu_us":{:.2f},"ioportd_cpu_us":{:.2f},"cpu_ratio":{:.3f},"plain_p99_us":{:.0f},"ioportd_p99_us":{:.0f},"ioportd_errors":{}}})",
+            connections, p.load.per_second(), d.load.per_second(), rate,
+            p.load.cpu_us_per_request(), d.load.cpu_us_per_request(), cpu, p.latency.p99,
+            d.latency.p99, d.load.errors));
+        verdicts.push_back(
+            {fmt::format("4. CPU/request, {} conn.", connections),
+             fmt::format("{:.2f} vs {:.2f} µs = {:.3f}×", d.load.cpu_us_per_request(),
+                         p.load.cpu_us_per_request(), cpu),
+             "<= 0.8×", ok && cpu <= 0.8});
+        verdicts.push_back({fmt::format("4. requests/s, {} conn.", connections),
+                            fmt::format("{:.0f} vs {:.0f} = {:.3f}×", d.load.per_second(),
+                                        p.load.per_second(), rate),
+                            ">= 1.0×", ok && rate >= 1.0});
+        if (connections == 64)
+            verdicts.push_back({"4. p99 latency, 64 conn.",
+                                fmt::format("{:.0f} vs {:.0f} µs", d.latency.p99, p.latency.p99),
+                                "<= plain", ok && d.latency.p99 <= p.latency.p99});
+    }
+
+    // Writes: ioportd answers only after the device acknowledged, so a write costs a serial
+    // transaction: the line, not the server, sets the rate. Reported against that limit.
+    const double limit =
+        1e6 / microseconds(wire_time(transaction_bytes({ModuleType::dom16, 0}), 115200));
+    fmt::print(
+        "\n### Writes (one round of {} ms each; the line's limit at 115200 baud is {:.0f} "
+        "dom16 commands/s)\n",
+        env.window(3s).count(), limit);
+    Table writes({"connections", "server", "req/s", "p50 µs", "p99 µs", "p99.9 µs",
+                  "server CPU µs/req", "server CPU", "errors"});
+    for (const int connections : counts) {
+        const auto p = measured("plain", run(connections, Mix::writes, false));
+        const auto d = measured("ioportd", run(connections, Mix::writes, true));
+        print(writes, connections, p);
+        print(writes, connections, d);
+        writes.row({fmt::format("{}", connections), "**ioportd / line limit**",
+                    fmt::format("**{:.3f}**", d.load.per_second() / limit), "", "", "", "", "",
+                    ""});
+        machine_line(fmt::format(
+            R"({{"bench":"modbus","mix":"writes","connections":{},"plain_rps":{:.0f},"ioportd_rps":{:.0f},"line_limit":{:.0f},"ioportd_p99_us":{:.0f},"ioportd_errors":{}}})",
+            connections, p.load.per_second(), d.load.per_second(), limit, d.latency.p99,
+            d.load.errors));
+    }
+    const auto plain_memory = memory(plain.pid());
+    const auto ioportd_memory = memory(gateway.pid());
+    fmt::print("\nPeak RSS after these runs: plain server {:.1f} MiB, ioportd {:.1f} MiB.\n",
+               static_cast<double>(plain_memory.peak_kib) / 1024,
+               static_cast<double>(ioportd_memory.peak_kib) / 1024);
+    return verdicts;
+}
+
+}  // namespace ioport::bench
