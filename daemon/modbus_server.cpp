@@ -276,6 +276,7 @@ void ModbusServer::log_refusal(const asio::ip::address& address, const std::stri
 void ModbusServer::configure(tcp::socket& socket) const {
     boost::system::error_code ec;
     socket.set_option(tcp::no_delay(true), ec);
+    socket.non_blocking(true, ec);  // responses are written at once where the socket takes them
     if (settings_.keepalive.count() == 0) return;
     const auto idle = static_cast<int>(std::max<std::int64_t>(
         1, std::chrono::duration_cast<std::chrono::seconds>(settings_.keepalive).count()));
@@ -334,6 +335,22 @@ asio::awaitable<void> ModbusServer::watch(ConnectionPtr c) {
     }
 }
 
+// The rest of a response the socket did not take at once, whole, at the client's pace: while it
+// does not read, nothing more is read from it either, and the watchdog closes it once it has
+// taken no data for send_timeout.
+asio::awaitable<boost::system::error_code> ModbusServer::send_rest(
+    Connection& c, std::span<const std::uint8_t> rest) {
+    c.sending = true;
+    c.drained = Clock::now();
+    c.client_took_data();  // the baseline the watchdog compares with
+    if (c.drained + send_timeout < c.armed) c.timer.cancel();
+    boost::system::error_code ec;
+    co_await asio::async_write(c.socket, asio::buffer(rest.data(), rest.size()),
+                               redirect_error(use_awaitable, ec));
+    c.sending = false;
+    co_return ec;
+}
+
 asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     std::string why = "closed by the client";
     while (c->open) {
@@ -352,16 +369,13 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             const auto response = co_await handle(*c, adu);
             c->busy = false;
             if (response && c->open) {
-                // Whole, at the client's pace: while it does not read, nothing more is read
-                // from it either, and the watchdog closes it once it has taken no data for
-                // send_timeout.
-                c->sending = true;
-                c->client_took_data();
-                if (c->drained + send_timeout < c->armed) c->timer.cancel();
+                // Nearly always the socket takes a response at once: written then and there,
+                // without an asynchronous operation and its completion.
                 boost::system::error_code ec;
-                co_await asio::async_write(c->socket, asio::buffer(*response),
-                                           redirect_error(use_awaitable, ec));
-                c->sending = false;
+                const auto written = c->socket.write_some(asio::buffer(*response), ec);
+                if (ec == asio::error::would_block) ec = {};
+                if (!ec && written < response->size())
+                    ec = co_await send_rest(*c, std::span(*response).subspan(written));
                 if (ec && c->open) why = fmt::format("sending a response: {}", ec.message());
                 if (ec) c->close();
             }

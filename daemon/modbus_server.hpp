@@ -74,6 +74,8 @@ class ModbusServer {
     asio::awaitable<void> accept_loop(Acceptor acceptor);
     void configure(asio::ip::tcp::socket& socket) const;
     asio::awaitable<void> serve(ConnectionPtr connection);
+    asio::awaitable<boost::system::error_code> send_rest(Connection& connection,
+                                                         std::span<const std::uint8_t> rest);
     asio::awaitable<void> watch(ConnectionPtr connection);
     // The response to one request, or nullopt when none can be sent (the connection closed
     // while a write was in flight, or libmodbus failed).
