@@ -6,10 +6,10 @@
 // (non-blocking, as Asio keeps it), a client that does not read its responses fills the socket
 // buffer and send() writes part of a frame: the client gets a truncated response and the
 // connection must be dropped. So libmodbus's socket here is one end of a datagram socketpair:
-// each response is one datagram, read back at once from the other end, and the server writes it
-// to the client whole, at the pace the client reads. libmodbus never sees a client's socket, so
-// no descriptor, however high, reaches a libmodbus call that selects, and nothing of libmodbus
-// waits on a client.
+// each response it builds is one datagram, read back at once from the other end, and the server
+// writes it to the client whole, at the pace the client reads. libmodbus never sees a client's
+// socket, so no descriptor, however high, reaches a libmodbus call that selects, and nothing of
+// libmodbus waits on a client.
 #pragma once
 
 #include <array>
@@ -72,10 +72,10 @@ class ReplyBuilder {
     ReplyBuilder(const ReplyBuilder&) = delete;
     ReplyBuilder& operator=(const ReplyBuilder&) = delete;
 
-    // The normal response, built by libmodbus from `mapping` (reads take their values from it,
-    // writes store theirs in it). The request must be one that gateway::plan() accepted, so
-    // that libmodbus never takes one of its own exception paths (some of which sleep for the
-    // response timeout and flush the socket).
+    // The normal response from `mapping`: reads take their values from it (built here, byte for
+    // byte as libmodbus would), writes store theirs in it (built by libmodbus). The request must be
+    // one that gateway::plan() accepted, so that libmodbus never takes one of its own exception
+    // paths (some of which sleep for the response timeout and flush the socket).
     Result<Bytes> reply(const PaddedRequest& request, modbus_mapping_t* mapping);
 
     // The exception response: the request's function code with its high bit set, whatever the
