@@ -1,8 +1,8 @@
 #include "sim/simulator.hpp"
 
 #include <fcntl.h>
-#include <sys/prctl.h>
 #include <stdlib.h>
+#include <sys/prctl.h>
 #include <termios.h>
 #include <unistd.h>
 

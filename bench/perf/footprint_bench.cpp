@@ -116,7 +116,7 @@ std::vector<Verdict> footprint(const Environment& env) {
                fmt::format("{:.1f}", mib(during.rss_kib)),
                fmt::format("{:.1f}", mib(after.peak_kib)),
                fmt::format("{:.0f} %", load.cpu_percent()), "", ""});
-    const bool met = load.connected && after.peak_kib <= 16 * 1024;
+    const bool met = load.connected && after.peak_kib <= std::size_t{16} * 1024;
     machine_line(fmt::format(
         R"({{"bench":"footprint","links":8,"modules_per_link":72,"clients":256,"rss_idle_mib":{:.2f},"rss_loaded_mib":{:.2f},"peak_rss_mib":{:.2f},"requests_per_s":{:.0f},"errors":{},"target":"<=16MiB","met":{}}})",
         mib(before.rss_kib), mib(during.rss_kib), mib(after.peak_kib), load.per_second(),

@@ -183,6 +183,7 @@ Memory memory(pid_t pid) {
 
 std::vector<ModuleAddress> modules_of(ModuleType type, int count) {
     std::vector<ModuleAddress> modules;
+    modules.reserve(static_cast<std::size_t>(count));
     for (int n = 0; n < count; ++n)
         modules.push_back({type, static_cast<std::uint8_t>(n)});
     return modules;
@@ -441,6 +442,7 @@ RawRate raw_ping_pong(const std::string& link, const std::vector<ModuleAddress>&
         ::tcsetattr(fd, TCSANOW, &tio);
         ::tcflush(fd, TCIOFLUSH);
         std::vector<std::string> requests;
+        requests.reserve(modules.size());
         for (const auto module : modules)
             requests.push_back(encode_request(module).value());
         std::array<char, 64> buffer{};
@@ -509,17 +511,17 @@ Table::Table(std::vector<std::string> header) : columns_(header.size()) {
     for (std::size_t i = 0; i < columns_; ++i)
         fmt::print("---|");
     fmt::print("\n");
-    std::fflush(stdout);
+    (void)std::fflush(stdout);
 }
 
 void Table::row(const std::vector<std::string>& cells) const {
     fmt::print("| {} |\n", fmt::join(cells, " | "));
-    std::fflush(stdout);
+    (void)std::fflush(stdout);
 }
 
 void machine_line(const std::string& json) {
     fmt::print("BENCH {}\n", json);
-    std::fflush(stdout);
+    (void)std::fflush(stdout);
 }
 
 std::string yes_no(bool met) {

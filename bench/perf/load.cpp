@@ -70,6 +70,7 @@ LoadResult run_load(const LoadSpec& spec) {
     std::latch go(1);
     std::vector<ThreadResult> results(static_cast<std::size_t>(spec.connections));
     std::vector<std::thread> threads;
+    threads.reserve(static_cast<std::size_t>(spec.connections));
     for (int i = 0; i < spec.connections; ++i)
         threads.emplace_back([&, i] {
             // Below the simulator and this measuring thread, which share the CPU: 256 busy

@@ -28,7 +28,7 @@ int main(int argc, char** argv) {
     socklen_t length = sizeof bound;
     ::getsockname(listener, reinterpret_cast<sockaddr*>(&bound), &length);
     std::printf("listening on port %d\n", ntohs(bound.sin_port));
-    std::fflush(stdout);
+    (void)std::fflush(stdout);
 
     fd_set connections;
     FD_ZERO(&connections);
