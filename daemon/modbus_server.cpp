@@ -365,9 +365,16 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             }
             if (!*next) break;  // the rest of the request is still on its way
             const auto adu = **next;
-            c->busy = true;
-            const auto response = co_await handle(*c, adu);
-            c->busy = false;
+            auto answered = answer(*c, adu);
+            auto* write = std::get_if<Write>(&answered);
+            Response response;
+            if (write) {
+                c->busy = true;
+                response = co_await this->write(*c, adu, std::move(*write));
+                c->busy = false;
+            } else {
+                response = std::move(std::get<Response>(answered));
+            }
             if (response && c->open) {
                 // Nearly always the socket takes a response at once: written then and there,
                 // without an asynchronous operation and its completion.
@@ -417,27 +424,35 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     log_.debug({.client = c->peer}, "Modbus client {} disconnected: {}", c->peer, why);
 }
 
-asio::awaitable<std::optional<Bytes>> ModbusServer::handle(Connection& c,
-                                                           std::span<const std::uint8_t> adu) {
-    const PaddedRequest request(adu);
-    const auto built = [&](Result<Bytes> response) -> std::optional<Bytes> {
-        if (response) return std::move(*response);
-        log_.error({.client = c.peer}, "Modbus client {}: {}", c.peer, response.error().message);
-        return std::nullopt;
-    };
+std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
+    Connection& c, std::span<const std::uint8_t> adu) {
     const auto unit_id = adu[modbus::mbap_length - 1];
-    const auto unit = units_[unit_id];  // held: a reload may replace the link meanwhile
+    const auto& unit = units_[unit_id];
     if (!unit)
-        co_return built(replies_->exception(request, modbus::Exception::gateway_path_unavailable));
+        return built(c, replies_->exception(PaddedRequest(adu),
+                                            modbus::Exception::gateway_path_unavailable));
     auto plan = gateway::plan(unit->state(), policy_, adu.subspan(modbus::mbap_length));
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
-        co_return built(replies_->exception(request, *exception));
+        return built(c, replies_->exception(PaddedRequest(adu), *exception));
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan))
-        co_return built(replies_->reply(request, unit->image(read->diagnostics)));
-    const auto failed = co_await unit->write(std::get<gateway::WritePlan>(std::move(plan)));
+        return built(c, replies_->reply(PaddedRequest(adu), unit->image(read->diagnostics)));
+    return Write{unit, std::get<gateway::WritePlan>(std::move(plan))};
+}
+
+asio::awaitable<ModbusServer::Response> ModbusServer::write(Connection& c,
+                                                            std::span<const std::uint8_t> adu,
+                                                            Write write) {
+    const auto failed = co_await write.unit->write(std::move(write.plan));
     if (!c.open) co_return std::nullopt;
-    if (failed) co_return built(replies_->exception(request, *failed));
-    co_return built(replies_->reply(request, scratch_.get()));
+    const PaddedRequest request(adu);
+    co_return built(c, failed ? replies_->exception(request, *failed)
+                              : replies_->reply(request, scratch_.get()));
+}
+
+ModbusServer::Response ModbusServer::built(const Connection& c, Result<Bytes> response) {
+    if (response) return std::move(*response);
+    log_.error({.client = c.peer}, "Modbus client {}: {}", c.peer, response.error().message);
+    return std::nullopt;
 }
 
 }  // namespace ioport::daemon

@@ -17,6 +17,7 @@
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
+#include <variant>
 #include <vector>
 
 #include <modbus/modbus.h>
@@ -77,10 +78,21 @@ class ModbusServer {
     asio::awaitable<boost::system::error_code> send_rest(Connection& connection,
                                                          std::span<const std::uint8_t> rest);
     asio::awaitable<void> watch(ConnectionPtr connection);
-    // The response to one request, or nullopt when none can be sent (the connection closed
-    // while a write was in flight, or libmodbus failed).
-    asio::awaitable<std::optional<Bytes>> handle(Connection& connection,
-                                                 std::span<const std::uint8_t> adu);
+    // A write that must reach the device before its response.
+    struct Write {
+        std::shared_ptr<LinkScheduler> unit;  // held: a reload may replace the link meanwhile
+        gateway::WritePlan plan;
+    };
+    // A response, or nullopt when none can be built (libmodbus failed).
+    using Response = std::optional<Bytes>;
+    // Reads and refusals are answered at once, from the image: no coroutine, no wait.
+    std::variant<Response, Write> answer(Connection& connection, std::span<const std::uint8_t> adu);
+    // The response once the device acknowledged or failed; nullopt also when the connection
+    // closed meanwhile.
+    asio::awaitable<Response> write(Connection& connection, std::span<const std::uint8_t> adu,
+                                    Write write);
+    // The response libmodbus built, or nullopt, logged, when it failed.
+    Response built(const Connection& connection, Result<Bytes> response);
     // Takes the descriptors that settings_.max_connections clients need (see descriptors.hpp).
     void make_room();
     std::optional<std::string> refusal(const asio::ip::tcp::endpoint& peer) const;

@@ -1,8 +1,8 @@
 // Fuzz target: the Modbus request path, from the bytes of a client's TCP stream to the responses
 // and the changes of the process image, against a configured map.
 //
-// It runs what ModbusServer::serve and ::handle run, minus the sockets and the serial links:
-// modbus::next_adu frames the stream, the unit is looked up as set_units() arranges them,
+// It runs what ModbusServer::serve, ::answer and ::write run, minus the sockets and the serial
+// links: modbus::next_adu frames the stream, the unit is looked up as set_units() arranges them,
 // gateway::plan() decides, a write's changes are merged and stored as LinkScheduler::apply does
 // once the device answered, and libmodbus builds the response through the daemon's own
 // ReplyBuilder.
