@@ -14,6 +14,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -69,6 +70,20 @@ void pin_this_thread(std::optional<int> cpu) {
     CPU_ZERO(&set);
     CPU_SET(*cpu, &set);
     (void)::sched_setaffinity(0, sizeof set, &set);
+}
+
+WakeupLatencyHold::WakeupLatencyHold() {
+    fd_ = ::open("/dev/cpu_dma_latency", O_WRONLY | O_CLOEXEC);
+    const std::int32_t microseconds = 0;
+    if (fd_ >= 0 && ::write(fd_, &microseconds, sizeof microseconds) == sizeof microseconds) return;
+    failure_ = fmt::format("/dev/cpu_dma_latency: {}", std::strerror(errno));
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = -1;
+}
+
+// The kernel drops the request when the descriptor closes.
+WakeupLatencyHold::~WakeupLatencyHold() {
+    if (fd_ >= 0) ::close(fd_);
 }
 
 TempDir::TempDir() {

@@ -54,6 +54,26 @@ struct Environment {
 
 void pin_this_thread(std::optional<int> cpu);
 
+// While it lives, idle CPUs poll instead of halting: /dev/cpu_dma_latency (PM QoS) held at 0 µs,
+// as cyclictest does and tuned's latency-performance profile sets. On a KVM guest a halted vCPU
+// takes tens of µs to wake, and every transaction wakes the simulator, the pty's worker, the
+// server and the client: benchmarks 1-4 would measure the hypervisor's wake-ups, which every
+// server and raw client pays alike, rather than the software. Idle CPU (benchmark 5) is
+// measured without it. Needs root; without the device the benchmarks run as before.
+class WakeupLatencyHold {
+  public:
+    WakeupLatencyHold();
+    ~WakeupLatencyHold();
+    WakeupLatencyHold(const WakeupLatencyHold&) = delete;
+    WakeupLatencyHold& operator=(const WakeupLatencyHold&) = delete;
+    // Empty when held, otherwise why not.
+    const std::string& failure() const { return failure_; }
+
+  private:
+    int fd_ = -1;
+    std::string failure_;
+};
+
 // A temporary directory, removed with its contents.
 class TempDir {
   public:

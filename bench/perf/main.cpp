@@ -4,6 +4,7 @@
 
 #include <cstdlib>
 #include <iostream>
+#include <optional>
 #include <string_view>
 
 #include <fmt/format.h>
@@ -25,6 +26,8 @@ unless a program could not be started.
   --scale X         multiply every measured window by X (default 1)
   --ioportd PATH    the ioportd to measure (default: the one built beside this program)
   --no-pin          do not pin servers and clients to CPUs 1 and 0
+  --no-latency-hold let idle CPUs halt during benchmarks 1-4 as well (see WakeupLatencyHold
+                    in harness.hpp): their figures then include the hypervisor's wake-ups
 
        ioportd-bench load PORT CONNECTIONS SECONDS [reads|writes|mixed]
 The load client of benchmark 4 alone, against a server started by hand (for profiling it
@@ -62,12 +65,15 @@ int main(int argc, char** argv) {
     Environment env;
     std::vector<std::string_view> chosen;
     bool pin = true;
+    bool hold = true;
     for (int i = 1; i < argc; ++i) {
         const std::string_view arg = argv[i];
         if (arg == "--quick") {
             env.quick = true;
         } else if (arg == "--no-pin") {
             pin = false;
+        } else if (arg == "--no-latency-hold") {
+            hold = false;
         } else if (arg == "--scale" && i + 1 < argc) {
             env.scale = std::atof(argv[++i]);
         } else if (arg == "--ioportd" && i + 1 < argc) {
@@ -97,10 +103,19 @@ int main(int argc, char** argv) {
     const auto add = [&](std::vector<Verdict> more) {
         verdicts.insert(verdicts.end(), more.begin(), more.end());
     };
-    if (wanted("serial")) add(serial_overhead(env));
-    if (wanted("scan")) add(scan_cycle(env));
-    if (wanted("write")) add(write_latency(env));
-    if (wanted("modbus")) add(modbus_throughput(env));
+    {
+        std::optional<WakeupLatencyHold> latency;
+        if (hold && !env.quick) latency.emplace();
+        fmt::print("\nBenchmarks 1-4 {}.\n",
+                   !latency ? "with idle CPUs free to halt"
+                   : latency->failure().empty()
+                       ? "with idle CPUs polling (/dev/cpu_dma_latency held at 0)"
+                       : fmt::format("with idle CPUs free to halt ({})", latency->failure()));
+        if (wanted("serial")) add(serial_overhead(env));
+        if (wanted("scan")) add(scan_cycle(env));
+        if (wanted("write")) add(write_latency(env));
+        if (wanted("modbus")) add(modbus_throughput(env));
+    }
     if (wanted("footprint")) add(footprint(env));
 
     fmt::print("\n## Summary{}\n", env.quick ? " (--quick: the figures mean nothing)" : "");
