@@ -286,8 +286,9 @@ TEST_F(Faults, AModuleThatStopsAnsweringMidRunAndComesBack) {
     // Writes go first (gateway.md §4), and each write to the silent module takes the line for
     // (retries + 1) timeouts and a silence: a client that writes to it without pause delays
     // every poll in between by that much. The other modules' age stays bounded all the same
-    // (by a generous margin: a busy machine stretches every step).
-    EXPECT_LT(milliseconds(worst_age), 60 * serial_timeout);
+    // (by a generous margin: a busy machine stretches every step, and so does the sanitizer
+    // build, where a clean CI run once measured 3,123 ms).
+    EXPECT_LT(milliseconds(worst_age), 60 * serial_timeout * slowdown);
     EXPECT_GT(report.writes_0b, 0U);
     EXPECT_GT(report.reads_stale, 0U);
     EXPECT_LT(all_back, 4500ms * slowdown);  // back-off is at most 4 s
