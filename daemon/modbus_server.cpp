@@ -366,11 +366,11 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             if (!*next) break;  // the rest of the request is still on its way
             const auto adu = **next;
             auto answered = answer(*c, adu);
-            auto* write = std::get_if<Write>(&answered);
+            auto* pending = std::get_if<Write>(&answered);
             Response response;
-            if (write) {
+            if (pending) {
                 c->busy = true;
-                response = co_await this->write(*c, adu, std::move(*write));
+                response = co_await write(*c, std::move(*pending));
                 c->busy = false;
             } else {
                 response = std::move(std::get<Response>(answered));
@@ -426,27 +426,23 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
 
 std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
     Connection& c, std::span<const std::uint8_t> adu) {
-    const auto unit_id = adu[modbus::mbap_length - 1];
-    const auto& unit = units_[unit_id];
+    const auto& unit = units_[adu[modbus::mbap_length - 1]];
+    const PaddedRequest request(adu);
     if (!unit)
-        return built(c, replies_->exception(PaddedRequest(adu),
-                                            modbus::Exception::gateway_path_unavailable));
+        return built(c, replies_->exception(request, modbus::Exception::gateway_path_unavailable));
     auto plan = gateway::plan(unit->state(), policy_, adu.subspan(modbus::mbap_length));
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
-        return built(c, replies_->exception(PaddedRequest(adu), *exception));
+        return built(c, replies_->exception(request, *exception));
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan))
-        return built(c, replies_->reply(PaddedRequest(adu), unit->image(read->diagnostics)));
-    return Write{unit, std::get<gateway::WritePlan>(std::move(plan))};
+        return built(c, replies_->reply(request, unit->image(read->diagnostics)));
+    return Write{unit, std::get<gateway::WritePlan>(std::move(plan)), request};
 }
 
-asio::awaitable<ModbusServer::Response> ModbusServer::write(Connection& c,
-                                                            std::span<const std::uint8_t> adu,
-                                                            Write write) {
+asio::awaitable<ModbusServer::Response> ModbusServer::write(Connection& c, Write write) {
     const auto failed = co_await write.unit->write(std::move(write.plan));
     if (!c.open) co_return std::nullopt;
-    const PaddedRequest request(adu);
-    co_return built(c, failed ? replies_->exception(request, *failed)
-                              : replies_->reply(request, scratch_.get()));
+    co_return built(c, failed ? replies_->exception(write.request, *failed)
+                              : replies_->reply(write.request, scratch_.get()));
 }
 
 ModbusServer::Response ModbusServer::built(const Connection& c, Result<Bytes> response) {

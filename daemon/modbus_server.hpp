@@ -82,6 +82,7 @@ class ModbusServer {
     struct Write {
         std::shared_ptr<LinkScheduler> unit;  // held: a reload may replace the link meanwhile
         gateway::WritePlan plan;
+        PaddedRequest request;  // what the response is built from
     };
     // A response, or nullopt when none can be built (libmodbus failed).
     using Response = std::optional<Bytes>;
@@ -89,8 +90,7 @@ class ModbusServer {
     std::variant<Response, Write> answer(Connection& connection, std::span<const std::uint8_t> adu);
     // The response once the device acknowledged or failed; nullopt also when the connection
     // closed meanwhile.
-    asio::awaitable<Response> write(Connection& connection, std::span<const std::uint8_t> adu,
-                                    Write write);
+    asio::awaitable<Response> write(Connection& connection, Write write);
     // The response libmodbus built, or nullopt, logged, when it failed.
     Response built(const Connection& connection, Result<Bytes> response);
     // Takes the descriptors that settings_.max_connections clients need (see descriptors.hpp).
