@@ -54,7 +54,8 @@ Simulator::~Simulator() {
 Result<> Simulator::start() {
     // A device answers on time to the character. The kernel lets a timer fire up to its slack
     // late, 50 µs by default: added to every modelled answer, that is 5 % of a dim16 read at
-    // 115200 baud, and the simulator, not the master, would be slow.
+    // 115200 baud, and the simulator, not the master, would be slow. What lateness remains is
+    // the machine's wake-up, which answer_clock_ learns and sets the timers early by.
     if (settings_.line_timing) ::prctl(PR_SET_TIMERSLACK, 1UL);
     if (settings_.control_path) {
         ::unlink(settings_.control_path->c_str());
@@ -162,11 +163,14 @@ asio::awaitable<void> Simulator::read_requests(std::uint64_t generation) {
 asio::awaitable<void> Simulator::write_answers(std::uint64_t generation) {
     while (generation == plug_generation_) {
         boost::system::error_code ec;
-        if (due_.empty() || due_.begin()->first > Clock::now()) {
-            answer_timer_.expires_at(due_.empty() ? Clock::now() + 1h : due_.begin()->first);
+        const auto wake =
+            due_.empty() ? Clock::now() + 1h : due_.begin()->first - answer_clock_.advance();
+        if (wake > Clock::now()) {
+            answer_timer_.expires_at(wake);
             co_await answer_timer_.async_wait(redirect_error(use_awaitable, ec));
             continue;
         }
+        if (settings_.line_timing) answer_clock_.answered(Clock::now() - due_.begin()->first);
         const std::string bytes = std::move(due_.begin()->second);
         due_.erase(due_.begin());
         co_await asio::async_write(master_, asio::buffer(bytes), redirect_error(use_awaitable, ec));

@@ -9,6 +9,7 @@
 
 #include "link/asio.hpp"
 #include "protocol/error.hpp"
+#include "sim/answer_clock.hpp"
 #include "sim/control.hpp"
 #include "sim/model.hpp"
 
@@ -35,6 +36,9 @@ class Simulator {
     void stop();  // removes the link and the control socket
     bool plugged() const { return master_.is_open(); }
     const std::string& pty_name() const { return pty_name_; }
+    // With line timing: how late the answers went out against their modelled end.
+    const AnswerErrors& answer_errors() const { return answer_clock_.errors(); }
+    void clear_answer_errors() { answer_clock_.clear_errors(); }
 
   private:
     using Clock = std::chrono::steady_clock;
@@ -59,6 +63,7 @@ class Simulator {
     std::multimap<Clock::time_point, std::string> due_;  // answers by the time they finish
     Clock::time_point line_free_{};
     asio::steady_timer answer_timer_;
+    AnswerClock answer_clock_;
     asio::steady_timer replug_timer_;
     std::optional<asio::local::stream_protocol::acceptor> control_;
 };

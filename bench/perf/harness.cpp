@@ -410,6 +410,14 @@ std::vector<sim::LogEntry> InProcessSim::take_log() {
     });
 }
 
+sim::AnswerErrors InProcessSim::take_answer_errors() {
+    return on_sim_thread([this] {
+        auto errors = simulator_->answer_errors();
+        simulator_->clear_answer_errors();
+        return errors;
+    });
+}
+
 void InProcessSim::tick_values(std::vector<ModuleAddress> modules,
                                std::chrono::microseconds period) {
     on_sim_thread([&] {

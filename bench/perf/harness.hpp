@@ -234,6 +234,8 @@ class InProcessSim {
     Clock::time_point at(const sim::LogEntry& entry) const { return origin_ + entry.at; }
 
     std::vector<sim::LogEntry> take_log();
+    // How late the simulator's answers went out against their modelled end since the last call.
+    sim::AnswerErrors take_answer_errors();
     // Every `period`, sets each of `modules` (inputs with one word) to a new value, a counter, so
     // that every reading of a module tells which one it was.
     void tick_values(std::vector<ModuleAddress> modules, std::chrono::microseconds period);

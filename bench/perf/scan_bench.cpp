@@ -41,6 +41,13 @@ double ms(double us) {
     return us / 1000.0;
 }
 
+// How well the simulator kept its model's time (sim/answer_clock.hpp): the figures above are
+// only as good as this.
+std::string answer_errors(const sim::AnswerErrors& errors) {
+    return fmt::format("{} / {} / {}", errors.quantile(0.1).count(), errors.quantile(0.5).count(),
+                       errors.quantile(0.9).count());
+}
+
 // Poll cycles in a log: a cycle starts with the first module of the round-robin, dim16 0.
 std::vector<double> cycle_times(const InProcessSim& sim, const std::vector<sim::LogEntry>& log) {
     std::vector<double> cycles;
@@ -63,6 +70,7 @@ struct Scan {
     std::uint32_t failed = 0;
     Summary raw_cycle_us;  // the raw client's
     std::uint64_t raw_failed = 0;
+    sim::AnswerErrors sim_errors;  // the simulator's, while ioportd polled
 };
 
 Scan scan(const Environment& env, int baud) {
@@ -80,6 +88,7 @@ Scan scan(const Environment& env, int baud) {
     sim.tick_values(modules_of(ModuleType::dim16), 2ms);
     std::this_thread::sleep_for(50ms);
     (void)sim.take_log();
+    (void)sim.take_answer_errors();
 
     struct Read {
         Clock::time_point at;
@@ -108,6 +117,7 @@ Scan scan(const Environment& env, int baud) {
     stop = true;
     client.join();
     const auto log = sim.take_log();
+    result.sim_errors = sim.take_answer_errors();
     gateway.stop();
     // The floor: a minimal blocking client on the same simulator and pty, in the same run.
     (void)sim.take_log();
@@ -156,6 +166,7 @@ struct WriteFigures {
     Summary latency_us, to_device_us, slack_us;
     double own_us = 0, longest_us = 0;
     std::size_t writes = 0, failed = 0, unmatched = 0, missed = 0;
+    sim::AnswerErrors sim_errors;
 };
 
 WriteFigures writes(const Environment& env, int baud) {
@@ -175,6 +186,7 @@ WriteFigures writes(const Environment& env, int baud) {
     if (!gateway.started() || !gateway.wait_until_polling()) return result;
     std::this_thread::sleep_for(50ms);
     (void)sim.take_log();
+    (void)sim.take_answer_errors();
 
     // One client writing dom16 0 at random moments, 2–10 ms apart: FC 06 (holding register 0,
     // the whole word) and FC 05 (one coil) in turn, each changing the word, so that the command
@@ -206,6 +218,7 @@ WriteFigures writes(const Environment& env, int baud) {
         }
     }
     const auto log = sim.take_log();
+    result.sim_errors = sim.take_answer_errors();
     gateway.stop();
 
     std::vector<double> latency, to_device, slack;
@@ -249,11 +262,12 @@ std::vector<Verdict> scan_cycle(const Environment& env) {
         "device received them. Modelled wire time: 512 × 10 / baud. Raw client: the same cycle "
         "by a blocking write()/read() loop on the same simulator and pty, the floor that they set. "
         "Data age: time a client had a dim16 value, less the start of the device's reply that "
-        "carried it.\n");
+        "carried it. Sim answer error: when the simulator wrote each answer, less its modelled "
+        "end.\n");
     Table table({"baud", "modelled wire time ms", "cycle mean ms", "cycle p50 ms", "cycle p99 ms",
                  "cycle max ms", "ioportd's own mean ms", "ratio mean", "ratio p99",
                  "raw client cycle ms", "raw ratio", "age p50 ms", "age p99 ms", "age max ms",
-                 "failed tx"});
+                 "failed tx", "sim answer error p10/p50/p90 µs"});
     std::vector<Verdict> verdicts;
     for (const int baud : {115200, 38400}) {
         const auto s = scan(env, baud);
@@ -269,7 +283,7 @@ std::vector<Verdict> scan_cycle(const Environment& env) {
              fmt::format("{:.4f}", ratio_p99), fmt::format("{:.2f}", ms(s.raw_cycle_us.mean)),
              fmt::format("{:.4f}", raw_ratio), fmt::format("{:.2f}", s.age_ms.p50),
              fmt::format("{:.2f}", s.age_ms.p99), fmt::format("{:.2f}", s.age_ms.max),
-             fmt::format("{}", s.failed + s.raw_failed)});
+             fmt::format("{}", s.failed + s.raw_failed), answer_errors(s.sim_errors)});
         machine_line(fmt::format(
             R"({{"bench":"scan","baud":{},"modelled_ms":{:.3f},"cycle_mean_ms":{:.3f},"cycle_p99_ms":{:.3f},"ratio":{:.4f},"ratio_p99":{:.4f},"raw_ratio":{:.4f},"age_p50_ms":{:.2f},"age_p99_ms":{:.2f},"cycles":{},"ages":{},"target":"<=1.05","met":{}}})",
             baud, ms(s.modelled_us), ms(s.cycle_us.mean), ms(s.cycle_us.p99), ratio, ratio_p99,
@@ -295,10 +309,10 @@ std::vector<Verdict> write_latency(const Environment& env) {
         "the command's last byte reached the device. Slack: latency − the rest of the "
         "transaction the write waited for (from the request's sending) − the write's own wire "
         "time. Target: p99 slack <= 0.5 ms, and p99 latency <= the longest poll transaction + "
-        "the write's own wire time + 0.5 ms.\n");
+        "the write's own wire time + 0.5 ms. Sim answer error: as in benchmark 2.\n");
     Table table({"baud", "writes", "latency p50 µs", "p99 µs", "max µs", "to device p50 µs",
                  "p99 µs", "slack p50 µs", "p99 µs", "max µs", "bound µs", "behind a later tx",
-                 "failed"});
+                 "failed", "sim answer error p10/p50/p90 µs"});
     std::vector<Verdict> verdicts;
     for (const int baud : {115200, 38400}) {
         const auto w = writes(env, baud);
@@ -315,7 +329,8 @@ std::vector<Verdict> write_latency(const Environment& env) {
                    fmt::format("{:.1f} %", w.writes > 0 ? 100.0 * static_cast<double>(w.missed) /
                                                               static_cast<double>(w.writes)
                                                         : 0.0),
-                   fmt::format("{} (+{} unmatched)", w.failed, w.unmatched)});
+                   fmt::format("{} (+{} unmatched)", w.failed, w.unmatched),
+                   answer_errors(w.sim_errors)});
         machine_line(fmt::format(
             R"({{"bench":"write","baud":{},"writes":{},"latency_p50_us":{:.0f},"latency_p99_us":{:.0f},"latency_max_us":{:.0f},"to_device_p50_us":{:.0f},"slack_p50_us":{:.0f},"slack_p99_us":{:.0f},"bound_us":{:.0f},"missed":{},"failed":{},"target":"slack p99<=500us, latency p99<=bound","met":{}}})",
             baud, w.writes, w.latency_us.p50, w.latency_us.p99, w.latency_us.max,
