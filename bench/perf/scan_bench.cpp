@@ -243,9 +243,10 @@ WriteFigures writes(const Environment& env, int baud) {
         const auto took = write.answered - write.sent;
         latency.push_back(microseconds(took));
         to_device.push_back(microseconds(sim.at(log[j]) + wire_time(7, baud) - write.sent));
-        // What software added: the response time less the rest of the transaction in flight and
-        // the write's own wire time.
-        slack.push_back(microseconds(took - (free - write.sent)) - result.own_us);
+        // What software added: the response time less the rest of the transaction in flight (none
+        // when the line was already free) and the write's own wire time.
+        const auto in_flight = std::max<Clock::duration>(free - write.sent, {});
+        slack.push_back(microseconds(took - in_flight) - result.own_us);
     }
     result.latency_us = summarize(latency);
     result.to_device_us = summarize(to_device);
