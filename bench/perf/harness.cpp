@@ -450,53 +450,121 @@ std::chrono::nanoseconds thread_cpu_time() {
 
 }  // namespace
 
+namespace {
+
+// The simulator's pty as a minimal master uses it: raw, blocking write() and read() until the CR.
+class RawLine {
+  public:
+    explicit RawLine(const std::string& link)
+        : fd_(::open(link.c_str(), O_RDWR | O_NOCTTY | O_CLOEXEC)) {
+        if (fd_ < 0) return;
+        termios tio{};
+        ::tcgetattr(fd_, &tio);
+        ::cfmakeraw(&tio);
+        tio.c_cc[VMIN] = 1;
+        tio.c_cc[VTIME] = 0;
+        ::tcsetattr(fd_, TCSANOW, &tio);
+        ::tcflush(fd_, TCIOFLUSH);
+    }
+    ~RawLine() {
+        if (fd_ >= 0) ::close(fd_);
+    }
+    RawLine(const RawLine&) = delete;
+    RawLine& operator=(const RawLine&) = delete;
+
+    bool is_open() const { return fd_ >= 0; }
+    bool transact(const std::string& request) {
+        if (::write(fd_, request.data(), request.size()) != static_cast<ssize_t>(request.size()))
+            return false;
+        for (;;) {
+            const auto n = ::read(fd_, buffer_.data(), buffer_.size());
+            if (n <= 0) return false;
+            if (buffer_[static_cast<std::size_t>(n) - 1] == '\r') return true;
+        }
+    }
+
+  private:
+    int fd_;
+    std::array<char, 64> buffer_{};
+};
+
+std::vector<std::string> read_requests(const std::vector<ModuleAddress>& modules) {
+    std::vector<std::string> requests;
+    requests.reserve(modules.size());
+    for (const auto module : modules)
+        requests.push_back(encode_request(module).value());
+    return requests;
+}
+
+}  // namespace
+
 RawRate raw_ping_pong(const std::string& link, const std::vector<ModuleAddress>& modules,
                       std::chrono::milliseconds window, std::optional<int> cpu) {
     RawRate rate;
     std::thread client([&] {
         pin_this_thread(cpu);
-        const int fd = ::open(link.c_str(), O_RDWR | O_NOCTTY | O_CLOEXEC);
-        if (fd < 0) return;
-        termios tio{};
-        ::tcgetattr(fd, &tio);
-        ::cfmakeraw(&tio);
-        tio.c_cc[VMIN] = 1;
-        tio.c_cc[VTIME] = 0;
-        ::tcsetattr(fd, TCSANOW, &tio);
-        ::tcflush(fd, TCIOFLUSH);
-        std::vector<std::string> requests;
-        requests.reserve(modules.size());
-        for (const auto module : modules)
-            requests.push_back(encode_request(module).value());
-        std::array<char, 64> buffer{};
-        const auto transact = [&](const std::string& request) {
-            if (::write(fd, request.data(), request.size()) != static_cast<ssize_t>(request.size()))
-                return false;
-            for (;;) {
-                const auto n = ::read(fd, buffer.data(), buffer.size());
-                if (n <= 0) return false;
-                if (buffer[static_cast<std::size_t>(n) - 1] == '\r') return true;
-            }
-        };
+        RawLine line(link);
+        if (!line.is_open()) return;
+        const auto requests = read_requests(modules);
         for (const auto& request : requests)  // a cycle to warm up
-            transact(request);
+            line.transact(request);
         std::uint64_t done = 0;
         const auto cpu_before = thread_cpu_time();
         const auto start = Clock::now();
         const auto end = start + window;
         while (Clock::now() < end)
             for (const auto& request : requests) {
-                if (!transact(request)) ++rate.failed;
+                if (!line.transact(request)) ++rate.failed;
                 ++done;
             }
         const auto elapsed = seconds(Clock::now() - start);
         rate.per_second = static_cast<double>(done) / elapsed;
         rate.cpu_us_per_transaction =
             microseconds(thread_cpu_time() - cpu_before) / static_cast<double>(done);
-        ::close(fd);
     });
     client.join();
     return rate;
+}
+
+std::vector<RawWrite> raw_writes(const std::string& link, const std::vector<ModuleAddress>& modules,
+                                 ModuleAddress target, int count, std::optional<int> cpu) {
+    std::vector<RawWrite> done;
+    RawLine line(link);
+    if (!line.is_open()) return done;
+    std::atomic<bool> pending{false};
+    std::atomic<bool> stop{false};
+    RawWrite next;
+    std::thread poller([&] {
+        pin_this_thread(cpu);
+        const auto requests = read_requests(modules);
+        while (!stop)
+            for (const auto& request : requests) {
+                // Between transactions, as ioportd does: a write waiting goes first.
+                if (pending.load(std::memory_order_acquire)) {
+                    next.ok = line.transact(encode_request(target, next.word).value());
+                    next.answered = Clock::now();
+                    pending.store(false, std::memory_order_release);
+                    pending.notify_one();
+                }
+                (void)line.transact(request);
+            }
+    });
+    std::mt19937 random(7);
+    std::uniform_int_distribution<int> pause_us(2000, 10000);
+    std::uint16_t word = 0;
+    for (int i = 0; i < count; ++i) {
+        std::this_thread::sleep_for(std::chrono::microseconds(pause_us(random)));
+        word = static_cast<std::uint16_t>(word ^ (0x1000 + i));
+        next = RawWrite{};
+        next.word = word;
+        next.sent = Clock::now();
+        pending.store(true, std::memory_order_release);
+        pending.wait(true);
+        done.push_back(next);
+    }
+    stop = true;
+    poller.join();
+    return done;
 }
 
 Summary summarize(std::vector<double> values) {
