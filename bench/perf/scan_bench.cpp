@@ -41,7 +41,7 @@ double ms(double us) {
     return us / 1000.0;
 }
 
-// How well the simulator kept its model's time (sim/answer_clock.hpp): the figures above are
+// How well the simulator kept its model's time (sim/answer_clock.hpp): benchmarks 2 and 3 are
 // only as good as this.
 std::string answer_errors(const sim::AnswerErrors& errors) {
     return fmt::format("{} / {} / {}", errors.quantile(0.1).count(), errors.quantile(0.5).count(),
