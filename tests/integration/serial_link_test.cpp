@@ -110,8 +110,12 @@ TEST_F(SerialLinkTest, InputThatCameWhileTheLinkWasIdleIsFlushed) {
     device.serve([](const std::string&) { return std::vector<Reply>{{0ms, "0001\r"}}; });
     const auto outcomes = transact_all(io, link, {read(dim0), read(dim0)}, [&](std::size_t i) {
         if (i != 1) return;
-        device.send("FFFF\r");  // unasked, and on the line for longer than a character time
-        std::this_thread::sleep_for(2ms);
+        const auto idle_since = Clock::now();  // after the last reply
+        device.send("FFFF\r");                 // unasked
+        EXPECT_TRUE(device.wait_until_queued(5)) << "the unasked bytes never reached the link";
+        // And the line idle for longer than a character time (87 µs at 115200 baud): the link
+        // only flushes after that. Time is what this waits for, not a condition.
+        std::this_thread::sleep_until(idle_since + 200us);
     });
     ASSERT_EQ(outcomes.size(), 2u);
     ASSERT_TRUE(outcomes[1].result) << outcomes[1].result.error().message;

@@ -2,12 +2,14 @@
 
 #include <fcntl.h>
 #include <stdlib.h>
+#include <sys/ioctl.h>
 #include <termios.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
 
 #include <array>
+#include <thread>
 
 namespace ioport::test {
 
@@ -42,6 +44,17 @@ void PtyDevice::send(std::string_view bytes) {
     boost::system::error_code ec;
     asio::write(master_, asio::buffer(bytes.data(), bytes.size()), ec);
     EXPECT_FALSE(ec) << ec.message();
+}
+
+bool PtyDevice::wait_until_queued(std::size_t count, std::chrono::milliseconds deadline) const {
+    const auto until = std::chrono::steady_clock::now() + deadline;
+    for (;;) {
+        int queued = 0;
+        if (::ioctl(slave_fd_, TIOCINQ, &queued) != 0) return false;
+        if (static_cast<std::size_t>(queued) >= count) return true;
+        if (std::chrono::steady_clock::now() >= until) return false;
+        std::this_thread::sleep_for(100us);
+    }
 }
 
 void PtyDevice::hang_up() {
