@@ -448,10 +448,6 @@ std::chrono::nanoseconds thread_cpu_time() {
     return std::chrono::seconds(t.tv_sec) + std::chrono::nanoseconds(t.tv_nsec);
 }
 
-}  // namespace
-
-namespace {
-
 // The simulator's pty as a minimal master uses it: raw, blocking write() and read() until the CR.
 class RawLine {
   public:
@@ -526,14 +522,15 @@ RawRate raw_ping_pong(const std::string& link, const std::vector<ModuleAddress>&
     return rate;
 }
 
-std::vector<RawWrite> raw_writes(const std::string& link, const std::vector<ModuleAddress>& modules,
-                                 ModuleAddress target, int count, std::optional<int> cpu) {
-    std::vector<RawWrite> done;
+std::vector<TimedWrite> raw_writes(const std::string& link,
+                                   const std::vector<ModuleAddress>& modules, ModuleAddress target,
+                                   int count, std::optional<int> cpu) {
+    std::vector<TimedWrite> done;
     RawLine line(link);
     if (!line.is_open()) return done;
     std::atomic<bool> pending{false};
     std::atomic<bool> stop{false};
-    RawWrite next;
+    TimedWrite next;
     std::thread poller([&] {
         pin_this_thread(cpu);
         const auto requests = read_requests(modules);
@@ -555,7 +552,7 @@ std::vector<RawWrite> raw_writes(const std::string& link, const std::vector<Modu
     for (int i = 0; i < count; ++i) {
         std::this_thread::sleep_for(std::chrono::microseconds(pause_us(random)));
         word = static_cast<std::uint16_t>(word ^ (0x1000 + i));
-        next = RawWrite{};
+        next = TimedWrite{};
         next.word = word;
         next.sent = Clock::now();
         pending.store(true, std::memory_order_release);

@@ -272,7 +272,8 @@ struct RawRate {
 RawRate raw_ping_pong(const std::string& link, const std::vector<ModuleAddress>& modules,
                       std::chrono::milliseconds window, std::optional<int> cpu);
 
-struct RawWrite {
+// One write of benchmark 3, ioportd's or the raw client's: when it was sent and answered.
+struct TimedWrite {
     Clock::time_point sent, answered;
     std::uint16_t word = 0;  // the output word commanded
     bool ok = false;
@@ -281,8 +282,9 @@ struct RawWrite {
 // random moments 2-10 ms apart, this thread hands it a command to `target` (an output module),
 // which it sends between two transactions, as ioportd does with a Modbus write. No TCP, no
 // gateway: what is left is the pty, the simulator and the machine's wake-ups.
-std::vector<RawWrite> raw_writes(const std::string& link, const std::vector<ModuleAddress>& modules,
-                                 ModuleAddress target, int count, std::optional<int> cpu);
+std::vector<TimedWrite> raw_writes(const std::string& link,
+                                   const std::vector<ModuleAddress>& modules, ModuleAddress target,
+                                   int count, std::optional<int> cpu);
 
 // --- Figures --------------------------------------------------------------------------------
 

@@ -169,7 +169,7 @@ struct WriteFigures {
 };
 
 WriteStats write_stats(const InProcessSim& sim, const std::vector<sim::LogEntry>& log,
-                       const std::vector<RawWrite>& done, int baud, double own_us) {
+                       const std::vector<TimedWrite>& done, int baud, double own_us) {
     WriteStats stats;
     std::vector<double> latency, to_device, slack;
     for (const auto& write : done) {
@@ -228,7 +228,7 @@ WriteFigures writes(const Environment& env, int baud) {
     // One client writing dom16 0 at random moments, 2–10 ms apart: FC 06 (holding register 0,
     // the whole word) and FC 05 (one coil) in turn, each changing the word, so that the command
     // the device receives for each write is the first with that word after it was sent.
-    std::vector<RawWrite> done;
+    std::vector<TimedWrite> done;
     {
         ModbusConnection connection(gateway.port());
         std::mt19937 random(7);
@@ -236,7 +236,7 @@ WriteFigures writes(const Environment& env, int baud) {
         std::uint16_t word = 0;
         for (int i = 0; i < count; ++i) {
             std::this_thread::sleep_for(std::chrono::microseconds(pause_us(random)));
-            RawWrite write;
+            TimedWrite write;
             const int coil = i % 16;
             if (i % 2 == 0) {
                 write.word = static_cast<std::uint16_t>(word ^ (0x1000 + i));  // never word itself
