@@ -111,6 +111,11 @@ ControlReply fault(DeviceModel& model, const std::vector<std::string_view>& word
         model.set_fault_all(spec);
         return ok();
     }
+    if (model.protocol() == Protocol::id2) {
+        const auto command = words[1].size() == 1 ? id2::parse_request(words[1][0]) : std::nullopt;
+        if (!command) return error("an ID-2 takes: fault device|I|C|R KIND ...");
+        return from(model.set_id2_fault(*command, spec));
+    }
     const auto module = parse_module_address(words[1]);
     if (!module) return error(module.error().message);
     return from(model.set_fault(*module, spec));
@@ -180,13 +185,21 @@ ControlReply execute(DeviceModel& model, std::string_view line) {
         if (words.size() == 2) {
             const auto after = parse_duration(words[1]);
             if (!after) return error(after.error().message);
-            action.replug_after = *after;
+            action.after = *after;
         } else if (words.size() != 1) {
             return error("unplug takes an optional duration");
         }
         return {"ok\n", action};
     }
     if (verb == "replug") return {"ok\n", PortAction{PortAction::Kind::replug, std::nullopt}};
+    if (verb == "chatter") {
+        if (words.size() != 2) return error("chatter takes an interval, e.g. chatter 5ms, or off");
+        if (words[1] == "off") return {"ok\n", PortAction{PortAction::Kind::chatter, std::nullopt}};
+        const auto every = parse_duration(words[1]);
+        if (!every || every->count() <= 0)
+            return error(fmt::format("'{}' is not an interval such as 5ms, or off", words[1]));
+        return {"ok\n", PortAction{PortAction::Kind::chatter, *every}};
+    }
     return error(fmt::format("unknown command '{}': try help", verb));
 }
 

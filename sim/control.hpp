@@ -7,6 +7,7 @@
 //   set stop 0|1 | set count N | get stop | get count | pulse N       (ID-2)
 //   fault MODULE|all|device KIND [PROBABILITY] [DELAY]   KIND: none silent error-ack garbage
 //                                                        short long delay
+//   fault I|C|R KIND ...      (ID-2) a fault on one command alone: stop input, count, reset
 //   log | log clear | log take   the request log: "<µs since start> <request> <answer>";
 //                             take = read and clear at once
 //   faults                    how many transactions each fault kind hit since the start:
@@ -14,6 +15,8 @@
 //   clock                     "<start> <now>": the simulator's start on CLOCK_MONOTONIC and the
 //                             time since then, in µs, to put log times on another process's clock
 //   unplug [DURATION] | replug
+//   chatter INTERVAL | chatter off   a noisy line: one random non-hex byte every INTERVAL,
+//                             whatever the master sends
 //   help
 //
 // Every reply ends with one line starting "ok" or "error"; data lines come before it.
@@ -29,8 +32,9 @@
 namespace ioport::sim {
 
 struct PortAction {
-    enum class Kind { unplug, replug } kind;
-    std::optional<std::chrono::microseconds> replug_after;  // unplug only
+    enum class Kind { unplug, replug, chatter } kind;
+    // unplug: when to plug back in; chatter: the interval between noise bytes (none: stop)
+    std::optional<std::chrono::microseconds> after;
 };
 
 struct ControlReply {
@@ -45,7 +49,10 @@ inline constexpr std::string_view control_help =
     "set MODULE VALUE... | get MODULE            (MODULE as dim16:0; values decimal or 0x hex)\n"
     "set stop 0|1 | set count N | get stop | get count | pulse N      (ID-2)\n"
     "fault MODULE|all|device KIND [PROBABILITY] [DELAY]\n"
+    "fault I|C|R KIND [PROBABILITY] [DELAY]     (ID-2: one command alone)\n"
     "      KIND: none silent error-ack garbage short long delay\n"
-    "log | log clear | log take | faults | clock | unplug [DURATION] | replug | help\n";
+    "log | log clear | log take | faults | clock | unplug [DURATION] | replug\n"
+    "chatter INTERVAL | chatter off             (a noise byte every INTERVAL)\n"
+    "help\n";
 
 }  // namespace ioport::sim

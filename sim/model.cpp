@@ -10,6 +10,18 @@ namespace {
 constexpr std::array<std::string_view, 7> fault_names{"none",  "silent", "error-ack", "garbage",
                                                       "short", "long",   "delay"};
 
+std::size_t fault_index(id2::Command command) {
+    switch (command) {
+        case id2::Command::stop_input:
+            return 0;
+        case id2::Command::count:
+            return 1;
+        case id2::Command::reset:
+            return 2;
+    }
+    return 0;
+}
+
 }  // namespace
 
 std::string_view name(FaultKind kind) {
@@ -109,9 +121,16 @@ Result<> DeviceModel::set_fault(ModuleAddress module, Fault fault) {
 }
 
 void DeviceModel::set_fault_all(Fault fault) {
-    id2_fault_ = fault;
+    id2_faults_.fill(fault);
     for (auto& state : modules_)
         if (state.present) state.fault = fault;
+}
+
+Result<> DeviceModel::set_id2_fault(id2::Command command, Fault fault) {
+    if (protocol_ != Protocol::id2)
+        return fail(Errc::invalid_argument, "this simulator is a hub: its faults are per module");
+    id2_faults_[fault_index(command)] = fault;
+    return {};
 }
 
 void DeviceModel::pulse(unsigned count) {
@@ -187,7 +206,7 @@ std::optional<Answer> DeviceModel::answer_id2(char byte) {
             break;
     }
     bool apply = false;
-    auto answer = apply_fault(id2_fault_, std::move(good), apply);
+    auto answer = apply_fault(id2_faults_[fault_index(*command)], std::move(good), apply);
     if (*command == id2::Command::reset && apply) counter_ = 0;
     return answer;
 }

@@ -14,6 +14,7 @@
 
 #include "protocol/error.hpp"
 #include "protocol/framer.hpp"
+#include "protocol/id2.hpp"
 #include "protocol/ioport.hpp"
 
 namespace ioport::sim {
@@ -82,8 +83,11 @@ class DeviceModel {
     void set_counter(std::uint16_t count) { counter_ = count; }
     void pulse(unsigned count);  // the counter wraps at 65535 like a 16-bit register
 
-    // A fault on every module (hub) or on the device (ID-2).
+    // A fault on every module (hub) or on every command of the device (ID-2).
     void set_fault_all(Fault fault);
+    // A fault on one ID-2 command alone: a device whose counter stops answering while its stop
+    // input still does.
+    Result<> set_id2_fault(id2::Command command, Fault fault);
 
     // Faults that hit a transaction since the start, by kind (index: FaultKind).
     const std::array<std::uint64_t, 7>& injected() const { return injected_; }
@@ -104,7 +108,7 @@ class DeviceModel {
     std::array<ModuleState, slot_count> modules_{};
     bool stop_input_ = false;
     std::uint16_t counter_ = 0;
-    Fault id2_fault_;
+    std::array<Fault, 3> id2_faults_{};  // stop input, count, reset
     std::mt19937_64 rng_;
     std::array<std::uint64_t, 7> injected_{};
     std::deque<LogEntry> log_;

@@ -45,7 +45,8 @@ Simulator::Simulator(asio::io_context& io, DeviceModel& model, SimulatorSettings
       settings_(std::move(settings)),
       master_(io),
       answer_timer_(io),
-      replug_timer_(io) {}
+      replug_timer_(io),
+      chatter_timer_(io) {}
 
 Simulator::~Simulator() {
     stop();
@@ -75,6 +76,7 @@ Result<> Simulator::start() {
 void Simulator::stop() {
     unplug();
     replug_timer_.cancel();
+    chatter_timer_.cancel();
     if (control_) {
         boost::system::error_code ignored;
         control_->close(ignored);
@@ -179,17 +181,39 @@ asio::awaitable<void> Simulator::write_answers(std::uint64_t generation) {
 }
 
 void Simulator::apply(const PortAction& action) {
-    if (action.kind == PortAction::Kind::replug) {
-        replug_timer_.cancel();
-        if (auto plugged = plug(); !plugged)
-            (void)std::fprintf(stderr, "ioport-sim: %s\n", plugged.error().message.c_str());
-        return;
+    switch (action.kind) {
+        case PortAction::Kind::replug:
+            replug_timer_.cancel();
+            if (auto plugged = plug(); !plugged)
+                (void)std::fprintf(stderr, "ioport-sim: %s\n", plugged.error().message.c_str());
+            return;
+        case PortAction::Kind::unplug:
+            unplug();
+            if (!action.after) return;
+            replug_timer_.expires_after(*action.after);
+            replug_timer_.async_wait([this](const boost::system::error_code& ec) {
+                if (!ec) apply(PortAction{PortAction::Kind::replug, std::nullopt});
+            });
+            return;
+        case PortAction::Kind::chatter:
+            chatter_timer_.cancel();
+            if (action.after) chatter(*action.after);
+            return;
     }
-    unplug();
-    if (!action.replug_after) return;
-    replug_timer_.expires_after(*action.replug_after);
-    replug_timer_.async_wait([this](const boost::system::error_code& ec) {
-        if (!ec) apply(PortAction{PortAction::Kind::replug, std::nullopt});
+}
+
+void Simulator::chatter(std::chrono::microseconds every) {
+    chatter_timer_.expires_after(every);
+    chatter_timer_.async_wait([this, every](const boost::system::error_code& ec) {
+        if (ec) return;  // chatter off, or stopped
+        // Never a hex digit nor a terminator: noise is noise, whatever it lands in. Written
+        // as it comes, beside the answers, as a real disturbance would; a full pty drops it.
+        static constexpr std::string_view noise = "GHJKLMNPQRSTUVWXYZ#*?!~";
+        if (master_.is_open()) {
+            const char byte = noise[static_cast<std::size_t>(++chatter_count_) % noise.size()];
+            (void)::write(master_.native_handle(), &byte, 1);
+        }
+        chatter(every);
     });
 }
 

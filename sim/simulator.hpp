@@ -46,6 +46,7 @@ class Simulator {
     Result<> plug();
     void unplug();
     void apply(const PortAction& action);
+    void chatter(std::chrono::microseconds every);
     std::chrono::microseconds wire_time(std::size_t bytes) const;
     asio::awaitable<void> read_requests(std::uint64_t plug_generation);
     asio::awaitable<void> write_answers(std::uint64_t plug_generation);
@@ -65,6 +66,8 @@ class Simulator {
     asio::steady_timer answer_timer_;
     AnswerClock answer_clock_;
     asio::steady_timer replug_timer_;
+    asio::steady_timer chatter_timer_;  // a noisy line: a byte every interval while it runs
+    std::uint64_t chatter_count_ = 0;
     std::optional<asio::local::stream_protocol::acceptor> control_;
 };
 

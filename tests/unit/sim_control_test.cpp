@@ -77,9 +77,36 @@ TEST_F(ControlTest, LogAndPortActions) {
     const auto unplug = execute(hub, "unplug 2s");
     ASSERT_TRUE(unplug.action);
     EXPECT_EQ(unplug.action->kind, PortAction::Kind::unplug);
-    EXPECT_EQ(unplug.action->replug_after, 2s);
+    EXPECT_EQ(unplug.action->after, 2s);
     EXPECT_EQ(execute(hub, "replug").action->kind, PortAction::Kind::replug);
     EXPECT_FALSE(execute(hub, "unplug soon").action);
+    const auto chatter = execute(hub, "chatter 5ms");
+    ASSERT_TRUE(chatter.action);
+    EXPECT_EQ(chatter.action->kind, PortAction::Kind::chatter);
+    EXPECT_EQ(chatter.action->after, 5ms);
+    const auto quiet = execute(hub, "chatter off");
+    ASSERT_TRUE(quiet.action);
+    EXPECT_EQ(quiet.action->kind, PortAction::Kind::chatter);
+    EXPECT_FALSE(quiet.action->after);
+    EXPECT_TRUE(run(hub, "chatter 0s").starts_with("error '0s' is not an interval"));
+    EXPECT_TRUE(run(hub, "chatter").starts_with("error chatter takes an interval"));
+}
+
+// An ID-2 whose counter stops answering while its stop input still does.
+TEST_F(ControlTest, AnId2CommandCanFailAlone) {
+    EXPECT_EQ(run(id2, "set count 7"), "ok\n");
+    EXPECT_EQ(run(id2, "fault C silent"), "ok\n");
+    auto answers = id2.receive("IC", 0us);
+    ASSERT_EQ(answers.size(), 1u);
+    EXPECT_EQ(answers[0].bytes, "0\n");
+    EXPECT_EQ(run(id2, "fault R error-ack"), "ok\n");
+    answers = id2.receive("R", 0us);
+    ASSERT_EQ(answers.size(), 1u);
+    EXPECT_EQ(id2.counter(), 7) << "a reset answered with an error ack changed the counter";
+    EXPECT_EQ(run(id2, "fault device none"), "ok\n");
+    EXPECT_EQ(id2.receive("IC", 0us).size(), 2u);
+    EXPECT_TRUE(run(id2, "fault X silent").starts_with("error an ID-2 takes: fault device|I|C|R"));
+    EXPECT_TRUE(run(hub, "fault C silent").starts_with("error"));
 }
 
 }  // namespace
