@@ -38,8 +38,17 @@ std::optional<std::size_t> PollPlan::due_refresh(Clock::time_point now) const {
     return earliest;
 }
 
+bool PollPlan::anything_due(Clock::time_point now) const {
+    return std::any_of(entries_.begin(), entries_.end(),
+                       [&](const State& state) { return state.due <= now; });
+}
+
 PollPlan::Step PollPlan::next(Clock::time_point now, bool write_pending) {
-    if (write_pending) return {Kind::write};
+    // Writes go first, but never twice in a row while a refresh or poll read waits: a stream of
+    // writes to a dead module, each costing its retries and a silence, must not starve polling.
+    const bool take_turn = !after_write_ || !anything_due(now);
+    after_write_ = write_pending && take_turn;
+    if (after_write_) return {Kind::write};
     if (const auto refresh = due_refresh(now)) return {Kind::refresh, *refresh};
     // One look at every entry, wrapping at most once: the round-robin resumes where it stopped.
     for (std::size_t looked = 0; looked <= entries_.size() && !entries_.empty(); ++looked) {

@@ -1,5 +1,6 @@
 // What a link does next, as a pure function of its modules' due times: the order of work of
-// gateway.md §4 (client writes, then refreshes that are due, then poll reads in round-robin),
+// gateway.md §4 (client writes, then refreshes that are due, then poll reads in round-robin; but
+// after a write, a refresh or poll read that is due goes before the next write),
 // the back-off of modules that keep failing, and the poll cycle's bookkeeping. The link's
 // coroutine (link_scheduler) asks `next`, does the transaction and reports it with `done`.
 #pragma once
@@ -49,7 +50,6 @@ class PollPlan {
     std::uint64_t cycles() const { return cycles_; }
     // Time between the last two cycle completions; zero until two have completed.
     std::chrono::microseconds last_cycle() const { return last_cycle_; }
-    std::size_t size() const { return entries_.size(); }
 
   private:
     struct State {
@@ -58,12 +58,14 @@ class PollPlan {
         int failures = 0;
     };
     std::optional<std::size_t> due_refresh(Clock::time_point now) const;
+    bool anything_due(Clock::time_point now) const;
     void finish_pass(Clock::time_point now);
 
     std::vector<State> entries_;
     // The output entries: every step looks for a due refresh, and most entries are inputs.
     std::vector<std::size_t> outputs_;
     std::size_t cursor_ = 0;
+    bool after_write_ = false;  // the last step was a write
     bool pass_did_work_ = false;
     std::optional<Clock::time_point> last_completion_;
     std::chrono::microseconds last_cycle_{};

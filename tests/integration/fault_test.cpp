@@ -283,11 +283,11 @@ TEST_F(Faults, AModuleThatStopsAnsweringMidRunAndComesBack) {
     figure("answering again to every module online", ms(all_back));
     figure("writes answered 0B during the outage", std::to_string(report.writes_0b));
     EXPECT_LT(detected, 3s * slowdown);  // (retries + 1) timeouts and a silence, and a busy machine
-    // Writes go first (gateway.md §4), and each write to the silent module takes the line for
-    // (retries + 1) timeouts and a silence: a client that writes to it without pause delays
-    // every poll in between by that much. The other modules' age stays bounded all the same
-    // (by a generous margin: a busy machine stretches every step, and so does the sanitizer
-    // build, where a clean CI run once measured 3,123 ms).
+    // Each write to the silent module takes the line for (retries + 1) timeouts and a silence,
+    // and after each one a due poll read goes first (gateway.md §4): a client that writes to it
+    // without pause delays the polls by one such write each. The other modules' age stays
+    // bounded (by a generous margin: a busy machine stretches every step, and so does the
+    // sanitizer build, where a clean CI run once measured 3,123 ms).
     EXPECT_LT(milliseconds(worst_age), 60 * serial_timeout * slowdown);
     EXPECT_GT(report.writes_0b, 0U);
     EXPECT_GT(report.reads_stale, 0U);

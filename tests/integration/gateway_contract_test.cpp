@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cstring>
 #include <fstream>
@@ -442,6 +443,42 @@ TEST_F(ContractTest, AWriteToAnOfflineModuleOfAnOpenPortIsStillSent) {
     EXPECT_TRUE(client.write_register(1, 0x0004));
     EXPECT_EQ(sim_value(hub, "dom16:1"), "4");
     EXPECT_EQ(read_register(client, 1100 + slot_dom16_1), 1);
+}
+
+// §4: after a write, a waiting refresh or poll read goes before the next write. A client that
+// writes to a dead module in a loop (each write: 2 timeouts and a silence, 90 ms here) must not
+// stop the other modules from being read, nor delay a write to a healthy module beyond the write
+// in flight and one poll read.
+TEST_F(ContractTest, WritesToADeadModuleInALoopNeverStarvePollingOrOtherWrites) {
+    ASSERT_TRUE(all_online(client));
+    hub.ctl("fault dom16:0 silent");
+    std::atomic<bool> writing = true;
+    std::atomic<int> dead_writes = 0;
+    std::thread writer([&] {
+        ModbusClient dead(gateway.port());
+        while (writing) {
+            EXPECT_EQ(error_of(dead.write_register(0, 0x0001)), target_failed);
+            ++dead_writes;
+        }
+    });
+    ASSERT_TRUE(eventually([&] { return dead_writes > 0; }));
+    const auto end = Clock::now() + 4s;
+    std::uint16_t oldest = 0;  // dim16 0's age, slot 0
+    milliseconds slowest{0};   // a write to the healthy dom16 1
+    for (std::uint16_t i = 0; Clock::now() < end; ++i) {
+        oldest = std::max(oldest, read_register(client, 1200));
+        const auto sent = Clock::now();
+        EXPECT_TRUE(client.write_register(1, i));
+        slowest = std::max(slowest, since(sent));
+    }
+    writing = false;
+    writer.join();
+    EXPECT_GE(dead_writes, 20) << "the dead module's writes did not stream";
+    // Seven polled inputs and a refresh, each after one of the 90 ms writes: under a second.
+    // With writes always first the age grew for as long as they streamed: 4 s.
+    EXPECT_LT(oldest, 2000) << "dim16 0 was not read while writes to a dead module streamed";
+    // In flight: a dead write (90 ms), then one poll read after its silence (31 ms).
+    EXPECT_LT(slowest, 300ms);
 }
 
 // --- §3.3 and §4 Blocks, unconfigured modules -----------------------------------------------

@@ -42,6 +42,32 @@ TEST_F(PollPlanTest, APendingWriteGoesBeforeEverything) {
     EXPECT_EQ(plan.next(t0, false).kind, Kind::refresh);
 }
 
+// gateway.md §4: after a write, a waiting refresh or poll read goes before the next write, so a
+// stream of writes (to a dead module, each failing slowly) never starves polling.
+TEST_F(PollPlanTest, WritesTakeTurnsWithDueWorkButNeverWait) {
+    PollPlan plan({input, output, input});
+    plan.port_opened(t0);
+    std::string order;
+    for (int i = 0; i < 8; ++i) {
+        const auto step = plan.next(t0, true);
+        if (step.kind == Kind::write) {
+            order += "w ";
+            plan.done(1, false, t0);  // the write to the output module failed
+            continue;
+        }
+        order += (step.kind == Kind::poll ? "p" : "r") + std::to_string(step.entry) + " ";
+        plan.done(step.entry, true, t0);
+    }
+    // The refresh backs off after the failed writes; the inputs are served every other step.
+    EXPECT_EQ(order, "w p0 w p2 w p0 w p2 ");
+    // With nothing due, writes follow each other at once.
+    PollPlan idle({PollEntry{false, 1s}});
+    idle.port_opened(t0);
+    idle.done(0, true, t0);
+    EXPECT_EQ(idle.next(t0, true).kind, Kind::write);
+    EXPECT_EQ(idle.next(t0, true).kind, Kind::write);
+}
+
 TEST_F(PollPlanTest, ADueRefreshGoesBeforePollReads) {
     PollPlan plan({input, input, output});
     plan.port_opened(t0);
