@@ -13,10 +13,7 @@ Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig co
     : executor_(executor), config_(std::move(config)), log_(log) {}
 
 std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) const {
-    auto scheduler =
-        std::make_shared<LinkScheduler>(executor_, link, config_.modbus.word_order, log_);
-    if (link.name == stall_link_) scheduler->stall_after_first_cycle();
-    return scheduler;
+    return std::make_shared<LinkScheduler>(executor_, link, config_.modbus.word_order, log_);
 }
 
 Result<> Gateway::start() {

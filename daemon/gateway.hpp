@@ -33,10 +33,6 @@ class Gateway {
     Result<std::string> reload(config::GatewayConfig next);
 
     const config::GatewayConfig& config() const { return config_; }
-    // For the watchdog test only (IOPORTD_TEST_STALL_LINK): the link of this name stops making
-    // progress after its first cycle. Call before start().
-    void stall_for_test(std::string link) { stall_link_ = std::move(link); }
-
     // "2 of 2 links up, 9 of 9 modules online, 3 clients"
     std::string summary() const;
     // Every link's loop is making progress (see LinkScheduler::progressing).
@@ -50,7 +46,6 @@ class Gateway {
     Log& log_;
     ModbusServer::Units links_;
     std::unique_ptr<ModbusServer> server_;
-    std::string stall_link_;
 };
 
 // The lines printed by --check-config: the links, their modules and the Modbus front.

@@ -32,9 +32,8 @@ asio::awaitable<Result<Reading>> failed(Error error) {
     co_return Unexpected(std::move(error));
 }
 
-bool is_port_failure(Errc code) {
-    return code == Errc::port_lost || code == Errc::port_closed || code == Errc::io_error;
-}
+// An ID-2 link's entries: the stop input, then the count.
+constexpr std::size_t id2_count_entry = 1;
 
 }  // namespace
 
@@ -59,11 +58,15 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
         link.protocol == config::Protocol::id2 ? gateway::UnitKind::id2 : gateway::UnitKind::ioport;
     state_.status.fill(ModuleStatus::not_configured);
     if (state_.kind == gateway::UnitKind::id2) {
-        entries_ = {{id2::Command::stop_input, 0}, {id2::Command::count, 0}};
+        entries_ = {{.target = id2::Command::stop_input, .slot = 0},
+                    {.target = id2::Command::count, .slot = 0}};
         state_.status[0] = ModuleStatus::not_polled;
     }
     for (const auto& module : link.modules) {
-        entries_.push_back({module.address, slot(module.address), module.initial, module.initial});
+        entries_.push_back({.target = module.address,
+                            .slot = slot(module.address),
+                            .desired = module.initial,
+                            .initial = module.initial});
         state_.status[static_cast<std::size_t>(slot(module.address))] = ModuleStatus::not_polled;
     }
     (void)image(true);
@@ -147,11 +150,6 @@ asio::awaitable<void> LinkScheduler::serve_port() {
                 break;
             case PollPlan::Kind::poll:
                 co_await poll(step.entry);
-                while (stall_ && plan_.cycles() > 0 && !stopping_) {
-                    wake_.expires_at(Clock::time_point::max());
-                    boost::system::error_code ec;
-                    co_await wake_.async_wait(redirect_error(use_awaitable, ec));
-                }
                 break;
             case PollPlan::Kind::idle:
                 co_await sleep_until(step.wake_at);
@@ -166,7 +164,7 @@ asio::awaitable<void> LinkScheduler::sleep_until(Clock::time_point when) {
     boost::system::error_code ec;  // cancelled: a write arrived, or stop()
     co_await wake_.async_wait(redirect_error(use_awaitable, ec));
     asleep_until_.reset();
-    last_progress_ = Clock::now();
+    woke_ = Clock::now();
 }
 
 asio::awaitable<void> LinkScheduler::set_outputs_to_initial() {
@@ -202,9 +200,9 @@ LogFields LinkScheduler::fields(std::string_view module) const {
 
 bool LinkScheduler::progressing(Clock::time_point now) const {
     if (asleep_until_ == Clock::time_point::max()) return true;  // nothing to poll, ever
-    const auto longest_step = (config_.retries + 1) * config_.timeout + 10 * config_.timeout + 1s;
-    const auto since = asleep_until_ ? std::max(*asleep_until_, last_progress_) : last_progress_;
-    return now < since + longest_step;
+    // Asleep: stuck only if its timer is overdue.
+    const auto since = asleep_until_ ? *asleep_until_ : std::max(woke_, link_.last_activity());
+    return now < since + link_.longest_wait() + watchdog_slack;
 }
 
 // Not a coroutine: it hands back the link's, which saves a coroutine frame per transaction.
@@ -290,24 +288,22 @@ asio::awaitable<std::optional<Exception>> LinkScheduler::apply(
 asio::awaitable<std::optional<Exception>> LinkScheduler::reset_counter() {
     if (!link_.is_open()) co_return Exception::gateway_target_failed;
     const auto result = co_await link_.transact(make_exchange(id2::Command::reset));
-    if (result) {
-        last_good_[0] = Clock::now();
-        set_status(0, ModuleStatus::online, nullptr);
-        co_return std::nullopt;
-    }
-    if (is_port_failure(result.error().code)) port_lost(result.error());
+    if (result) co_return std::nullopt;  // the count read next shows it; until then it is as old
+    // as it reads. A failed reset is a failure of the device like any other, and it leaves the
+    // count in doubt: it is stale until it has been read again.
+    record(id2_count_entry, result);
     co_return result.error().code == Errc::error_ack ? Exception::server_device_failure
                                                      : Exception::gateway_target_failed;
 }
 
-void LinkScheduler::record(std::size_t entry, const Result<Reading>& result) {
+void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
     const auto now = Clock::now();
-    last_progress_ = now;
-    const int slot_index = entries_[entry].slot;
+    auto& entry = entries_[index];
     if (result) {
-        plan_.done(entry, true, now);
-        last_good_[static_cast<std::size_t>(slot_index)] = now;
-        set_status(slot_index, ModuleStatus::online, nullptr);
+        plan_.done(index, true, now);
+        entry.status = ModuleStatus::online;
+        entry.last_good = now;
+        update_slot(entry, nullptr);
         return;
     }
     const auto& error = result.error();
@@ -317,17 +313,39 @@ void LinkScheduler::record(std::size_t entry, const Result<Reading>& result) {
         case Errc::port_lost:
         case Errc::port_closed:
         case Errc::io_error:
+        case Errc::port_not_found:
+        case Errc::permission_denied:
+        case Errc::port_busy:
             port_lost(error);
             return;
         case Errc::timeout:
-            plan_.done(entry, false, now);
-            set_status(slot_index, ModuleStatus::no_answer, &error);
-            return;
-        default:  // malformed, error ack, a line that never went quiet
-            plan_.done(entry, false, now);
-            set_status(slot_index, ModuleStatus::bad_answer, &error);
-            return;
+            entry.status = ModuleStatus::no_answer;
+            break;
+        case Errc::malformed:
+        case Errc::error_ack:
+        case Errc::line_noisy:
+        case Errc::invalid_argument:
+            entry.status = ModuleStatus::bad_answer;
+            break;
     }
+    plan_.done(index, false, now);
+    update_slot(entry, &error);
+}
+
+void LinkScheduler::update_slot(const Entry& changed, const Error* error) {
+    auto status = changed.status;
+    auto last_good = changed.last_good;
+    if (state_.kind == gateway::UnitKind::id2) {
+        // The stop input and the count share slot 0: online only while both reads succeed,
+        // failed or not polled yet while either is, as old as the older of the two good reads.
+        const auto& other = &changed == &entries_[0] ? entries_[1] : entries_[0];
+        if (status == ModuleStatus::online) status = other.status;
+        last_good = last_good && other.last_good
+                        ? std::optional(std::min(*last_good, *other.last_good))
+                        : std::nullopt;
+    }
+    last_good_[static_cast<std::size_t>(changed.slot)] = last_good;
+    set_status(changed.slot, status, error);
 }
 
 void LinkScheduler::set_status(int slot_index, ModuleStatus status, const Error* error) {
@@ -350,6 +368,8 @@ void LinkScheduler::port_lost(const Error& error) {
     state_.port_open = false;
     log_.warn(fields(), "link {}: port down: {}; reopening", config_.name, error.message);
     // Polled modules answer 0B (or hold) while the port is away; never-polled ones stay 4.
+    for (auto& entry : entries_)
+        if (entry.status != ModuleStatus::not_polled) entry.status = ModuleStatus::no_answer;
     for (auto& status : state_.status)
         if (status != ModuleStatus::not_configured && status != ModuleStatus::not_polled)
             status = ModuleStatus::no_answer;

@@ -32,6 +32,8 @@ namespace ioport::daemon {
 
 inline constexpr std::chrono::microseconds first_reopen_delay = 100ms;
 inline constexpr std::chrono::microseconds max_reopen_delay = 2s;
+// What a loaded machine may add to a wait before the loop runs again.
+inline constexpr std::chrono::microseconds watchdog_slack = 1s;
 
 class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
   public:
@@ -49,8 +51,6 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     // The abrupt end: the transaction in flight is abandoned, queued writes answer 0B, the port
     // is closed at once.
     void stop();
-    // For the watchdog test only: after its first cycle the loop waits for nothing, for ever.
-    void stall_after_first_cycle() { stall_ = true; }
 
     const config::LinkConfig& config() const { return config_; }
     const gateway::UnitState& state() const { return state_; }
@@ -62,8 +62,9 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
 
     bool port_open() const { return state_.port_open; }
     int modules_online() const;
-    // The loop is not stuck: it finished a step, or is asleep, within the longest time one step
-    // may take ((retries + 1) timeouts, the bounded wait for silence, and a second to spare).
+    // The loop is not stuck: it is asleep until a poll or reopen is due, or its serial link
+    // acted within the longest wait the link ever makes (one timeout) and a second to spare for
+    // a busy machine. A whole step may take far longer on a noisy line, and that is not a stall.
     bool progressing(Clock::time_point now) const;
 
   private:
@@ -72,6 +73,10 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
         int slot;
         std::uint16_t desired = 0;  // outputs: last confirmed value, or `initial`
         std::uint16_t initial = 0;
+        // The outcome of this entry's last transaction. A slot's status is its entry's, except
+        // the ID-2's slot 0, which its two reads share (slot_status).
+        gateway::ModuleStatus status = gateway::ModuleStatus::not_polled;
+        std::optional<Clock::time_point> last_good{};
     };
     struct PendingWrite;
 
@@ -89,6 +94,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     LogFields fields(std::string_view module = {}) const;
 
     void record(std::size_t entry, const Result<Reading>& result);
+    void update_slot(const Entry& changed, const Error* error);
     void set_status(int slot, gateway::ModuleStatus status, const Error* error);
     void port_lost(const Error& error);
     void fail_pending_writes();
@@ -104,13 +110,12 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     std::deque<std::shared_ptr<PendingWrite>> writes_;
     UnitImage image_;
     gateway::UnitState state_;
-    std::array<std::optional<Clock::time_point>, slot_count> last_good_{};
+    std::array<std::optional<Clock::time_point>, slot_count> last_good_{};  // by slot
     bool stopping_ = false;
     std::optional<config::OnShutdown> finishing_;
     std::function<void()> finished_;
-    bool stall_ = false;
     std::string last_open_error_;
-    Clock::time_point last_progress_ = Clock::now();
+    Clock::time_point woke_ = Clock::now();  // started, or last woke from a sleep
     std::optional<Clock::time_point> asleep_until_;
 };
 

@@ -83,11 +83,6 @@ class Daemon {
           deadline_(io_) {}
 
     int run() {
-        if (const char* stall = std::getenv("IOPORTD_TEST_STALL_LINK")) {
-            log_.warn({}, "IOPORTD_TEST_STALL_LINK: link {} will stall after its first cycle",
-                      stall);
-            gateway_.stall_for_test(stall);
-        }
         if (auto started = gateway_.start(); !started) {
             log_.critical({}, "{}", started.error().message);
             gateway_.stop();

@@ -23,9 +23,6 @@ class ServiceNotifier {
     void reloading();
     void stopping();
 
-    // WatchdogSec as systemd passed it (WATCHDOG_USEC), zero when the watchdog is off.
-    std::chrono::microseconds watchdog() const { return watchdog_; }
-
   private:
     asio::awaitable<void> keep_informed();
     void notify(const std::string& state);

@@ -226,6 +226,7 @@ void SerialLink::wait_for_deadline() {
             }
             link.deadline_ = Clock::time_point::max();
             link.timed_out_ = true;
+            link.last_activity_ = Clock::now();
             boost::system::error_code ignored;
             link.port_.cancel(ignored);
         });
@@ -246,10 +247,12 @@ Error SerialLink::port_error(const boost::system::error_code& ec, std::string_vi
                                         settings_.device, during, ec.message())};
 }
 
-asio::awaitable<Result<Reading>> SerialLink::attempts(Exchange exchange, int retries) {
+// The coroutine owns the exchange, so callers may pass a temporary.
+asio::awaitable<Result<Reading>> SerialLink::transact(Exchange exchange) {
     for (int tried = 0;; ++tried) {
         auto reading = co_await attempt(exchange);
-        if (reading || tried >= retries || !retryable(reading.error().code)) co_return reading;
+        if (reading || tried >= settings_.retries || !retryable(reading.error().code))
+            co_return reading;
     }
 }
 
@@ -264,6 +267,7 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
         bool& busy;
         ~Release() { busy = false; }
     } release{busy_};
+    last_activity_ = Clock::now();
 
     if (needs_silence_) {
         if (auto quiet = co_await wait_for_silence(); !quiet) {
@@ -315,6 +319,7 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
             break;
         }
         last_input_ = Clock::now();
+        last_activity_ = last_input_;
         frame = reply.feed({read_buffer_.data(), n});
         if (frame) disarm_timeout();
     }
@@ -338,7 +343,7 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
 
 asio::awaitable<Result<>> SerialLink::wait_for_silence() {
     // Bounded: a line that chatters for ten timeouts in a row is reported, not waited on forever.
-    const auto deadline = std::chrono::steady_clock::now() + 10 * settings_.timeout;
+    const auto deadline = Clock::now() + 10 * settings_.timeout;
     for (;;) {
         arm_timeout(settings_.timeout);
         boost::system::error_code ec;
@@ -350,7 +355,8 @@ asio::awaitable<Result<>> SerialLink::wait_for_silence() {
             needs_silence_ = false;
             co_return Result<>{};
         }
-        if (std::chrono::steady_clock::now() >= deadline) {
+        last_activity_ = Clock::now();
+        if (last_activity_ >= deadline) {
             disarm_timeout();
             co_return fail(Errc::line_noisy,
                            fmt::format("{}: the line never stayed silent for {} ms: check for "

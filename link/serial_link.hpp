@@ -37,6 +37,8 @@ struct LinkCounters {
 
 class SerialLink {
   public:
+    using Clock = std::chrono::steady_clock;
+
     SerialLink(const asio::any_io_executor& executor, LinkSettings settings);
     SerialLink(const SerialLink&) = delete;
     SerialLink& operator=(const SerialLink&) = delete;
@@ -50,15 +52,19 @@ class SerialLink {
     // The driver accepted ASYNC_LOW_LATENCY (real UARTs and FTDI; a pty does not).
     bool low_latency() const { return low_latency_; }
 
-    // One transaction with up to `retries` extra attempts after a timeout or malformed reply.
-    // An error ack is final at once; so is a port error (the port is closed then).
-    asio::awaitable<Result<Reading>> transact(Exchange exchange) {
-        return attempts(std::move(exchange), settings_.retries);
-    }
-    // One attempt, no retry.
-    asio::awaitable<Result<Reading>> transact_once(Exchange exchange) {
-        return attempts(std::move(exchange), 0);
-    }
+    // One transaction with up to `retries` extra attempts after a timeout, a malformed reply or
+    // a line that never went quiet. An error ack is final at once; so is a port error (the port
+    // is closed then).
+    asio::awaitable<Result<Reading>> transact(Exchange exchange);
+
+    // A transaction may take (retries + 1) × 12 timeouts on a chattering line (up to 11 waiting
+    // for silence before each attempt, one for the answer), but it never
+    // waits longer than one timeout without acting: every send, read and wait for silence is
+    // bounded by `timeout`. So a link that has not acted for longer than this is stuck, whatever
+    // its settings; the watchdog's bound is this one (LinkScheduler::progressing).
+    std::chrono::microseconds longest_wait() const { return settings_.timeout; }
+    // When the link last acted: an attempt began, bytes arrived, or a wait timed out.
+    Clock::time_point last_activity() const { return last_activity_; }
 
     const LinkSettings& settings() const { return settings_; }
     const LinkCounters& counters() const { return counters_; }
@@ -66,12 +72,6 @@ class SerialLink {
     std::chrono::microseconds last_round_trip() const { return last_round_trip_; }
 
   private:
-    using Clock = std::chrono::steady_clock;
-
-    // transact() and transact_once() hand back this coroutine instead of awaiting it in one of
-    // their own, which would cost a coroutine frame per transaction. It owns the exchange, so
-    // callers may pass a temporary.
-    asio::awaitable<Result<Reading>> attempts(Exchange exchange, int retries);
     asio::awaitable<Result<Reading>> attempt(const Exchange& exchange);
     asio::awaitable<Result<>> wait_for_silence();
     void arm_timeout(std::chrono::microseconds after);
@@ -91,6 +91,7 @@ class SerialLink {
     std::shared_ptr<SerialLink*> alive_ = std::make_shared<SerialLink*>(this);
     bool timed_out_ = false;
     Clock::time_point last_input_{};  // when the last bytes were read
+    Clock::time_point last_activity_ = Clock::now();
     bool needs_silence_ = false;
     bool busy_ = false;
     bool low_latency_ = false;

@@ -873,6 +873,48 @@ TEST_F(ContractTest, TheId2UnitUsesSlot0AndHasNoOtherSlots) {
     EXPECT_EQ(error_of(client.read_input_registers(0, 1)), target_failed);
 }
 
+// §2.3: slot 0 is online only while both reads succeed. An ID-2 whose counter stops answering
+// while its stop input still does must not serve the old count as fresh.
+TEST_F(ContractTest, AnId2WhoseCounterAloneFailsIsNotOnlineAndItsCountIsStale) {
+    client.set_unit(2);
+    id2.ctl("set count 41");
+    ASSERT_TRUE(register_becomes(client, 0, 41));
+    ASSERT_TRUE(all_online(client));
+    id2.ctl("fault C silent");
+    id2.ctl("set count 42");
+    ASSERT_TRUE(register_becomes(client, 1100, 2)) << "slot 0 stayed online with C unanswered";
+    // The stop input is still read every cycle; the slot stays failed all the same, and the age
+    // keeps growing from the last good count.
+    id2.ctl("set stop 1");
+    const auto stop_reads = [&] { return id2.ctl("log take"); };
+    (void)stop_reads();
+    ASSERT_TRUE(eventually([&] { return stop_reads().find(" I 1\n") != std::string::npos; }));
+    const auto first_age = read_register(client, 1200);
+    EXPECT_EQ(read_register(client, 1100), 2);
+    EXPECT_EQ(di_values(client, 1000, 1)[0], 0);
+    EXPECT_EQ(read_register(client, 1000), 2);
+    EXPECT_EQ(error_of(client.read_input_registers(0, 1)), target_failed);
+    EXPECT_EQ(error_of(client.read_discrete_inputs(0, 1)), target_failed);
+    EXPECT_TRUE(eventually([&] { return read_register(client, 1200) >= first_age + 300; }))
+        << "the age did not grow while the count was unanswered";
+    // Back: both reads succeed, the fresh count is served.
+    id2.ctl("fault C none");
+    EXPECT_TRUE(register_becomes(client, 1100, 1));
+    EXPECT_EQ(ir_values(client, 0, 1)[0], 42);
+    EXPECT_LT(read_register(client, 1200), 1000);
+    // A reset is a transaction like any other: unanswered, it answers 0B and the device shows
+    // failed, its count in doubt until read again (the count backs off 250 ms first).
+    id2.ctl("fault R silent");
+    EXPECT_EQ(error_of(client.write_coil(0, true)), target_failed);
+    EXPECT_EQ(read_register(client, 1100), 2);
+    EXPECT_EQ(error_of(client.read_input_registers(0, 1)), target_failed);
+    EXPECT_TRUE(register_becomes(client, 1100, 1));
+    EXPECT_EQ(ir_values(client, 0, 1)[0], 42) << "a reset that failed changed the count";
+    // The count alone failing with a bad answer shows as 3.
+    id2.ctl("fault C garbage");
+    EXPECT_TRUE(register_becomes(client, 1100, 3));
+}
+
 // --- §2.3 word_order --------------------------------------------------------------------------
 
 TEST_F(ContractTest, BigWordOrderPutsTheHighWordFirst) {
