@@ -69,12 +69,13 @@ std::vector<Verdict> footprint(const Environment& env) {
                  fmt::format("{:.1f}", mib(m.peak_kib)), fmt::format("{:.2f} %", cpu.cpu_percent),
                  fmt::format("{:.1f}", cpu.cpu_us_per_tx),
                  fmt::format("{:.0f}", cpu.tx_per_second)});
-            const bool met = cpu.cpu_percent <= 2.0;
             machine_line(fmt::format(
-                R"({{"bench":"idle_cpu","links":1,"cpu_percent":{:.3f},"cpu_us_per_tx":{:.2f},"tx_per_s":{:.0f},"target":"<=2%","met":{}}})",
-                cpu.cpu_percent, cpu.cpu_us_per_tx, cpu.tx_per_second, met));
+                R"({{"bench":"idle_cpu","links":1,"cpu_percent":{:.3f},"cpu_us_per_tx":{:.2f},"tx_per_s":{:.0f}}})",
+                cpu.cpu_percent, cpu.cpu_us_per_tx, cpu.tx_per_second));
             // The floor, as in benchmark 2: a blocking write()/read() loop polling the same bus on
-            // the same simulator and CPU pays the same wake-up per transaction.
+            // the same simulator and CPU pays the same wake-up per transaction. The target (issue
+            // 14): no more than it, since on a guest whose wake-ups cost more than the work no
+            // poller of a full bus gets under the 2 % first asked.
             gateway.stop();
             const auto raw =
                 raw_ping_pong(dir / "tty", full_bus(), env.window(10s), env.placement.server_cpu);
@@ -84,15 +85,16 @@ std::vector<Verdict> footprint(const Environment& env) {
                        fmt::format("{:.1f}", raw.cpu_us_per_transaction),
                        fmt::format("{:.0f}", raw.per_second)});
             machine_line(fmt::format(
-                R"({{"bench":"idle_cpu_raw_client","cpu_percent":{:.3f},"cpu_us_per_tx":{:.2f},"tx_per_s":{:.0f}}})",
-                raw_percent, raw.cpu_us_per_transaction, raw.per_second));
+                R"({{"bench":"idle_cpu_raw_client","cpu_percent":{:.3f},"cpu_us_per_tx":{:.2f},"tx_per_s":{:.0f},"ioportd_ratio":{:.3f},"target":"ioportd<=1.0x raw","met":{}}})",
+                raw_percent, raw.cpu_us_per_transaction, raw.per_second,
+                cpu.cpu_percent / raw_percent, cpu.cpu_percent <= raw_percent));
             verdicts.push_back(
                 {"5. CPU at idle, full bus 115200",
-                 fmt::format("{:.2f} % of one core (a raw blocking client: {:.2f} %)",
-                             cpu.cpu_percent, raw_percent),
-                 "<= 2 %", met});
+                 fmt::format("{:.2f} % of one core, {:.3f}× a raw blocking client ({:.2f} %)",
+                             cpu.cpu_percent, cpu.cpu_percent / raw_percent, raw_percent),
+                 "<= 1.0× raw client", cpu.cpu_percent <= raw_percent});
         } else {
-            verdicts.push_back({"5. CPU at idle", "did not start", "<= 2 %", false});
+            verdicts.push_back({"5. CPU at idle", "did not start", "<= 1.0× raw client", false});
         }
     }
 

@@ -320,18 +320,21 @@ std::vector<Verdict> write_latency(const Environment& env) {
         "random moments. Latency: request sent → response received. To device: request sent → "
         "the command's last byte reached the device. Slack: latency − the rest of the "
         "transaction the write waited for (from the request's sending) − the write's own wire "
-        "time. Target: p99 slack <= 0.5 ms, and p99 latency <= the longest poll transaction + "
-        "the write's own wire time + 0.5 ms. Sim answer error: as in benchmark 2.\n");
+        "time. Target (issue 14): p99 slack <= max(0.5 ms, the raw client's p99 slack in the same "
+        "run) + 0.1 ms, and p99 latency <= the longest poll transaction + the write's own wire "
+        "time + that allowance. Sim answer error: as in benchmark 2.\n");
     Table table({"baud", "client", "writes", "latency p50 µs", "p99 µs", "max µs",
                  "to device p50 µs", "p99 µs", "slack p50 µs", "p99 µs", "max µs", "bound µs",
                  "behind a later tx", "failed", "sim answer error p10/p50/p90 µs"});
     std::vector<Verdict> verdicts;
     for (const int baud : {115200, 38400}) {
         const auto w = writes(env, baud);
-        const double bound = w.longest_us + w.own_us + 500;
+        // The floor this machine sets for any client, as the raw client measures it in this run.
+        const double allowed_slack = std::max(500.0, w.raw.slack_us.p99) + 100;
+        const double bound = w.longest_us + w.own_us + allowed_slack;
         const auto& d = w.ioportd;
-        const bool met = d.latency_us.count > 0 && d.failed == 0 && d.slack_us.p99 <= 500 &&
-                         d.latency_us.p99 <= bound;
+        const bool met = d.latency_us.count > 0 && d.failed == 0 &&
+                         d.slack_us.p99 <= allowed_slack && d.latency_us.p99 <= bound;
         const auto row = [&](const char* client, const WriteStats& x, const std::string& errors) {
             table.row(
                 {fmt::format("{}", baud), client, fmt::format("{}", x.writes),
@@ -348,17 +351,17 @@ std::vector<Verdict> write_latency(const Environment& env) {
         row("ioportd", d, answer_errors(w.sim_errors));
         row("raw client", w.raw, "");
         machine_line(fmt::format(
-            R"({{"bench":"write","baud":{},"writes":{},"latency_p50_us":{:.0f},"latency_p99_us":{:.0f},"latency_max_us":{:.0f},"to_device_p50_us":{:.0f},"slack_p50_us":{:.0f},"slack_p99_us":{:.0f},"raw_slack_p50_us":{:.0f},"raw_slack_p99_us":{:.0f},"bound_us":{:.0f},"missed":{},"failed":{},"target":"slack p99<=500us, latency p99<=bound","met":{}}})",
+            R"({{"bench":"write","baud":{},"writes":{},"latency_p50_us":{:.0f},"latency_p99_us":{:.0f},"latency_max_us":{:.0f},"to_device_p50_us":{:.0f},"slack_p50_us":{:.0f},"slack_p99_us":{:.0f},"raw_slack_p50_us":{:.0f},"raw_slack_p99_us":{:.0f},"bound_us":{:.0f},"allowed_slack_us":{:.0f},"missed":{},"failed":{},"target":"slack p99<=max(500us,raw p99)+100us, latency p99<=bound","met":{}}})",
             baud, d.writes, d.latency_us.p50, d.latency_us.p99, d.latency_us.max,
             d.to_device_us.p50, d.slack_us.p50, d.slack_us.p99, w.raw.slack_us.p50,
-            w.raw.slack_us.p99, bound, d.missed, d.failed, met));
+            w.raw.slack_us.p99, bound, allowed_slack, d.missed, d.failed, met));
         verdicts.push_back(
             {fmt::format("3. write latency {}", baud),
              fmt::format("p50 {:.0f} µs, p99 {:.0f} µs (bound {:.0f}), max {:.0f}; slack p99 "
                          "{:.0f} µs (raw client {:.0f} µs)",
                          d.latency_us.p50, d.latency_us.p99, bound, d.latency_us.max,
                          d.slack_us.p99, w.raw.slack_us.p99),
-             "slack p99 <= 500 µs", met});
+             fmt::format("slack p99 <= max(500, raw p99) + 100 = {:.0f} µs", allowed_slack), met});
     }
     fmt::print(
         "\n\"behind a later tx\": writes whose request reached the poller only after it had "
