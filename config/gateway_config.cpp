@@ -252,8 +252,8 @@ std::string output_value_help(ModuleType type) {
     }
 }
 
-// `initial`: the module's holding register value; an rgbdm also takes a colour name.
-auto output_value(ModuleType type) {
+// `initial` and `safe`: the module's holding register value; an rgbdm also takes a colour name.
+auto output_value(ModuleType type, std::string_view key) {
     return [=](const YAML::Node& value) -> Parsed<std::uint16_t> {
         const std::string& text = value.Scalar();
         if (type == ModuleType::rgbdm)
@@ -264,8 +264,9 @@ auto output_value(ModuleType type) {
             return Unexpected(fmt::format(
                 "\"{}\" is quoted, so it is text: write the number without quotes", text));
         if (!number)
-            return Unexpected(fmt::format("'{}' is not an initial value for {}: {}", text,
-                                          name(type), output_value_help(type)));
+            return Unexpected(fmt::format("'{}' is not {} {} value for {}: {}", text,
+                                          key == "initial" ? "an" : "a", key, name(type),
+                                          output_value_help(type)));
         const auto register_value = static_cast<std::uint16_t>(*number);
         if (auto ok = validate_output_value(type, register_value); !ok)
             return Unexpected(std::move(ok).error().message);
@@ -328,13 +329,18 @@ struct Fields {
 
 using Keys = std::span<const std::string_view>;
 constexpr std::array<std::string_view, 4> top_keys{"modbus", "links", "on_shutdown", "log_level"};
-constexpr std::array<std::string_view, 8> modbus_keys{"listen", "max_connections", "idle_timeout",
-                                                      "allow",  "read_only",       "word_order",
-                                                      "stale",  "keepalive"};
-constexpr std::array<std::string_view, 8> link_keys{"name",    "protocol", "device",  "baud",
-                                                    "unit_id", "timeout",  "retries", "modules"};
-constexpr std::array<std::string_view, 5> module_keys{"type", "number", "poll", "initial",
-                                                      "refresh"};
+constexpr std::array<std::string_view, 9> modbus_keys{
+    "listen", "max_connections", "idle_timeout",     "allow", "read_only", "word_order",
+    "stale",  "keepalive",       "comm_loss_timeout"};
+constexpr std::array<std::string_view, 9> link_keys{
+    "name", "protocol", "device", "baud", "unit_id", "timeout", "retries", "modules", "identity"};
+constexpr std::array<std::string_view, 6> module_keys{"type",    "number", "poll",
+                                                      "initial", "safe",   "refresh"};
+// `identity:` keys by object id; MajorMinorRevision (0x02) is the version and not a key.
+constexpr std::array<std::string_view, modbus::device_object_count> identity_keys{
+    "vendor_name",  "product_code", "major_minor_revision", "vendor_url",
+    "product_name", "model_name",   "user_application_name"};
+constexpr std::size_t max_identity_length = 64;
 
 constexpr std::string_view module_needed =
     "an ioport link needs at least one module, e.g. modules: [{ type: dim16, number: 0 }]";
@@ -388,6 +394,7 @@ class Loader {
     };
     LinkOutcome read_link_settings(const Fields& fields, std::size_t index, LinkConfig& link);
     void read_modules(const Fields& fields, std::optional<Protocol> protocol, LinkConfig& link);
+    void read_identity(const Fields& fields, LinkConfig& link);
     std::optional<ModuleConfig> read_module(const YAML::Node& node, const std::string& path);
     void read_module_role(const Fields& fields, ModuleConfig& module);
     void check_unique(const Fields& fields, const LinkConfig& link, bool unit_id_valid);
@@ -490,6 +497,8 @@ void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
     read(f, "stale", "exception or hold", modbus.stale, choice<Stale>(stale_choices));
     read(f, "keepalive", "a duration such as 60s, or 0 for off", modbus.keepalive,
          duration(microseconds{0}, 2h));
+    read(f, "comm_loss_timeout", "a duration such as 10s, or 0 for off", modbus.comm_loss_timeout,
+         duration(microseconds{0}, 24h));
 }
 
 void Loader::read_allow(const Fields& f, std::vector<Network>& allow) {
@@ -544,6 +553,7 @@ void Loader::read_link(const YAML::Node& node, std::size_t index, std::vector<Li
     link.line = f.line;
     const LinkOutcome outcome = read_link_settings(f, index, link);
     read_modules(f, outcome.protocol, link);
+    read_identity(f, link);
     check_unique(f, link, outcome.unit_id_valid);
     links.push_back(std::move(link));
 }
@@ -646,16 +656,47 @@ void Loader::read_module_role(const Fields& f, ModuleConfig& module) {
         misplaced("poll", fmt::format("poll is for input modules only: {} is an output module, "
                                       "its state is re-sent every refresh",
                                       name(type)));
-        read(f, "initial", "a register value", module.initial, output_value(type));
+        read(f, "initial", "a register value", module.initial, output_value(type, "initial"));
+        module.safe = module.initial;
+        read(f, "safe", "a register value", module.safe, output_value(type, "safe"));
         read(f, "refresh", "a duration such as 1s", module.refresh, duration(min_refresh));
         return;
     }
-    for (const std::string_view key : {"initial", "refresh"})
+    for (const std::string_view key : {"initial", "safe", "refresh"})
         misplaced(key, fmt::format("{} is for output modules only (dom16, rgbdm, mux8m): {} is "
                                    "an input module",
                                    key, name(type)));
     read(f, "poll", "a duration such as 200ms, or 0 for every cycle", module.poll,
          duration(microseconds{0}));
+}
+
+void Loader::read_identity(const Fields& link_fields, LinkConfig& link) {
+    const Entry* entry = link_fields.find("identity");
+    if (entry == nullptr || entry->value.IsNull()) return;
+    const auto f = mapping(*entry, link_fields.key("identity"), identity_keys,
+                           "{ model_name: hub8u, user_application_name: press line 2 }");
+    if (!f) return;
+    const auto text = [](const YAML::Node& value) -> Parsed<std::string> {
+        const std::string& s = value.Scalar();
+        if (s.empty() || s.size() > max_identity_length)
+            return Unexpected(fmt::format("'{}' has {} characters: use 1 to {}", s, s.size(),
+                                          max_identity_length));
+        if (!std::ranges::all_of(s, [](char c) { return c >= 0x20 && c <= 0x7E; }))
+            return Unexpected(fmt::format(
+                "'{}' has a character that is not printable ASCII: use letters, digits, spaces "
+                "and punctuation",
+                printable(s)));
+        return s;
+    };
+    for (std::size_t id = 0; id < identity_keys.size(); ++id) {
+        if (id == static_cast<std::size_t>(modbus::DeviceObject::major_minor_revision)) {
+            if (const Entry* revision = f->find(identity_keys[id]))
+                add(revision->line, f->key(identity_keys[id]),
+                    "MajorMinorRevision is the ioportd version and cannot be set: remove the key");
+            continue;
+        }
+        read(*f, identity_keys[id], "printable text", link.identity[id], text);
+    }
 }
 
 void Loader::check_unique(const Fields& f, const LinkConfig& link, bool unit_id_valid) {

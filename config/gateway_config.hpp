@@ -13,6 +13,7 @@
 #include <string_view>
 #include <vector>
 
+#include "protocol/device_identification.hpp"
 #include "protocol/expected.hpp"
 #include "protocol/gateway_map.hpp"
 #include "protocol/ioport.hpp"
@@ -48,6 +49,8 @@ struct ModbusSettings {
     WordOrder word_order = WordOrder::big;
     Stale stale = Stale::exception;
     std::chrono::microseconds keepalive = 60s;  // TCP keepalive idle time; 0 = off
+    // No request from any client for this long puts every output in its safe state; 0 = off.
+    std::chrono::microseconds comm_loss_timeout{0};
     friend bool operator==(const ModbusSettings&, const ModbusSettings&) = default;
 };
 
@@ -55,12 +58,13 @@ struct ModuleConfig {
     ModuleAddress address;
     std::chrono::microseconds poll{0};       // input modules: at most this often; 0 = every cycle
     std::uint16_t initial = 0;               // output modules: the register value sent at start-up
+    std::uint16_t safe = 0;                  // output modules: after comm loss; `initial` if unset
     std::chrono::microseconds refresh = 1s;  // output modules: re-send the desired state
     int line = 0;                            // in the file, for messages
     // Equal as settings: where in the file does not matter.
     friend bool operator==(const ModuleConfig& a, const ModuleConfig& b) {
         return a.address == b.address && a.poll == b.poll && a.initial == b.initial &&
-               a.refresh == b.refresh;
+               a.safe == b.safe && a.refresh == b.refresh;
     }
 };
 
@@ -73,11 +77,14 @@ struct LinkConfig {
     std::chrono::microseconds timeout = 100ms;
     int retries = 1;
     std::vector<ModuleConfig> modules;  // ioport only, in file order
+    // Read Device Identification objects by id as `identity:` sets them; "" = ioportd's own
+    // (daemon/identity.hpp). MajorMinorRevision is always the version.
+    modbus::DeviceIdentity identity{};
     int line = 0;
     friend bool operator==(const LinkConfig& a, const LinkConfig& b) {
         return a.name == b.name && a.protocol == b.protocol && a.device == b.device &&
                a.baud == b.baud && a.unit_id == b.unit_id && a.timeout == b.timeout &&
-               a.retries == b.retries && a.modules == b.modules;
+               a.retries == b.retries && a.modules == b.modules && a.identity == b.identity;
     }
 };
 

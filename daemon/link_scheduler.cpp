@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include "daemon/identity.hpp"
+
 namespace ioport::daemon {
 namespace {
 
@@ -49,6 +51,7 @@ struct LinkScheduler::PendingWrite {
 LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
                              gateway::WordOrder word_order, Log& log)
     : config_(link),
+      identity_(device_identity(link, IOPORTD_VERSION)),
       word_order_(word_order),
       log_(log),
       link_(executor, link_settings(link)),

@@ -53,6 +53,8 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     void stop();
 
     const config::LinkConfig& config() const { return config_; }
+    // The objects this unit answers Read Device Identification with.
+    const modbus::DeviceIdentity& identity() const { return identity_; }
     const gateway::UnitState& state() const { return state_; }
     // The image, with the time-dependent diagnostics brought up to date when `diagnostics`.
     modbus_mapping_t* image(bool diagnostics);
@@ -101,6 +103,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     std::optional<std::size_t> entry_of(ModuleAddress module) const;
 
     config::LinkConfig config_;
+    modbus::DeviceIdentity identity_;
     gateway::WordOrder word_order_;
     Log& log_;
     SerialLink link_;

@@ -126,6 +126,38 @@ Result<Bytes> ReplyBuilder::reply(const PaddedRequest& request, modbus_mapping_t
         modbus_reply(context_, request.bytes_.data(), static_cast<int>(request.length_), mapping));
 }
 
+Result<Bytes> ReplyBuilder::read_back(const PaddedRequest& request, std::uint16_t address,
+                                      std::uint16_t quantity, const modbus_mapping_t& mapping) {
+    constexpr auto pdu = modbus::mbap_length;
+    std::array<std::uint8_t, pdu + 5> read{};
+    std::copy_n(request.bytes_.begin(), pdu, read.begin());
+    read[4] = 0;
+    read[5] = 6;  // unit id and the 5-byte PDU
+    read[pdu] = static_cast<std::uint8_t>(modbus::Function::read_holding_registers);
+    read[pdu + 1] = static_cast<std::uint8_t>(address >> 8U);
+    read[pdu + 2] = static_cast<std::uint8_t>(address);
+    read[pdu + 3] = static_cast<std::uint8_t>(quantity >> 8U);
+    read[pdu + 4] = static_cast<std::uint8_t>(quantity);
+    auto response = read_response(read, mapping);
+    if (!response)
+        return fail(Errc::invalid_argument,
+                    fmt::format("FC 23 read of {} registers at {} is outside the image", quantity,
+                                address));
+    (*response)[pdu] = static_cast<std::uint8_t>(modbus::Function::read_write_multiple_registers);
+    return std::move(*response);
+}
+
+Bytes ReplyBuilder::framed(const PaddedRequest& request, std::span<const std::uint8_t> pdu) {
+    constexpr auto header = modbus::mbap_length;
+    Bytes response(header + pdu.size());
+    std::copy_n(request.bytes_.begin(), 2, response.begin());  // the transaction id; protocol 0
+    response[4] = static_cast<std::uint8_t>((pdu.size() + 1) >> 8U);
+    response[5] = static_cast<std::uint8_t>(pdu.size() + 1);
+    response[6] = request.bytes_[6];  // the unit id
+    std::copy(pdu.begin(), pdu.end(), response.begin() + header);
+    return response;
+}
+
 Result<Bytes> ReplyBuilder::exception(const PaddedRequest& request, modbus::Exception exception) {
     // libmodbus answers function + 0x80, which for a request function code of 0x80 or above
     // wraps to a byte without the exception bit (0xFF → 0x7F, a normal-looking response). It is

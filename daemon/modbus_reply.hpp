@@ -82,6 +82,13 @@ class ReplyBuilder {
     // code, and `exception`.
     Result<Bytes> exception(const PaddedRequest& request, modbus::Exception exception);
 
+    // FC 23's response once its write is done: `quantity` holding registers from `address` in
+    // `mapping`, as FC 03 reads them, under function code 23.
+    static Result<Bytes> read_back(const PaddedRequest& request, std::uint16_t address,
+                                   std::uint16_t quantity, const modbus_mapping_t& mapping);
+    // A response whose PDU was built elsewhere (FC 43): the request's MBAP header around it.
+    static Bytes framed(const PaddedRequest& request, std::span<const std::uint8_t> pdu);
+
   private:
     ReplyBuilder(int libmodbus_end, int our_end, modbus_t* context);
     Result<Bytes> take(int sent);

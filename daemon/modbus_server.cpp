@@ -11,6 +11,7 @@
 #include <fmt/format.h>
 
 #include "daemon/descriptors.hpp"
+#include "protocol/device_identification.hpp"
 
 namespace ioport::daemon {
 namespace {
@@ -430,7 +431,15 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
     const PaddedRequest request(adu);
     if (!unit)
         return built(c, replies_->exception(request, modbus::Exception::gateway_path_unavailable));
-    auto plan = gateway::plan(unit->state(), policy_, adu.subspan(modbus::mbap_length));
+    const auto pdu = adu.subspan(modbus::mbap_length);
+    // Identification is the unit's, not its devices': it answers with the port down and in
+    // read_only mode.
+    if (pdu[0] == modbus::encapsulated_interface_transport) {
+        const auto identification = modbus::read_device_identification(pdu, unit->identity());
+        if (!identification) return built(c, replies_->exception(request, identification.error()));
+        return ReplyBuilder::framed(request, *identification);
+    }
+    auto plan = gateway::plan(unit->state(), policy_, pdu);
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
         return built(c, replies_->exception(request, *exception));
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan))
@@ -439,10 +448,18 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
 }
 
 asio::awaitable<ModbusServer::Response> ModbusServer::write(Connection& c, Write write) {
+    // FC 23 reads these once its write is done.
+    const auto read_address = write.plan.read_address;
+    const auto read_quantity = write.plan.read_quantity;
     const auto failed = co_await write.unit->write(std::move(write.plan));
     if (!c.open) co_return std::nullopt;
-    co_return built(c, failed ? replies_->exception(write.request, *failed)
-                              : replies_->reply(write.request, scratch_.get()));
+    if (failed) co_return built(c, replies_->exception(write.request, *failed));
+    if (read_quantity == 0) co_return built(c, replies_->reply(write.request, scratch_.get()));
+    const auto plan = gateway::read_back(write.unit->state(), policy_, read_address, read_quantity);
+    if (const auto* exception = std::get_if<modbus::Exception>(&plan))
+        co_return built(c, replies_->exception(write.request, *exception));
+    co_return built(c, ReplyBuilder::read_back(write.request, read_address, read_quantity,
+                                               *write.unit->image(false)));
 }
 
 ModbusServer::Response ModbusServer::built(const Connection& c, Result<Bytes> response) {

@@ -610,6 +610,17 @@ std::uint16_t merged(std::uint16_t desired, const OutputChange& change) {
     return static_cast<std::uint16_t>((desired & ~change.mask) | (change.value & change.mask));
 }
 
+// FC 23's read part as the FC 03 it amounts to.
+Request read_part(std::uint16_t address, std::uint16_t quantity) {
+    Request read;
+    read.function = modbus::Function::read_holding_registers;
+    read.table = Table::holding_registers;
+    read.address = address;
+    read.quantity = quantity;
+    read.well_formed = true;
+    return read;
+}
+
 Plan plan(const UnitState& unit, const Policy& policy, std::span<const std::uint8_t> pdu) {
     const auto request = modbus::parse_request(pdu);
     if (!request) return request.error();
@@ -617,8 +628,25 @@ Plan plan(const UnitState& unit, const Policy& policy, std::span<const std::uint
     if (const auto wrong = modbus::check_limits(*request)) return *wrong;
     const auto start = locate_range(unit.kind, *request);
     if (!start) return Exception::illegal_data_address;
-    if (request->write) return plan_write(unit, *request, locate_each(unit.kind, *request));
-    return plan_read(unit, policy, *request, *start);
+    const bool read_write = request->function == modbus::Function::read_write_multiple_registers;
+    if (read_write &&
+        !locate_range(unit.kind, read_part(request->read_address, request->read_quantity)))
+        return Exception::illegal_data_address;
+    if (!request->write) return plan_read(unit, policy, *request, *start);
+    auto write = plan_write(unit, *request, locate_each(unit.kind, *request));
+    if (auto* changes = std::get_if<WritePlan>(&write); changes && read_write) {
+        changes->read_address = request->read_address;
+        changes->read_quantity = request->read_quantity;
+    }
+    return write;
+}
+
+Plan read_back(const UnitState& unit, const Policy& policy, std::uint16_t address,
+               std::uint16_t quantity) {
+    const auto read = read_part(address, quantity);
+    const auto start = locate_range(unit.kind, read);
+    if (!start) return Exception::illegal_data_address;  // plan() ruled this out
+    return plan_read(unit, policy, read, *start);
 }
 
 // --- The tables -----------------------------------------------------------------------------

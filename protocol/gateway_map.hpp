@@ -94,6 +94,9 @@ struct ReadPlan {
 struct WritePlan {
     std::vector<OutputChange> changes;
     bool reset_counter = false;  // ID-2 coil 0 written with 1
+    // FC 23: these holding registers are read once the write is done (read_back()).
+    std::uint16_t read_address = 0;
+    std::uint16_t read_quantity = 0;
     friend bool operator==(const WritePlan&, const WritePlan&) = default;
 };
 using Plan = std::variant<modbus::Exception, ReadPlan, WritePlan>;
@@ -103,7 +106,12 @@ using Plan = std::variant<modbus::Exception, ReadPlan, WritePlan>;
 // outside a block or running past its end 02 → unconfigured module on a write 02 → bad value
 // (colour or mux byte over 7) 03 → port closed on a write, or a data address of a configured
 // module that is not online on a read with Stale::exception 0B.
+// FC 23 (§5.2) is planned as its write, and both its ranges must lie in a block (02).
 Plan plan(const UnitState& unit, const Policy& policy, std::span<const std::uint8_t> pdu);
+// FC 23's read part, decided once its write succeeded, as FC 03 of the same range would be then:
+// 0B for a module that is not online with Stale::exception, else a ReadPlan.
+Plan read_back(const UnitState& unit, const Policy& policy, std::uint16_t address,
+               std::uint16_t quantity);
 
 // --- The tables -----------------------------------------------------------------------------
 

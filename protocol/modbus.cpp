@@ -12,6 +12,9 @@ namespace {
 constexpr std::size_t fixed_pdu_length = 5;
 // Bytes of a multiple-write PDU before the values: the fixed part and the byte count.
 constexpr std::size_t multiple_header_length = 6;
+// FC23 before the values: function, read address and quantity, write address and quantity,
+// byte count.
+constexpr std::size_t read_write_header_length = 10;
 
 std::uint16_t big_endian16(std::span<const std::uint8_t> bytes, std::size_t at) {
     return static_cast<std::uint16_t>(bytes[at] << 8 | bytes[at + 1]);
@@ -42,6 +45,7 @@ std::optional<Shape> shape(std::uint8_t code) {
             return Shape{Table::coils, true};
         case Function::write_single_register:
         case Function::write_multiple_registers:
+        case Function::read_write_multiple_registers:
             return Shape{Table::holding_registers, true};
     }
     return std::nullopt;
@@ -78,6 +82,19 @@ void decode_multiple(Request& request, std::span<const std::uint8_t> pdu) {
         present.size() == byte_count && byte_count == expected_byte_count(request);
 }
 
+void decode_read_write(Request& request, std::span<const std::uint8_t> pdu) {
+    request.read_address = field(pdu, 1);
+    request.read_quantity = field(pdu, 3);
+    request.address = field(pdu, 5);
+    request.quantity = field(pdu, 7);
+    if (pdu.size() < read_write_header_length) return;
+    const std::size_t byte_count = pdu[9];
+    const auto present = pdu.subspan(read_write_header_length);
+    request.values = present.first(std::min(byte_count, present.size()));
+    request.well_formed =
+        present.size() == byte_count && byte_count == std::size_t{request.quantity} * 2;
+}
+
 std::uint16_t limit(Function function) {
     switch (function) {
         case Function::read_coils:
@@ -90,6 +107,8 @@ std::uint16_t limit(Function function) {
             return max_write_bits;
         case Function::write_multiple_registers:
             return max_write_registers;
+        case Function::read_write_multiple_registers:
+            return max_read_write_registers;
         case Function::write_single_coil:
         case Function::write_single_register:
             return 1;
@@ -168,6 +187,8 @@ Expected<Request, Exception> parse_request(std::span<const std::uint8_t> pdu) {
     if (request.function == Function::write_multiple_coils ||
         request.function == Function::write_multiple_registers)
         decode_multiple(request, pdu);
+    else if (request.function == Function::read_write_multiple_registers)
+        decode_read_write(request, pdu);
     else
         decode_fixed(request, pdu);
     return request;
@@ -176,6 +197,9 @@ Expected<Request, Exception> parse_request(std::span<const std::uint8_t> pdu) {
 std::optional<Exception> check_limits(const Request& request) {
     if (!request.well_formed) return Exception::illegal_data_value;
     if (request.quantity < 1 || request.quantity > limit(request.function))
+        return Exception::illegal_data_value;
+    if (request.function == Function::read_write_multiple_registers &&
+        (request.read_quantity < 1 || request.read_quantity > max_read_registers))
         return Exception::illegal_data_value;
     if (request.function == Function::write_single_coil) {
         const auto value = big_endian16(request.values, 0);
@@ -191,10 +215,17 @@ std::uint16_t write_value(const Request& request, std::size_t index) {
         case Function::write_multiple_coils:
             return static_cast<std::uint16_t>(request.values[index / 8] >> (index % 8) & 1);
         case Function::write_multiple_registers:
+        case Function::read_write_multiple_registers:
             return big_endian16(request.values, index * 2);
-        default:
+        case Function::write_single_register:
             return big_endian16(request.values, 0);
+        case Function::read_coils:
+        case Function::read_discrete_inputs:
+        case Function::read_holding_registers:
+        case Function::read_input_registers:
+            break;  // a read carries no values
     }
+    return 0;
 }
 
 }  // namespace ioport::modbus

@@ -23,6 +23,7 @@ inline constexpr std::uint16_t max_read_bits = 2000;
 inline constexpr std::uint16_t max_read_registers = 125;
 inline constexpr std::uint16_t max_write_bits = 1968;
 inline constexpr std::uint16_t max_write_registers = 123;
+inline constexpr std::uint16_t max_read_write_registers = 121;  // FC 23's write part
 
 enum class Function : std::uint8_t {
     read_coils = 0x01,
@@ -33,6 +34,7 @@ enum class Function : std::uint8_t {
     write_single_register = 0x06,
     write_multiple_coils = 0x0F,
     write_multiple_registers = 0x10,
+    read_write_multiple_registers = 0x17,
 };
 
 enum class Exception : std::uint8_t {
@@ -74,24 +76,29 @@ struct Request {
     Function function{};
     Table table{};
     bool write = false;
-    std::uint16_t address = 0;
-    std::uint16_t quantity = 0;  // 1 for FC05/FC06
+    std::uint16_t address = 0;   // FC23: of the write
+    std::uint16_t quantity = 0;  // 1 for FC05/FC06; FC23: of the write
     // FC05: the 2-byte value; FC06: the 2-byte register; FC15: the packed coils (LSB first);
-    // FC16: big-endian registers. Empty for reads.
+    // FC16 and FC23: big-endian registers. Empty for reads.
     std::span<const std::uint8_t> values;
-    // The PDU has exactly the length its function requires and FC15/16's byte count matches
+    // FC23 only: the holding registers read once the write is done.
+    std::uint16_t read_address = 0;
+    std::uint16_t read_quantity = 0;
+    // The PDU has exactly the length its function requires and FC15/16/23's byte count matches
     // the quantity. When false, the other fields are only as far as the PDU reached.
     bool well_formed = false;
 };
 // `pdu` is the function code and what follows it (the MBAP header and unit id stripped).
-// Fails with illegal_function for a function other than 01–06, 0F, 10 (and for an empty PDU).
+// Fails with illegal_function for a function other than 01–06, 0F, 10, 17 (and for an empty
+// PDU). Function 43 (device identification) is decided on its own: device_identification.hpp.
 Expected<Request, Exception> parse_request(std::span<const std::uint8_t> pdu);
 // Quantities within the Modbus limits (reads 1–125 registers / 1–2000 bits, writes 1–123 /
-// 1–1968), a well-formed PDU, FC05 value 0x0000 or 0xFF00; otherwise illegal_data_value.
+// 1–1968, FC23 reads 1–125 and writes 1–121), a well-formed PDU, FC05 value 0x0000 or 0xFF00;
+// otherwise illegal_data_value.
 std::optional<Exception> check_limits(const Request& request);
 
 // Values of a write request, decoded: FC05 → 0/1, FC06 → the register, FC15 → bit i,
-// FC16 → register i. `index` < request.quantity; the request must be well formed.
+// FC16 and FC23 → register i. `index` < request.quantity; the request must be well formed.
 std::uint16_t write_value(const Request& request, std::size_t index);
 
 }  // namespace ioport::modbus

@@ -15,6 +15,7 @@
 #include <bit>
 #include <cstring>
 #include <fstream>
+#include <map>
 #include <optional>
 #include <regex>
 #include <thread>
@@ -941,6 +942,140 @@ TEST_F(LittleWordOrderTest, LittleWordOrderPutsTheLowWordFirst) {
     EXPECT_EQ(ir_values(client, 1008, 2), (std::vector<std::uint16_t>{1, 0}));
     // Raw 16-bit values are not swapped.
     EXPECT_EQ(ir_values(client, 40, 3), (std::vector<std::uint16_t>{7, 8, 9}));
+}
+
+// --- §5.2 FC 23 Read/Write Multiple Registers -------------------------------------------------
+
+// FC 23: read `rq` registers from `ra` after writing `values` from `wa`; `byte_count` as given.
+Bytes read_write(std::uint16_t ra, std::uint16_t rq, std::uint16_t wa,
+                 const std::vector<std::uint16_t>& values,
+                 std::optional<std::uint8_t> byte_count = {},
+                 std::optional<std::uint16_t> wq = {}) {
+    Bytes tail{byte_count.value_or(static_cast<std::uint8_t>(values.size() * 2))};
+    for (const auto value : values) {
+        tail.push_back(static_cast<std::uint8_t>(value >> 8));
+        tail.push_back(static_cast<std::uint8_t>(value & 0xFF));
+    }
+    return pdu(0x17, {ra, rq, wa, wq.value_or(static_cast<std::uint16_t>(values.size()))}, tail);
+}
+
+TEST_F(ContractTest, Fc23WritesFirstThenReadsTheImage) {
+    ASSERT_TRUE(all_online(client));
+    // dom16 1 (holding register 1) written, holding registers 0-1 read back in the same request.
+    std::array<std::uint16_t, 1> write{0x1234};
+    std::array<std::uint16_t, 2> read{};
+    ASSERT_EQ(
+        modbus_write_and_read_registers(client.context(), 1, 1, write.data(), 0, 2, read.data()), 2)
+        << modbus_strerror(errno);
+    EXPECT_EQ(read[0], 0x00F0);  // dom16 0 at its initial value
+    EXPECT_EQ(read[1], 0x1234) << "the read did not see the write before it";
+    EXPECT_EQ(sim_value(hub, "dom16:1"), "4660");
+    // Several modules in one write: rgbdm 0 blue (holding register 8); the read covers the
+    // mux8m (16) after it.
+    RawClient raw(gateway.port());
+    const auto both = raw.ask(1, read_write(8, 9, 8, {3}));
+    ASSERT_TRUE(both);
+    ASSERT_EQ(both->exception(), 0);
+    EXPECT_EQ(both->pdu[0], 0x17);
+    EXPECT_EQ(both->pdu[1], 18);  // byte count
+    EXPECT_EQ(both->word(0), 3);
+    EXPECT_EQ(both->word(8), 0x0707);
+    EXPECT_EQ(sim_value(hub, "rgbdm:0"), "3");
+}
+
+TEST_F(ContractTest, Fc23LimitsAndExceptionsWriteNothing) {
+    ASSERT_TRUE(all_online(client));
+    RawClient raw(gateway.port());
+    const auto before = sim_value(hub, "dom16:1");
+    // Quantities and byte count: 03.
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 0, 1, {7})), illegal_value);
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 126, 1, {7})), illegal_value);
+    // (122 registers would not fit a frame: 121 is the most, and 122 is refused by its count.)
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 1, 1, {7}, 244, 122)), illegal_value);
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 1, 1, {7}, 3)), illegal_value);
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 1, 1, {7}, {}, 2)), illegal_value);
+    // Either range outside the holding registers' block: 02.
+    EXPECT_EQ(exception_of(raw, 1, read_write(20, 5, 1, {7})), illegal_address);
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 1, 23, {7, 7})), illegal_address);
+    // An unconfigured module in the write (dom16 2): 02; a colour over 7: 03.
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 1, 2, {7})), illegal_address);
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 1, 8, {9})), illegal_value);
+    EXPECT_EQ(sim_value(hub, "dom16:1"), before) << "a refused FC 23 reached the device";
+    // The device refuses (error ack): 04, and the read part is not answered.
+    hub.ctl("fault dom16:1 error-ack");
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 2, 1, {0x0F0F})), device_failure);
+    EXPECT_EQ(sim_value(hub, "dom16:1"), before);
+    // Answering again, the same request goes through (a module that is offline is still sent
+    // its writes), and its read part sees the value.
+    hub.ctl("fault dom16:1 none");
+    const auto again = raw.ask(1, read_write(1, 1, 1, {0x0F0F}));
+    ASSERT_TRUE(again);
+    EXPECT_EQ(again->exception(), 0);
+    EXPECT_EQ(again->word(0), 0x0F0F);
+    // The ID-2 has no holding registers.
+    EXPECT_EQ(exception_of(raw, 2, read_write(0, 1, 0, {1})), illegal_address);
+}
+
+TEST_F(ReadOnlyTest, Fc23IsAWriteAndAnswers01) {
+    RawClient raw(gateway.port());
+    EXPECT_EQ(exception_of(raw, 1, read_write(0, 1, 1, {7})), illegal_function);
+}
+
+// --- §5.2 FC 43 / MEI 14 Read Device Identification ------------------------------------------
+
+// The objects of a Read Device Identification response, by id.
+std::map<int, std::string> identification(RawClient& raw, std::uint8_t unit, std::uint8_t code,
+                                          std::uint8_t object = 0) {
+    const auto response = raw.ask(unit, {0x2B, 0x0E, code, object});
+    std::map<int, std::string> objects;
+    if (!response || response->exception() != 0 || response->pdu.size() < 7) return objects;
+    const auto& pdu = response->pdu;
+    std::size_t at = 7;
+    for (int i = 0; i < pdu[6] && at + 2 <= pdu.size(); ++i) {
+        const std::size_t length = pdu[at + 1];
+        objects[pdu[at]] = std::string(pdu.begin() + static_cast<long>(at) + 2,
+                                       pdu.begin() + static_cast<long>(at + 2 + length));
+        at += 2 + length;
+    }
+    return objects;
+}
+
+TEST_F(ContractTest, Fc43IdentifiesEachUnit) {
+    RawClient raw(gateway.port());
+    const auto hub_objects = identification(raw, 1, 0x02);
+    EXPECT_EQ(hub_objects, (std::map<int, std::string>{{0, "ioportd developers"},
+                                                       {1, "ioportd"},
+                                                       {2, IOPORTD_VERSION},
+                                                       {3, "man:ioportd(8)"},
+                                                       {4, "ioportd serial-to-Modbus gateway"},
+                                                       {5, "ioport hub"},
+                                                       {6, "hub0"}}));
+    const auto id2_objects = identification(raw, 2, 0x04, 0x05);
+    EXPECT_EQ(id2_objects, (std::map<int, std::string>{{5, "ID-2"}}));
+    EXPECT_EQ(identification(raw, 2, 0x04, 0x06), (std::map<int, std::string>{{6, "press"}}));
+    EXPECT_EQ(exception_of(raw, 1, {0x2B, 0x0E, 0x04, 0x07}), illegal_address);
+    EXPECT_EQ(exception_of(raw, 1, {0x2B, 0x0E, 0x05, 0x00}), illegal_value);
+    EXPECT_EQ(exception_of(raw, 1, {0x2B, 0x0D, 0x01, 0x00}), illegal_function);
+    EXPECT_EQ(exception_of(raw, 9, {0x2B, 0x0E, 0x01, 0x00}), path_unavailable);
+}
+
+TEST_F(ReadOnlyTest, Fc43AnswersInReadOnlyMode) {
+    RawClient raw(gateway.port());
+    EXPECT_EQ(identification(raw, 1, 0x01).size(), 3u);
+}
+
+TEST(ContractIdentity, Fc43AnswersWithThePortDownAndTheConfiguredObjects) {
+    GatewayProcess gateway(config(hub_link(missing_device, {{"dim16", 0}}) +
+                                  "    identity: { vendor_name: ACME Automation, model_name: "
+                                  "hub8u, user_application_name: Press line 2 }\n"));
+    RawClient raw(gateway.port());
+    const auto objects = identification(raw, 1, 0x03);
+    EXPECT_EQ(objects.at(0), "ACME Automation");
+    EXPECT_EQ(objects.at(1), "ioportd");  // not configured: ioportd's own
+    EXPECT_EQ(objects.at(5), "hub8u");
+    EXPECT_EQ(objects.at(6), "Press line 2");
+    // The port never opened: data reads answer 0B, identification answers all the same.
+    EXPECT_EQ(exception_of(raw, 1, pdu(fc_read_input_registers, {0, 1})), target_failed);
 }
 
 // --- §3.5 The Modbus front ------------------------------------------------------------------

@@ -249,6 +249,39 @@ TEST(GatewayConfig, OutputModulesTakeInitialAsTheRegisterValue) {
     EXPECT_EQ(modules[5].initial, 0x0707);
 }
 
+// §5.3: `safe` takes what `initial` takes and defaults to it; comm_loss_timeout defaults to off.
+// §5.2: `identity` objects per link.
+TEST(GatewayConfig, SafeValuesCommLossAndIdentity) {
+    const auto config = parse(R"(modbus:
+  comm_loss_timeout: 10s
+links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    identity: { vendor_name: ACME Automation, model_name: hub8u, user_application_name: Press 2 }
+    modules:
+      - { type: dom16, number: 1, initial: 0x00FF, safe: 0 }
+      - { type: dom16, number: 2, initial: 0x00FF }
+      - { type: rgbdm, number: 1, initial: green, safe: red }
+      - { type: mux8m, number: 1, safe: 0x0707 }
+)");
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->modbus.comm_loss_timeout, 10s);
+    const auto& modules = config->links[0].modules;
+    EXPECT_EQ(modules[0].safe, 0);
+    EXPECT_EQ(modules[1].safe, 0x00FF);  // the default: initial
+    EXPECT_EQ(modules[2].safe, static_cast<std::uint16_t>(Colour::red));
+    EXPECT_EQ(modules[3].safe, 0x0707);
+    const auto& identity = config->links[0].identity;
+    EXPECT_EQ(identity[0], "ACME Automation");
+    EXPECT_EQ(identity[1], "");  // ioportd's own, filled in by the daemon
+    EXPECT_EQ(identity[5], "hub8u");
+    EXPECT_EQ(identity[6], "Press 2");
+    const auto defaults = parse(spec_example);
+    ASSERT_TRUE(defaults) << describe(defaults.error());
+    EXPECT_EQ(defaults->modbus.comm_loss_timeout, 0s);
+}
+
 // --- Errors ---------------------------------------------------------------------------------
 
 // Lines 1-6: a valid ioport link. Cases append a key of link 0 or a module at line 7.
@@ -520,6 +553,32 @@ TEST(GatewayConfigErrors, ModuleKeys) {
     module("{ type: dom16, number: 0, refresh: 0 }", ".refresh",
            "0 is too short: use at least 10ms");
     module("{ type: dom16, number: 0, refresh: 5ms }", ".refresh", "use at least 10ms");
+    module("{ type: dim16, number: 1, safe: 0 }", ".safe",
+           "safe is for output modules only (dom16, rgbdm, mux8m): dim16 is an input module");
+    module("{ type: rgbdm, number: 0, safe: pink }", ".safe",
+           "'pink' is not a safe value for rgbdm");
+    module("{ type: mux8m, number: 0, safe: 0x0808 }", ".safe", "pos and neg 0-7");
+}
+
+TEST(GatewayConfigErrors, IdentityObjects) {
+    const auto identity = [](const std::string& text, const std::string& key,
+                             const std::string& fragment) {
+        expect_one_error(
+            {hub + "    identity: " + text + "\n", 7, "links[0].identity" + key, fragment});
+    };
+    identity("{ model_name: " + std::string(65, 'x') + " }", ".model_name",
+             "has 65 characters: use 1 to 64");
+    identity("{ model_name: \"\" }", ".model_name", "use 1 to 64");
+    identity("{ vendor_name: \"caf\\xe9\" }", ".vendor_name", "not printable ASCII");
+    identity("{ major_minor_revision: 2.0 }", ".major_minor_revision",
+             "the ioportd version and cannot be set");
+    identity("{ serial_number: 7 }", ".serial_number", "unknown key");
+    identity("hub8u", "", "expected a mapping");
+}
+
+TEST(GatewayConfigErrors, CommLossTimeout) {
+    expect_one_error(
+        {"modbus:\n  comm_loss_timeout: soon\n" + hub, 2, "modbus.comm_loss_timeout", "e.g."});
 }
 
 TEST(GatewayConfigErrors, EveryErrorOfAFileIsReportedInLineOrder) {

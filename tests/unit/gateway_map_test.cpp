@@ -654,6 +654,43 @@ TEST(GatewayPlan, WriteRegistersToEachOutputType) {
               changes({{mux8m(0), 0xFFFF, 0x0003}}));
 }
 
+// §5.2 FC 23: planned as its write, carrying the read part; both ranges in a holding-register
+// block; the precedence of §4 for the write.
+Bytes read_write(std::uint16_t read_address, std::uint16_t read_quantity,
+                 std::uint16_t write_address, std::initializer_list<std::uint16_t> values) {
+    auto pdu = write_registers(write_address, values);
+    pdu[0] = 0x17;
+    pdu.insert(pdu.begin() + 1,
+               {high(read_address), low(read_address), high(read_quantity), low(read_quantity)});
+    return pdu;
+}
+
+TEST(GatewayPlan, ReadWriteMultipleRegisters) {
+    const auto unit = ioport_unit({dom16(0), dom16(1), rgbdm(0)});
+    WritePlan expected{{{dom16(1), 0xFFFF, 0x1234}}, false, 0, 9};
+    EXPECT_EQ(plan(unit, strict, read_write(0, 9, 1, {0x1234})), Plan{expected});
+    // Either range outside the block of holding registers 0-23: 02, before anything is sent.
+    EXPECT_EQ(plan(unit, strict, read_write(20, 5, 1, {1})), Plan{Exception::illegal_data_address});
+    EXPECT_EQ(plan(unit, strict, read_write(0, 1, 23, {1, 1})),
+              Plan{Exception::illegal_data_address});
+    // The write's own checks: an unconfigured module 02, a bad colour 03, read_only 01, a closed
+    // port 0B; an ID-2 has no holding registers.
+    EXPECT_EQ(plan(unit, strict, read_write(0, 1, 2, {1})), Plan{Exception::illegal_data_address});
+    EXPECT_EQ(plan(unit, strict, read_write(0, 1, 8, {9})), Plan{Exception::illegal_data_value});
+    EXPECT_EQ(plan(unit, read_only, read_write(0, 1, 1, {1})), Plan{Exception::illegal_function});
+    EXPECT_EQ(plan(ioport_unit({dom16(1)}, false), strict, read_write(0, 1, 1, {1})),
+              Plan{Exception::gateway_target_failed});
+    EXPECT_EQ(plan(id2_unit(), strict, read_write(0, 1, 0, {1})),
+              Plan{Exception::illegal_data_address});
+    // The read part, once the write is done: as FC 03 of its range would be then.
+    EXPECT_EQ(read_back(unit, strict, 0, 9), ok_read());
+    auto offline = unit;
+    set(offline, dom16(0), ModuleStatus::no_answer);
+    EXPECT_EQ(read_back(offline, strict, 0, 2), Plan{Exception::gateway_target_failed});
+    EXPECT_EQ(read_back(offline, hold, 0, 2), ok_read());
+    EXPECT_EQ(read_back(offline, strict, 1, 1), ok_read());
+}
+
 TEST(GatewayPlan, BadOutputValuesAnswer03) {
     const auto unit = ioport_unit({rgbdm(0), rgbdm(1), mux8m(0)});
     EXPECT_EQ(plan(unit, strict, write_register(8, 8)), Plan{Exception::illegal_data_value});
