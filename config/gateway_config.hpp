@@ -3,7 +3,6 @@
 // key, so an operator fixes the file in one pass.
 #pragma once
 
-#include <array>
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
@@ -12,6 +11,9 @@
 #include <string>
 #include <string_view>
 #include <vector>
+
+#include <boost/asio/ip/address.hpp>
+#include <boost/asio/ip/network_v6.hpp>
 
 #include "protocol/expected.hpp"
 #include "protocol/gateway_map.hpp"
@@ -29,12 +31,11 @@ enum class OnShutdown { keep, initial };
 enum class LogLevel { trace, debug, info, warn, error, critical, off };
 
 // An IPv4 or IPv6 network, as written in `allow`: "10.0.0.0/8", "::1/128", "127.0.0.1"
-// (a bare address is a /32 or /128).
+// (a bare address is a /32 or /128). IPv4 networks are held as IPv4-mapped IPv6 networks,
+// a.b.c.d/n as ::ffff:a.b.c.d/(96 + n), so that IPv4 clients of an IPv6 socket match them.
 struct Network {
-    std::array<std::uint8_t, 16> address{};  // IPv4 as the first 4 bytes
-    bool v6 = false;
-    int prefix = 0;    // 0..32 or 0..128
-    std::string text;  // as written, for logs
+    boost::asio::ip::network_v6 network;  // canonical: no host bits set
+    std::string text;                     // as written, for logs
     friend bool operator==(const Network&, const Network&) = default;
 };
 
@@ -116,8 +117,8 @@ ConfigResult parse_config(std::string_view yaml, const std::string& file,
 ConfigResult load_config(const std::filesystem::path& path,
                          const DeviceResolver& resolve = resolve_device);
 
-// Whether `address` (16 bytes; IPv4 as ::ffff:a.b.c.d or in the first 4 bytes with v6 false)
-// lies in `network`. IPv4-mapped IPv6 addresses match IPv4 networks.
-bool contains(const Network& network, const std::array<std::uint8_t, 16>& address, bool v6);
+// Whether a client at `address` lies in `network`. IPv4 clients, also as IPv4-mapped IPv6
+// addresses (::ffff:a.b.c.d), match IPv4 networks.
+bool contains(const Network& network, const boost::asio::ip::address& address);
 
 }  // namespace ioport::config
