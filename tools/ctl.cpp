@@ -1,10 +1,12 @@
 #include "tools/ctl.hpp"
 
+#include <array>
 #include <charconv>
 #include <vector>
 
 #include <fmt/format.h>
 
+#include "config/command_line.hpp"
 #include "config/duration.hpp"
 #include "config/number.hpp"
 #include "link/blocking_link.hpp"
@@ -55,6 +57,20 @@ namespace {
 Error usage_error(const std::string& message) {
     return {Errc::invalid_argument, message + "\n(ioportctl --help lists the commands)"};
 }
+
+// The long options without a letter.
+enum : int { json = 256, inputs_only };
+
+constexpr std::array<option, 8> long_options{{
+    {"help", no_argument, nullptr, 'h'},
+    {"version", no_argument, nullptr, 'V'},
+    {"port", required_argument, nullptr, 'p'},
+    {"baud", required_argument, nullptr, 'b'},
+    {"timeout", required_argument, nullptr, 't'},
+    {"retries", required_argument, nullptr, 'r'},
+    {"json", no_argument, nullptr, json},
+    {"inputs-only", no_argument, nullptr, inputs_only},
+}};
 
 Result<std::uint8_t> module_number(std::string_view text, std::string_view type) {
     const auto n = parse_unsigned(text, modules_per_type - 1);
@@ -360,53 +376,56 @@ Result<Invocation> parse_arguments(std::span<const std::string_view> args,
                                    std::string default_port) {
     Invocation invocation{{std::move(default_port), {}, {}, {}, false, false}, Help{}};
     auto& options = invocation.options;
-    std::vector<std::string_view> words;
-    for (std::size_t i = 0; i < args.size(); ++i) {
-        const auto arg = args[i];
-        const auto value = [&](std::string_view option) -> Result<std::string_view> {
-            if (i + 1 >= args.size())
-                return Unexpected(usage_error(fmt::format("{} needs a value", option)));
-            return args[++i];
-        };
-        if (arg == "-h" || arg == "--help") return Invocation{options, Help{}};
-        if (arg == "-V" || arg == "--version") return Invocation{options, Version{}};
-        if (arg == "--json") {
-            options.json = true;
-        } else if (arg == "--inputs-only") {
-            options.inputs_only = true;
-        } else if (arg == "-p" || arg == "--port") {
-            const auto v = value(arg);
-            if (!v) return Unexpected(v.error());
-            options.port = *v;
-        } else if (arg == "-b" || arg == "--baud") {
-            const auto v = value(arg);
-            if (!v) return Unexpected(v.error());
-            const auto baud = parse_unsigned(*v, 115200);
-            if (!baud || (*baud != 9600 && *baud != 38400 && *baud != 115200))
-                return Unexpected(
-                    usage_error(fmt::format("baud '{}': use 115200 or 38400 (9600 for id2)", *v)));
-            options.baud = static_cast<int>(*baud);
-        } else if (arg == "-t" || arg == "--timeout") {
-            const auto v = value(arg);
-            if (!v) return Unexpected(v.error());
-            const auto timeout = parse_duration(*v);
-            if (!timeout || *timeout < 1ms || *timeout > 10s)
-                return Unexpected(usage_error(
-                    fmt::format("timeout '{}': use a duration from 1ms to 10s, e.g. 100ms", *v)));
-            options.timeout = *timeout;
-        } else if (arg == "-r" || arg == "--retries") {
-            const auto v = value(arg);
-            if (!v) return Unexpected(v.error());
-            const auto retries = parse_unsigned(*v, 10);
-            if (!retries) return Unexpected(usage_error(fmt::format("retries '{}': use 0-10", *v)));
-            options.retries = static_cast<int>(*retries);
-        } else if (arg.starts_with("-") && arg.size() > 1 && !(arg[1] >= '0' && arg[1] <= '9')) {
-            return Unexpected(usage_error(fmt::format("unknown option '{}'", arg)));
-        } else {
-            words.push_back(arg);
+    CommandLine line("ioportctl", args, "hVp:b:t:r:", long_options);
+    for (;;) {
+        auto next = line.next();
+        if (!next) return Unexpected(usage_error(next.error()));
+        if (!*next) break;
+        const auto& [code, value, name] = **next;
+        if (!value && (code == 'p' || code == 'b' || code == 't' || code == 'r'))
+            return Unexpected(usage_error(fmt::format("{} needs a value", name)));
+        switch (code) {
+            case 'h':
+                return Invocation{options, Help{}};
+            case 'V':
+                return Invocation{options, Version{}};
+            case json:
+                options.json = true;
+                break;
+            case inputs_only:
+                options.inputs_only = true;
+                break;
+            case 'p':
+                options.port = *value;
+                break;
+            case 'b': {
+                const auto baud = parse_unsigned(*value, 115200);
+                if (!baud || (*baud != 9600 && *baud != 38400 && *baud != 115200))
+                    return Unexpected(usage_error(
+                        fmt::format("baud '{}': use 115200 or 38400 (9600 for id2)", *value)));
+                options.baud = static_cast<int>(*baud);
+                break;
+            }
+            case 't': {
+                const auto timeout = parse_duration(*value);
+                if (!timeout || *timeout < 1ms || *timeout > 10s)
+                    return Unexpected(usage_error(fmt::format(
+                        "timeout '{}': use a duration from 1ms to 10s, e.g. 100ms", *value)));
+                options.timeout = *timeout;
+                break;
+            }
+            case 'r': {
+                const auto retries = parse_unsigned(*value, 10);
+                if (!retries)
+                    return Unexpected(usage_error(fmt::format("retries '{}': use 0-10", *value)));
+                options.retries = static_cast<int>(*retries);
+                break;
+            }
+            default:  // a code of the table above without its case here
+                return Unexpected(usage_error(fmt::format("{} is not implemented", name)));
         }
     }
-    auto command = parse_command(words);
+    auto command = parse_command(line.operands());
     if (!command) return Unexpected(command.error());
     invocation.command = *command;
     if (options.inputs_only && !std::holds_alternative<Scan>(invocation.command))
