@@ -1,10 +1,9 @@
 #include "config/gateway_config.hpp"
 
-#include <fcntl.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <cerrno>
+#include <fstream>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <span>
@@ -747,20 +746,14 @@ std::string stuck_message(const std::string& text, const YAML::Mark& mark) {
 }
 
 Parsed<std::string> read_file(const std::filesystem::path& path) {
-    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-    if (fd < 0) return Unexpected(std::generic_category().message(errno));
-    std::string text;
-    std::array<char, 4096> buffer{};
-    for (;;) {
-        const ssize_t count = ::read(fd, buffer.data(), buffer.size());
-        if (count < 0 && errno == EINTR) continue;
-        if (count <= 0) {
-            const int error = count < 0 ? errno : 0;
-            ::close(fd);
-            if (error != 0) return Unexpected(std::generic_category().message(error));
-            return text;
-        }
-        text.append(buffer.data(), static_cast<std::size_t>(count));
+    std::ifstream file(path, std::ios::binary);
+    // open(2)'s errno is the reason: the stream keeps none of its own.
+    if (!file) return Unexpected(std::generic_category().message(errno));
+    try {
+        return std::string(std::istreambuf_iterator<char>(file), {});
+    } catch (const std::ios_base::failure& e) {
+        // libstdc++'s filebuf throws when read(2) fails, as it does on a directory.
+        return Unexpected(e.code().message());
     }
 }
 
