@@ -204,14 +204,14 @@ constexpr std::array<std::pair<std::string_view, Protocol>, 2> protocols{
     {{"ioport", Protocol::ioport}, {"id2", Protocol::id2}}};
 constexpr std::array<std::pair<std::string_view, OnShutdown>, 2> on_shutdown_choices{
     {{"keep", OnShutdown::keep}, {"initial", OnShutdown::initial}}};
-constexpr std::array<std::pair<std::string_view, LogLevel>, 7> log_levels{
-    {{"trace", LogLevel::trace},
-     {"debug", LogLevel::debug},
-     {"info", LogLevel::info},
-     {"warn", LogLevel::warn},
-     {"error", LogLevel::error},
-     {"critical", LogLevel::critical},
-     {"off", LogLevel::off}}};
+
+Parsed<LogLevel> named_log_level(const YAML::Node& value) {
+    if (const auto level = log_level_from_name(value.Scalar())) return *level;
+    return Unexpected(
+        fmt::format("'{}' is not allowed: use trace or debug or info or warn or "
+                    "error or critical or off",
+                    value.Scalar()));
+}
 
 Parsed<std::string> non_empty(const YAML::Node& value) {
     if (value.Scalar().empty()) return Unexpected(std::string("must not be empty"));
@@ -453,7 +453,7 @@ void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
     if (const Entry* links = top.find("links")) read_links(*links, config.links);
     read(top, "on_shutdown", "keep or initial", config.on_shutdown,
          choice<OnShutdown>(on_shutdown_choices));
-    read(top, "log_level", "a log level", config.log_level, choice<LogLevel>(log_levels));
+    read(top, "log_level", "a log level", config.log_level, named_log_level);
 }
 
 void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
@@ -760,15 +760,15 @@ Parsed<std::string> read_file(const std::filesystem::path& path) {
 }  // namespace
 
 std::string_view to_string(LogLevel level) {
-    for (const auto& [name, value] : log_levels)
-        if (value == level) return name;
-    return "info";
+    const auto name = spdlog::level::to_string_view(level);
+    return {name.data(), name.size()};
 }
 
 std::optional<LogLevel> log_level_from_name(std::string_view name) {
-    for (const auto& [text, value] : log_levels)
-        if (text == name) return value;
-    return std::nullopt;
+    // from_str() answers off for a name it does not know.
+    const auto level = spdlog::level::from_str(std::string(name));
+    if (level == spdlog::level::off && name != "off") return std::nullopt;
+    return level;
 }
 
 std::string to_string(const ConfigError& error) {

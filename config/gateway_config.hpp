@@ -12,6 +12,7 @@
 #include <string_view>
 #include <vector>
 
+#include <spdlog/common.h>
 #include <boost/asio/ip/address.hpp>
 #include <boost/asio/ip/network_v6.hpp>
 
@@ -28,7 +29,9 @@ using gateway::WordOrder;
 enum class Protocol { ioport, id2 };
 // What happens to the outputs when the daemon stops: left as they are, or set to `initial`.
 enum class OnShutdown { keep, initial };
-enum class LogLevel { trace, debug, info, warn, error, critical, off };
+// spdlog's levels and names: trace, debug, info, warn, error, critical, off (and spdlog's
+// spellings warning and err).
+using LogLevel = spdlog::level::level_enum;
 
 // An IPv4 or IPv6 network, as written in `allow`: "10.0.0.0/8", "::1/128", "127.0.0.1"
 // (a bare address is a /32 or /128). IPv4 networks are held as IPv4-mapped IPv6 networks,
@@ -90,8 +93,9 @@ struct GatewayConfig {
     LogLevel log_level = LogLevel::info;
 };
 
-// "info", as written in the file and on the command line.
+// spdlog's name of the level: "info", "warning".
 std::string_view to_string(LogLevel level);
+// nullopt for a name spdlog does not know.
 std::optional<LogLevel> log_level_from_name(std::string_view name);
 
 struct ConfigError {

@@ -37,6 +37,8 @@ TEST(DaemonOptions, LoggingChoices) {
     EXPECT_EQ(options->log_level, config::LogLevel::debug);
     EXPECT_EQ(options->log_target, Options::LogTarget::journal);
     EXPECT_EQ(parse({"--log", "stderr"})->log_target, Options::LogTarget::standard_error);
+    EXPECT_EQ(parse({"--log-level", "off"})->log_level, config::LogLevel::off);
+    EXPECT_EQ(parse({"--log-level", "error"})->log_level, config::LogLevel::err);
 }
 
 TEST(DaemonOptions, OptionsAsPeopleTypeThem) {
@@ -88,6 +90,8 @@ TEST(DaemonOptions, MistakesAreNamed) {
               std::string::npos);
     EXPECT_NE(parse({"--format", "csv"}).error().find("only for --print-map"), std::string::npos);
     EXPECT_NE(parse({"--log-level", "loud"}).error().find("--log-level takes"), std::string::npos);
+    EXPECT_NE(parse({"--log-level", "Off"}).error().find("--log-level takes"), std::string::npos);
+    EXPECT_NE(parse({"--log-level"}).error().find("--log-level takes"), std::string::npos);
     EXPECT_NE(parse({"--log"}).error().find("--log takes auto, stderr or journal"),
               std::string::npos);
 }

@@ -208,6 +208,24 @@ links: [{ name: a, protocol: id2, device: /dev/ttyS0 }]
     EXPECT_EQ(off->modbus.keepalive, 0us);
 }
 
+TEST(GatewayConfig, LogLevelsAreSpdlogs) {
+    const std::vector<std::pair<std::string, LogLevel>> levels{
+        {"trace", LogLevel::trace}, {"debug", LogLevel::debug}, {"info", LogLevel::info},
+        {"warn", LogLevel::warn},   {"error", LogLevel::err},   {"critical", LogLevel::critical},
+        {"off", LogLevel::off}};
+    for (const auto& [name, level] : levels) {
+        const auto config =
+            parse("log_level: " + name + "\nlinks: [{ name: a, protocol: id2, device: /d }]\n");
+        ASSERT_TRUE(config) << name << describe(config.error());
+        EXPECT_EQ(config->log_level, level) << name;
+        EXPECT_EQ(log_level_from_name(to_string(level)), level) << name;
+    }
+    EXPECT_EQ(to_string(LogLevel::info), "info");
+    // spdlog's from_str() answers off for any name it does not know.
+    for (const auto* name : {"", "loud", "Off", "OFF", "INFO", "information"})
+        EXPECT_EQ(log_level_from_name(name), std::nullopt) << name;
+}
+
 TEST(GatewayConfig, ListenTakesIpLiteralsAndLocalhost) {
     const auto listen = [](const std::string& text) {
         const auto config = parse("modbus: { listen: \"" + text +
@@ -386,6 +404,9 @@ TEST(GatewayConfigErrors, ModbusSettingsOutOfRange) {
     expect_one_error({modbus("keepalive: 121m"), 2, "modbus.keepalive", "out of range"});
     expect_one_error({"on_shutdown: off\n" + hub, 1, "on_shutdown", "use keep or initial"});
     expect_one_error({"log_level: loud\n" + hub, 1, "log_level", "use trace or debug or info"});
+    expect_one_error({"log_level: Off\n" + hub, 1, "log_level",
+                      "'Off' is not allowed: use trace or debug or info or warn or error or "
+                      "critical or off"});
 }
 
 TEST(GatewayConfigErrors, AllowListEntries) {
