@@ -233,9 +233,17 @@ std::string output_value_help(ModuleType type) {
         case ModuleType::mux8m:
             return "use (pos << 8) | neg with pos and neg 0-7, e.g. 0x0102; 0x0707 = all "
                    "disconnected";
-        default:
+        case ModuleType::dom16:
             return "use the 16 outputs as one word 0..0xFFFF (bit k = output k), e.g. 0x00FF";
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;  // input modules take no initial value
     }
+    return "";
 }
 
 // `initial`: the module's holding register value; an rgbdm also takes a colour name.

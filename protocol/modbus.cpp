@@ -192,9 +192,15 @@ std::uint16_t write_value(const Request& request, std::size_t index) {
             return static_cast<std::uint16_t>(request.values[index / 8] >> (index % 8) & 1);
         case Function::write_multiple_registers:
             return big_endian16(request.values, index * 2);
-        default:
+        case Function::write_single_register:
             return big_endian16(request.values, 0);
+        case Function::read_coils:
+        case Function::read_discrete_inputs:
+        case Function::read_holding_registers:
+        case Function::read_input_registers:
+            break;  // a read carries no values
     }
+    return 0;
 }
 
 }  // namespace ioport::modbus

@@ -191,9 +191,13 @@ int exit_code(Errc code) {
         case Errc::timeout:
         case Errc::line_noisy:
             return exit_no_answer;
-        default:
-            return exit_io;
+        case Errc::port_lost:
+        case Errc::port_closed:
+        case Errc::io_error:
+        case Errc::cancelled:
+            break;
     }
+    return exit_io;
 }
 
 int report(const Error& error, std::ostream& err) {
@@ -268,9 +272,17 @@ std::string describe_write(const Write& write) {
             return mux.disconnected() ? "all test points disconnected"
                                       : fmt::format("tp{} on dev+, tp{} on dev-", mux.pos, mux.neg);
         }
-        default:
+        case ModuleType::dom16:
             return fmt::format("outputs 0x{:04X} (on: {})", write.value, bits_on(write.value, 'o'));
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;  // a Write is to an output module
     }
+    return fmt::format("0x{:04X}", write.value);
 }
 
 int run_exchange(BlockingLink& link, const Exchange& exchange, const Invocation& invocation,
@@ -343,7 +355,14 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
             case Errc::malformed:
                 found.push_back({module, rtt, reading.error().message});
                 break;
-            default:
+            case Errc::invalid_argument:
+            case Errc::port_not_found:
+            case Errc::permission_denied:
+            case Errc::port_busy:
+            case Errc::port_lost:
+            case Errc::port_closed:
+            case Errc::io_error:
+            case Errc::cancelled:
                 return report(reading.error(), err);
         }
     }
