@@ -607,16 +607,6 @@ std::array<std::uint16_t, 2> words(float value, WordOrder order) {
     return words(std::bit_cast<std::uint32_t>(value), order);
 }
 
-std::uint32_t u32_from_words(std::array<std::uint16_t, 2> value, WordOrder order) {
-    const auto [high, low] =
-        order == WordOrder::big ? value : std::array<std::uint16_t, 2>{value[1], value[0]};
-    return static_cast<std::uint32_t>(high) << 16 | low;
-}
-
-float float_from_words(std::array<std::uint16_t, 2> value, WordOrder order) {
-    return std::bit_cast<float>(u32_from_words(value, order));
-}
-
 float engineering_float(ModuleType type, std::uint16_t raw) {
     return static_cast<float>(engineering_value(type, raw));
 }

@@ -17,8 +17,6 @@ namespace ioport {
 inline constexpr char cr = '\r';
 inline constexpr int modules_per_type = 8;
 inline constexpr int slot_count = 72;  // 9 types × 8 module numbers
-// Longest reply frame before the CR: acm3p/acm3c, 12 hex digits.
-inline constexpr std::size_t max_reply_length = 12;
 // Longest request frame before the CR: dom16, "b0HHHH".
 inline constexpr std::size_t max_request_length = 6;
 

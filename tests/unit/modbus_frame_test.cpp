@@ -545,14 +545,7 @@ TEST(ModbusLimits, TheLargestWritesFitOneAdu) {
               max_adu_length - mbap_length);
 }
 
-TEST(ModbusNames, ExceptionsAndTables) {
-    EXPECT_EQ(to_string(Exception::illegal_function), "illegal function (01)");
-    EXPECT_EQ(to_string(Exception::illegal_data_address), "illegal data address (02)");
-    EXPECT_EQ(to_string(Exception::illegal_data_value), "illegal data value (03)");
-    EXPECT_EQ(to_string(Exception::server_device_failure), "server device failure (04)");
-    EXPECT_EQ(to_string(Exception::gateway_path_unavailable), "gateway path unavailable (0A)");
-    EXPECT_EQ(to_string(Exception::gateway_target_failed),
-              "gateway target device failed to respond (0B)");
+TEST(ModbusNames, Tables) {
     EXPECT_EQ(to_string(Table::coils), "coils");
     EXPECT_EQ(to_string(Table::discrete_inputs), "discrete inputs");
     EXPECT_EQ(to_string(Table::holding_registers), "holding registers");
