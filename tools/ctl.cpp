@@ -33,16 +33,19 @@ Commands:
   mux N POS NEG                mux8m N: test point POS (0-7) on dev+, NEG (0-7) on dev-
   mux N off                    mux8m N: disconnect all test points
   id2 stop|count|reset         the ID-2: stop input, pulse counter, counter reset (9600 baud)
-  scan                         probe all 72 module addresses and list the modules that answer.
-                               Output modules can only be probed with a command: scan sends
-                               them their off state (dom16 0x0000, rgbdm off, mux8m disconnected)
+  scan                         probe the 48 input module addresses and list the modules that
+                               answer. Output modules are not probed: their only command sets
+                               their outputs, and they cannot be read back (see --reset-outputs)
 
 Options:
   -p, --port PATH      serial device (default: $IOPORT_PORT, else /dev/ttyUSB0)
   -b, --baud N         115200 or 38400 for a hub (default 115200); 9600 for id2 (default)
   -t, --timeout DUR    per attempt, e.g. 100ms (default 100ms; scan 30ms; id2 200ms)
   -r, --retries N      extra attempts after no answer or a bad answer (default 1; scan 0)
-      --inputs-only    scan: probe input modules only, send nothing to outputs
+      --reset-outputs  scan: probe the output modules too, by sending them their off state
+                       (dom16 0x0000, rgbdm off, mux8m disconnected): a running plant's
+                       outputs are switched off
+      --inputs-only    scan: probe input modules only, send nothing to outputs (the default)
       --json           machine-readable output on stdout
   -h, --help           this text
   -V, --version        the version
@@ -59,9 +62,9 @@ Error usage_error(const std::string& message) {
 }
 
 // The long options without a letter.
-enum : int { json = 256, inputs_only };
+enum : int { json = 256, inputs_only, reset_outputs };
 
-constexpr std::array<option, 8> long_options{{
+constexpr std::array<option, 9> long_options{{
     {"help", no_argument, nullptr, 'h'},
     {"version", no_argument, nullptr, 'V'},
     {"port", required_argument, nullptr, 'p'},
@@ -70,6 +73,7 @@ constexpr std::array<option, 8> long_options{{
     {"retries", required_argument, nullptr, 'r'},
     {"json", no_argument, nullptr, json},
     {"inputs-only", no_argument, nullptr, inputs_only},
+    {"reset-outputs", no_argument, nullptr, reset_outputs},
 }};
 
 Result<std::uint8_t> module_number(std::string_view text, std::string_view type) {
@@ -332,13 +336,20 @@ struct Found {
     std::string problem;  // empty when the answer was valid
 };
 
+// A scan must not change a running plant. Input modules are probed with a read, which changes
+// nothing. An output module (dom16, rgbdm, mux8m) has one request, which sets its outputs, and
+// none that reads them back (protocol.md §1). Anything else is outside the protocol: a module
+// may ignore it (the simulator does, as a strict module would) or act on it. No probe of an
+// output module is known to leave it as it is, so output modules are probed only when asked
+// (--reset-outputs), by sending them their off state.
 int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out,
              std::ostream& err) {
+    const bool outputs = invocation.options.reset_outputs;
     std::vector<Found> found;
     int probed = 0;
     for (int s = 0; s < slot_count; ++s) {
         const auto module = module_at_slot(s);
-        if (invocation.options.inputs_only && is_output(module.type)) continue;
+        if (is_output(module.type) && !outputs) continue;
         ++probed;
         const auto exchange = make_exchange(module, 0);  // outputs: their off state
         const auto reading = link.transact(*exchange);
@@ -373,9 +384,10 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
             rows.push_back(fmt::format(
                 R"({{"module":"{}","number":{},"round_trip_us":{},"ok":{}}})", name(f.module.type),
                 f.module.number, f.round_trip_us, f.problem.empty()));
-        out << fmt::format(R"({{"port":"{}","baud":{},"probed":{},"modules":[{}]}})",
-                           link.settings().device, link.settings().baud, probed,
-                           fmt::join(rows, ","))
+        out << fmt::format(
+                   R"({{"port":"{}","baud":{},"probed":{},"outputs_probed":{},"modules":[{}]}})",
+                   link.settings().device, link.settings().baud, probed, outputs,
+                   fmt::join(rows, ","))
             << "\n";
         return exit_ok;
     }
@@ -386,6 +398,11 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
                            f.problem.empty() ? "" : "  (answered, but: " + f.problem + ")");
     out << fmt::format("{} module(s) answered on {} ({} addresses probed at {} baud)\n",
                        found.size(), link.settings().device, probed, link.settings().baud);
+    if (!outputs && !invocation.options.inputs_only)
+        out << "Output modules (dom16, rgbdm, mux8m) were not probed: their only command sets "
+               "their outputs.\nioportctl scan --reset-outputs probes them by switching them "
+               "off.\n";
+    if (outputs) out << "The output modules that answered are now off.\n";
     return exit_ok;
 }
 
@@ -393,7 +410,7 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
 
 Result<Invocation> parse_arguments(std::span<const std::string_view> args,
                                    std::string default_port) {
-    Invocation invocation{{std::move(default_port), {}, {}, {}, false, false}, Help{}};
+    Invocation invocation{{std::move(default_port), {}, {}, {}, false, false, false}, Help{}};
     auto& options = invocation.options;
     CommandLine line("ioportctl", args, "hVp:b:t:r:", long_options);
     for (;;) {
@@ -413,6 +430,9 @@ Result<Invocation> parse_arguments(std::span<const std::string_view> args,
                 break;
             case inputs_only:
                 options.inputs_only = true;
+                break;
+            case reset_outputs:
+                options.reset_outputs = true;
                 break;
             case 'p':
                 options.port = *value;
@@ -449,6 +469,11 @@ Result<Invocation> parse_arguments(std::span<const std::string_view> args,
     invocation.command = *command;
     if (options.inputs_only && !std::holds_alternative<Scan>(invocation.command))
         return Unexpected(usage_error("--inputs-only goes with scan"));
+    if (options.reset_outputs && !std::holds_alternative<Scan>(invocation.command))
+        return Unexpected(usage_error("--reset-outputs goes with scan"));
+    if (options.inputs_only && options.reset_outputs)
+        return Unexpected(
+            usage_error("--inputs-only and --reset-outputs contradict each other: give one"));
     return invocation;
 }
 

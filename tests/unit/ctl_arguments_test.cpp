@@ -82,6 +82,18 @@ TEST(CtlArguments, RgbMuxId2Scan) {
     EXPECT_TRUE(std::holds_alternative<Version>(parse({"-V"})->command));
 }
 
+// A scan leaves output modules alone unless it is told to switch them off.
+TEST(CtlArguments, ScanResetsOutputsOnlyWhenAsked) {
+    const auto plain = parse({"scan"});
+    ASSERT_TRUE(plain) << plain.error().message;
+    EXPECT_TRUE(std::holds_alternative<Scan>(plain->command));
+    EXPECT_FALSE(plain->options.reset_outputs);
+    const auto reset = parse({"scan", "--reset-outputs"});
+    ASSERT_TRUE(reset) << reset.error().message;
+    EXPECT_TRUE(reset->options.reset_outputs);
+    EXPECT_FALSE(parse({"scan", "--inputs-only"})->options.reset_outputs);
+}
+
 TEST(CtlArguments, BadInputIsAUsageErrorThatSaysWhatIsAllowed) {
     // Vectors, not initializer_lists: those would not outlive the table's own initialisation.
     const std::vector<std::pair<std::vector<std::string_view>, std::string_view>> cases{
@@ -99,6 +111,8 @@ TEST(CtlArguments, BadInputIsAUsageErrorThatSaysWhatIsAllowed) {
         {{"id2", "jump"}, "stop, count or reset"},
         {{"scan", "extra"}, "takes no arguments"},
         {{"read", "dim16:0", "--inputs-only"}, "goes with scan"},
+        {{"write", "dom16:0", "1", "--reset-outputs"}, "--reset-outputs goes with scan"},
+        {{"scan", "--reset-outputs", "--inputs-only"}, "contradict each other"},
         {{"read", "dim16:0", "-t", "0ms"}, "from 1ms to 10s"},
         {{"read", "dim16:0", "-b", "9601"}, "use 115200 or 38400"},
         {{"read", "dim16:0", "-r", "x"}, "use 0-10"},
