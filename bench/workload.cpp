@@ -150,9 +150,14 @@ double ms_since(Clock::time_point start, Clock::time_point at) {
 }  // namespace
 
 std::string hub_sim_modules() {
+    // Appended piece by piece: `"," + name` is operator+(const char*, std::string&&), which
+    // inserts at the front of the temporary, and GCC 12 at -O3 sees an overlapping memcpy there
+    // that cannot happen (-Werror=restrict, GCC bug 105329).
     std::string list;
-    for (const auto& module : modules)
-        list += (list.empty() ? "" : ",") + sim_name(module.address);
+    for (const auto& module : modules) {
+        if (!list.empty()) list += ',';
+        list += sim_name(module.address);
+    }
     return list;
 }
 

@@ -1,11 +1,9 @@
 #include "config/gateway_config.hpp"
 
-#include <arpa/inet.h>
-#include <fcntl.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <cerrno>
+#include <fstream>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <span>
@@ -16,6 +14,7 @@
 #include <fmt/format.h>
 #include <yaml-cpp/eventhandler.h>
 #include <yaml-cpp/yaml.h>
+#include <boost/asio/ip/network_v4.hpp>
 
 #include "config/duration.hpp"
 #include "config/number.hpp"
@@ -23,52 +22,21 @@
 namespace ioport::config {
 namespace {
 
+namespace ip = boost::asio::ip;
 using std::chrono::microseconds;
-using Bytes = std::array<std::uint8_t, 16>;
 // A parsed value, or the message that says what is allowed instead.
 template <class T>
 using Parsed = Expected<T, std::string>;
 
 // --- IP addresses ---------------------------------------------------------------------------
 
-struct Ip {
-    Bytes bytes{};  // IPv4 in the first 4 bytes
-    bool v6 = false;
-};
-
-std::optional<Ip> parse_ip(const std::string& text) {
-    Ip ip;
-    if (inet_pton(AF_INET, text.c_str(), ip.bytes.data()) == 1) return ip;
-    ip.v6 = true;
-    if (inet_pton(AF_INET6, text.c_str(), ip.bytes.data()) == 1) return ip;
-    return std::nullopt;
-}
-
-std::string format_ip(const Ip& ip) {
-    std::array<char, INET6_ADDRSTRLEN> text{};
-    if (inet_ntop(ip.v6 ? AF_INET6 : AF_INET, ip.bytes.data(), text.data(), text.size()) == nullptr)
-        return "?";
-    return text.data();
-}
-
-// The first `prefix` bits of `bytes`, the rest cleared.
-Bytes masked(Bytes bytes, int prefix) {
-    for (std::size_t i = 0; i < bytes.size(); ++i) {
-        const int keep = std::clamp(prefix - static_cast<int>(i) * 8, 0, 8);
-        bytes[i] = static_cast<std::uint8_t>(bytes[i] & (0xFF00 >> keep));
-    }
-    return bytes;
-}
-
-// IPv4 as ::ffff:a.b.c.d, so that one comparison serves both families and IPv4 clients of an
-// IPv6 socket match IPv4 networks.
-Bytes as_v6(const Bytes& bytes, bool v6) {
-    if (v6) return bytes;
-    Bytes mapped{};
-    mapped[10] = 0xFF;
-    mapped[11] = 0xFF;
-    std::copy_n(bytes.begin(), 4, mapped.begin() + 12);
-    return mapped;
+// An IP address literal, IPv4 or IPv6, as inet_pton(3) reads it: no zone ("fe80::1%eth0"),
+// which Asio would take and an allow list or a listening address has no use for.
+std::optional<ip::address> parse_ip(const std::string& text) {
+    boost::system::error_code error;
+    const auto address = ip::make_address(text, error);
+    if (error || text.find('%') != std::string::npos) return std::nullopt;
+    return address;
 }
 
 // Digits only: a port or a prefix length is never written in hex.
@@ -78,29 +46,46 @@ std::optional<unsigned long> parse_decimal(std::string_view text, unsigned long 
     return parse_unsigned(text, max);
 }
 
+template <class IpNetwork>
+Parsed<IpNetwork> without_host_bits(const IpNetwork& network, const std::string& text) {
+    if (network == network.canonical()) return network;
+    return Unexpected(fmt::format("'{}' has host bits set: did you mean {}?", text,
+                                  network.canonical().to_string()));
+}
+
+// The network is built by Asio from the address and the prefix length, each checked here: Asio's
+// make_network_v4/v6 want the "/n" that a bare address lacks, and read n with atoi, which takes
+// 10.0.0.0/4294967304 for 10.0.0.0/8.
 Parsed<Network> parse_network(const std::string& text) {
     const auto slash = text.find('/');
-    const auto ip = parse_ip(text.substr(0, slash));
-    if (!ip)
+    const auto address = parse_ip(text.substr(0, slash));
+    if (!address)
         return Unexpected(
             fmt::format("'{}' is not an IP network: write a.b.c.d/n, an IPv6 network "
                         "such as fd00::/8, or a bare address",
                         text));
-    const int max_prefix = ip->v6 ? 128 : 32;
-    int prefix = max_prefix;
+    const unsigned max_prefix = address->is_v4() ? 32 : 128;
+    unsigned long prefix = max_prefix;
     if (slash != std::string::npos) {
-        const auto length = parse_decimal(std::string_view(text).substr(slash + 1),
-                                          static_cast<unsigned>(max_prefix));
+        const auto length = parse_decimal(std::string_view(text).substr(slash + 1), max_prefix);
         if (!length)
             return Unexpected(
                 fmt::format("'{}': the prefix length after / must be 0..{}", text, max_prefix));
-        prefix = static_cast<int>(*length);
+        prefix = *length;
     }
-    const Ip network{masked(ip->bytes, prefix), ip->v6};
-    if (network.bytes != ip->bytes)
-        return Unexpected(fmt::format("'{}' has host bits set: did you mean {}/{}?", text,
-                                      format_ip(network), prefix));
-    return Network{ip->bytes, ip->v6, prefix, text};
+    const auto length = static_cast<unsigned short>(prefix);
+    if (address->is_v6()) {
+        auto network = without_host_bits(ip::network_v6(address->to_v6(), length), text);
+        if (!network) return Unexpected(std::move(network).error());
+        return Network{*network, text};
+    }
+    auto network = without_host_bits(ip::network_v4(address->to_v4(), length), text);
+    if (!network) return Unexpected(std::move(network).error());
+    // a.b.c.d/n as ::ffff:a.b.c.d/(96 + n): one comparison serves IPv4 clients, IPv4 clients of
+    // an IPv6 socket (which are ::ffff:a.b.c.d) and IPv6 clients.
+    return Network{ip::network_v6(ip::make_address_v6(ip::v4_mapped, network->address()),
+                                  static_cast<unsigned short>(96 + length)),
+                   text};
 }
 
 struct Endpoint {
@@ -113,7 +98,8 @@ constexpr std::string_view listen_help = "write host:port, e.g. 0.0.0.0:502 or [
 Parsed<std::string> parse_listen_host(const std::string& host) {
     if (host.starts_with('[')) {
         const auto inner = host.substr(1, host.size() - 2);
-        if (host.ends_with(']') && host.size() > 2 && parse_ip(inner) && parse_ip(inner)->v6)
+        if (const auto address = parse_ip(inner);
+            host.ends_with(']') && address && address->is_v6())
             return inner;
         return Unexpected(
             fmt::format("'{}' is not an IPv6 address in brackets: {}", host, listen_help));
@@ -122,7 +108,7 @@ Parsed<std::string> parse_listen_host(const std::string& host) {
     if (host == "localhost") return std::string("127.0.0.1");
     if (host.find(':') != std::string::npos)
         return Unexpected(fmt::format("IPv6 addresses go in brackets: [{}]:502", host));
-    if (const auto ip = parse_ip(host); ip && !ip->v6) return host;
+    if (const auto address = parse_ip(host); address && address->is_v4()) return host;
     return Unexpected(
         fmt::format("'{}' is not an IP address: use an IP address such as 0.0.0.0 "
                     "(every IPv4 interface), 127.0.0.1 or [::]; names are not "
@@ -218,14 +204,14 @@ constexpr std::array<std::pair<std::string_view, Protocol>, 2> protocols{
     {{"ioport", Protocol::ioport}, {"id2", Protocol::id2}}};
 constexpr std::array<std::pair<std::string_view, OnShutdown>, 2> on_shutdown_choices{
     {{"keep", OnShutdown::keep}, {"initial", OnShutdown::initial}}};
-constexpr std::array<std::pair<std::string_view, LogLevel>, 7> log_levels{
-    {{"trace", LogLevel::trace},
-     {"debug", LogLevel::debug},
-     {"info", LogLevel::info},
-     {"warn", LogLevel::warn},
-     {"error", LogLevel::error},
-     {"critical", LogLevel::critical},
-     {"off", LogLevel::off}}};
+
+Parsed<LogLevel> named_log_level(const YAML::Node& value) {
+    if (const auto level = log_level_from_name(value.Scalar())) return *level;
+    return Unexpected(
+        fmt::format("'{}' is not allowed: use trace or debug or info or warn or "
+                    "error or critical or off",
+                    value.Scalar()));
+}
 
 Parsed<std::string> non_empty(const YAML::Node& value) {
     if (value.Scalar().empty()) return Unexpected(std::string("must not be empty"));
@@ -247,9 +233,17 @@ std::string output_value_help(ModuleType type) {
         case ModuleType::mux8m:
             return "use (pos << 8) | neg with pos and neg 0-7, e.g. 0x0102; 0x0707 = all "
                    "disconnected";
-        default:
+        case ModuleType::dom16:
             return "use the 16 outputs as one word 0..0xFFFF (bit k = output k), e.g. 0x00FF";
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;  // input modules take no initial value
     }
+    return "";
 }
 
 // `initial` and `safe`: the module's holding register value; an rgbdm also takes a colour name.
@@ -474,7 +468,7 @@ void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
     if (const Entry* links = top.find("links")) read_links(*links, config.links);
     read(top, "on_shutdown", "keep or initial", config.on_shutdown,
          choice<OnShutdown>(on_shutdown_choices));
-    read(top, "log_level", "a log level", config.log_level, choice<LogLevel>(log_levels));
+    read(top, "log_level", "a log level", config.log_level, named_log_level);
 }
 
 void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
@@ -801,35 +795,29 @@ std::string stuck_message(const std::string& text, const YAML::Mark& mark) {
 }
 
 Parsed<std::string> read_file(const std::filesystem::path& path) {
-    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-    if (fd < 0) return Unexpected(std::generic_category().message(errno));
-    std::string text;
-    std::array<char, 4096> buffer{};
-    for (;;) {
-        const ssize_t count = ::read(fd, buffer.data(), buffer.size());
-        if (count < 0 && errno == EINTR) continue;
-        if (count <= 0) {
-            const int error = count < 0 ? errno : 0;
-            ::close(fd);
-            if (error != 0) return Unexpected(std::generic_category().message(error));
-            return text;
-        }
-        text.append(buffer.data(), static_cast<std::size_t>(count));
+    std::ifstream file(path, std::ios::binary);
+    // open(2)'s errno is the reason: the stream keeps none of its own.
+    if (!file) return Unexpected(std::generic_category().message(errno));
+    try {
+        return std::string(std::istreambuf_iterator<char>(file), {});
+    } catch (const std::ios_base::failure& e) {
+        // libstdc++'s filebuf throws when read(2) fails, as it does on a directory.
+        return Unexpected(e.code().message());
     }
 }
 
 }  // namespace
 
 std::string_view to_string(LogLevel level) {
-    for (const auto& [name, value] : log_levels)
-        if (value == level) return name;
-    return "info";
+    const auto name = spdlog::level::to_string_view(level);
+    return {name.data(), name.size()};
 }
 
 std::optional<LogLevel> log_level_from_name(std::string_view name) {
-    for (const auto& [text, value] : log_levels)
-        if (text == name) return value;
-    return std::nullopt;
+    // from_str() answers off for a name it does not know.
+    const auto level = spdlog::level::from_str(std::string(name));
+    if (level == spdlog::level::off && name != "off") return std::nullopt;
+    return level;
 }
 
 std::string to_string(const ConfigError& error) {
@@ -876,11 +864,13 @@ ConfigResult load_config(const std::filesystem::path& path, const DeviceResolver
     return parse_config(*text, path.string(), resolve);
 }
 
-bool contains(const Network& network, const std::array<std::uint8_t, 16>& address, bool v6) {
-    // Compared as IPv6: an IPv4 network a.b.c.d/n is ::ffff:a.b.c.d/(96 + n).
-    const int prefix =
-        network.v6 ? std::clamp(network.prefix, 0, 128) : 96 + std::clamp(network.prefix, 0, 32);
-    return masked(as_v6(network.address, network.v6), prefix) == masked(as_v6(address, v6), prefix);
+bool contains(const Network& network, const ip::address& client) {
+    // As IPv6, like the networks. A link-local client's zone (fe80::1%eth0) takes no part.
+    const auto address = client.is_v4() ? ip::make_address_v6(ip::v4_mapped, client.to_v4())
+                                        : ip::address_v6(client.to_v6().to_bytes());
+    const ip::network_v6 host(address, 128);
+    // is_subnet_of() is true for strictly smaller networks only: a /128 is its own host.
+    return host == network.network || host.is_subnet_of(network.network);
 }
 
 }  // namespace ioport::config

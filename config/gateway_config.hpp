@@ -3,7 +3,6 @@
 // key, so an operator fixes the file in one pass.
 #pragma once
 
-#include <array>
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
@@ -12,6 +11,10 @@
 #include <string>
 #include <string_view>
 #include <vector>
+
+#include <spdlog/common.h>
+#include <boost/asio/ip/address.hpp>
+#include <boost/asio/ip/network_v6.hpp>
 
 #include "protocol/device_identification.hpp"
 #include "protocol/expected.hpp"
@@ -27,15 +30,16 @@ using gateway::WordOrder;
 enum class Protocol { ioport, id2 };
 // What happens to the outputs when the daemon stops: left as they are, or set to `initial`.
 enum class OnShutdown { keep, initial };
-enum class LogLevel { trace, debug, info, warn, error, critical, off };
+// spdlog's levels and names: trace, debug, info, warn, error, critical, off (and spdlog's
+// spellings warning and err).
+using LogLevel = spdlog::level::level_enum;
 
 // An IPv4 or IPv6 network, as written in `allow`: "10.0.0.0/8", "::1/128", "127.0.0.1"
-// (a bare address is a /32 or /128).
+// (a bare address is a /32 or /128). IPv4 networks are held as IPv4-mapped IPv6 networks,
+// a.b.c.d/n as ::ffff:a.b.c.d/(96 + n), so that IPv4 clients of an IPv6 socket match them.
 struct Network {
-    std::array<std::uint8_t, 16> address{};  // IPv4 as the first 4 bytes
-    bool v6 = false;
-    int prefix = 0;    // 0..32 or 0..128
-    std::string text;  // as written, for logs
+    boost::asio::ip::network_v6 network;  // canonical: no host bits set
+    std::string text;                     // as written, for logs
     friend bool operator==(const Network&, const Network&) = default;
 };
 
@@ -96,8 +100,9 @@ struct GatewayConfig {
     LogLevel log_level = LogLevel::info;
 };
 
-// "info", as written in the file and on the command line.
+// spdlog's name of the level: "info", "warning".
 std::string_view to_string(LogLevel level);
+// nullopt for a name spdlog does not know.
 std::optional<LogLevel> log_level_from_name(std::string_view name);
 
 struct ConfigError {
@@ -123,8 +128,8 @@ ConfigResult parse_config(std::string_view yaml, const std::string& file,
 ConfigResult load_config(const std::filesystem::path& path,
                          const DeviceResolver& resolve = resolve_device);
 
-// Whether `address` (16 bytes; IPv4 as ::ffff:a.b.c.d or in the first 4 bytes with v6 false)
-// lies in `network`. IPv4-mapped IPv6 addresses match IPv4 networks.
-bool contains(const Network& network, const std::array<std::uint8_t, 16>& address, bool v6);
+// Whether a client at `address` lies in `network`. IPv4 clients, also as IPv4-mapped IPv6
+// addresses (::ffff:a.b.c.d), match IPv4 networks.
+bool contains(const Network& network, const boost::asio::ip::address& address);
 
 }  // namespace ioport::config

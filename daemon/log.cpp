@@ -21,33 +21,14 @@ int priority(LogLevel level) {
             return 6;
         case LogLevel::warn:
             return 4;
-        case LogLevel::error:
+        case LogLevel::err:
             return 3;
         case LogLevel::critical:
         case LogLevel::off:
+        case LogLevel::n_levels:
             break;
     }
     return 2;
-}
-
-spdlog::level::level_enum spdlog_level(LogLevel level) {
-    switch (level) {
-        case LogLevel::trace:
-            return spdlog::level::trace;
-        case LogLevel::debug:
-            return spdlog::level::debug;
-        case LogLevel::info:
-            return spdlog::level::info;
-        case LogLevel::warn:
-            return spdlog::level::warn;
-        case LogLevel::error:
-            return spdlog::level::err;
-        case LogLevel::critical:
-            return spdlog::level::critical;
-        case LogLevel::off:
-            break;
-    }
-    return spdlog::level::off;
 }
 
 }  // namespace
@@ -98,7 +79,7 @@ void Log::write(LogLevel level, const LogFields& fields, std::string_view messag
 }
 
 void Log::write_stderr(LogLevel level, std::string_view message) {
-    stderr_->log(spdlog_level(level), "{}", message);
+    stderr_->log(level, "{}", message);
 }
 
 }  // namespace ioport::daemon

@@ -67,7 +67,7 @@ class Log {
     }
     template <class... Args>
     void error(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {
-        emit(LogLevel::error, fields, format, std::forward<Args>(args)...);
+        emit(LogLevel::err, fields, format, std::forward<Args>(args)...);
     }
     template <class... Args>
     void critical(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {

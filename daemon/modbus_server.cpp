@@ -248,17 +248,9 @@ std::optional<std::string> ModbusServer::refusal(const tcp::endpoint& peer) cons
 
 bool ModbusServer::allowed(const asio::ip::address& address) const {
     if (settings_.allow.empty()) return true;
-    std::array<std::uint8_t, 16> bytes{};
-    if (address.is_v4()) {
-        const auto v4 = address.to_v4().to_bytes();
-        std::copy(v4.begin(), v4.end(), bytes.begin());
-    } else {
-        bytes = address.to_v6().to_bytes();
-    }
-    return std::any_of(settings_.allow.begin(), settings_.allow.end(),
-                       [&](const config::Network& network) {
-                           return config::contains(network, bytes, address.is_v6());
-                       });
+    return std::any_of(
+        settings_.allow.begin(), settings_.allow.end(),
+        [&](const config::Network& network) { return config::contains(network, address); });
 }
 
 void ModbusServer::log_refusal(const asio::ip::address& address, const std::string& why) {

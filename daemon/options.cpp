@@ -1,6 +1,10 @@
 #include "daemon/options.hpp"
 
+#include <array>
+
 #include <fmt/format.h>
+
+#include "config/command_line.hpp"
 
 namespace ioport::daemon {
 
@@ -36,57 +40,80 @@ Expected<Options, std::string> error(std::string message) {
     return Unexpected(std::move(message) + " (ioportd --help for usage)");
 }
 
+// The long options without a letter.
+enum : int { check_config = 256, print_map, format, log_level, log_target };
+
+constexpr std::array<option, 8> long_options{{
+    {"config", required_argument, nullptr, 'c'},
+    {"check-config", no_argument, nullptr, check_config},
+    {"print-map", no_argument, nullptr, print_map},
+    {"format", required_argument, nullptr, format},
+    {"log-level", required_argument, nullptr, log_level},
+    {"log", required_argument, nullptr, log_target},
+    {"version", no_argument, nullptr, 'V'},
+    {"help", no_argument, nullptr, 'h'},
+}};
+
 }  // namespace
 
 Expected<Options, std::string> parse_options(std::span<const std::string_view> arguments) {
     Options options;
     bool format_given = false;
-    for (std::size_t i = 0; i < arguments.size(); ++i) {
-        const auto argument = arguments[i];
-        const auto value = [&]() -> std::optional<std::string_view> {
-            if (i + 1 >= arguments.size()) return std::nullopt;
-            return arguments[++i];
-        };
-        if (argument == "-c" || argument == "--config") {
-            const auto path = value();
-            if (!path || path->empty()) return error(fmt::format("{} needs a path", argument));
-            options.config_path = std::string(*path);
-        } else if (argument == "--check-config") {
-            options.mode = Options::Mode::check_config;
-        } else if (argument == "--print-map") {
-            options.mode = Options::Mode::print_map;
-        } else if (argument == "--format") {
-            const auto format = value();
-            if (format == "md" || format == "markdown")
-                options.map_format = Options::MapFormat::markdown;
-            else if (format == "csv")
-                options.map_format = Options::MapFormat::csv;
-            else
-                return error("--format takes md or csv");
-            format_given = true;
-        } else if (argument == "--log-level") {
-            const auto level = value();
-            options.log_level = level ? config::log_level_from_name(*level) : std::nullopt;
-            if (!options.log_level)
-                return error("--log-level takes trace, debug, info, warn, error, critical or off");
-        } else if (argument == "--log") {
-            const auto target = value();
-            if (target == "auto")
-                options.log_target = Options::LogTarget::automatic;
-            else if (target == "stderr")
-                options.log_target = Options::LogTarget::standard_error;
-            else if (target == "journal")
-                options.log_target = Options::LogTarget::journal;
-            else
-                return error("--log takes auto, stderr or journal");
-        } else if (argument == "-V" || argument == "--version") {
-            options.mode = Options::Mode::version;
-        } else if (argument == "-h" || argument == "--help") {
-            options.mode = Options::Mode::help;
-        } else {
-            return error(fmt::format("unknown argument '{}'", argument));
+    CommandLine line("ioportd", arguments, "c:Vh", long_options);
+    for (;;) {
+        auto next = line.next();
+        if (!next) return error(std::move(next).error());
+        if (!*next) break;
+        const auto& [code, value, name] = **next;
+        switch (code) {
+            case 'c':
+                if (!value || value->empty()) return error(fmt::format("{} needs a path", name));
+                options.config_path = std::string(*value);
+                break;
+            case check_config:
+                options.mode = Options::Mode::check_config;
+                break;
+            case print_map:
+                options.mode = Options::Mode::print_map;
+                break;
+            case format:
+                if (value == "md" || value == "markdown")
+                    options.map_format = Options::MapFormat::markdown;
+                else if (value == "csv")
+                    options.map_format = Options::MapFormat::csv;
+                else
+                    return error("--format takes md or csv");
+                format_given = true;
+                break;
+            case log_level:
+                options.log_level = value ? config::log_level_from_name(*value) : std::nullopt;
+                if (!options.log_level)
+                    return error(
+                        "--log-level takes trace, debug, info, warn, error, critical or off");
+                break;
+            case log_target:
+                if (value == "auto")
+                    options.log_target = Options::LogTarget::automatic;
+                else if (value == "stderr")
+                    options.log_target = Options::LogTarget::standard_error;
+                else if (value == "journal")
+                    options.log_target = Options::LogTarget::journal;
+                else
+                    return error("--log takes auto, stderr or journal");
+                break;
+            case 'V':
+                options.mode = Options::Mode::version;
+                break;
+            case 'h':
+                options.mode = Options::Mode::help;
+                break;
+            default:  // a code of the table above without its case here
+                return error(fmt::format("{} is not implemented", name));
         }
     }
+    if (!line.operands().empty())
+        return error(fmt::format("unknown argument '{}': ioportd takes only options",
+                                 line.operands().front()));
     if (format_given && options.mode != Options::Mode::print_map)
         return error("--format is only for --print-map");
     return options;

@@ -56,12 +56,20 @@ void check_modbus(const config::ModbusSettings& modbus) {
     check_duration(modbus.idle_timeout);
     check_duration(modbus.keepalive);
     for (const auto& network : modbus.allow) {
-        check(network.prefix >= 0 && network.prefix <= (network.v6 ? 128 : 32), "prefix length");
+        const auto bytes = network.network.address().to_bytes();
+        const std::size_t prefix = network.network.prefix_length();
+        check(prefix <= 128 && network.network.address().scope_id() == 0, "prefix length, no zone");
+        // An IPv4 network is held as ::ffff:a.b.c.d/(96 + n).
+        std::array<std::uint8_t, 4> v4{};
+        const auto written = network.text.substr(0, network.text.find('/'));
+        if (inet_pton(AF_INET, written.c_str(), v4.data()) == 1)
+            check(network.network.address().is_v4_mapped() && prefix >= 96 &&
+                      std::equal(v4.begin(), v4.end(), bytes.begin() + 12),
+                  "an IPv4 network is IPv4-mapped");
         // CIDR: no bit set after the prefix (the loader says "did you mean …" otherwise).
-        const std::size_t bits = network.v6 ? 128 : 32;
-        for (auto bit = static_cast<std::size_t>(network.prefix); bit < bits; ++bit)
-            check((network.address[bit / 8] >> (7 - bit % 8) & 1U) == 0, "no host bits");
-        check(config::contains(network, network.address, network.v6), "a network contains itself");
+        for (auto bit = prefix; bit < 128; ++bit)
+            check((bytes[bit / 8] >> (7 - bit % 8) & 1U) == 0, "no host bits");
+        check(config::contains(network, network.network.address()), "a network contains itself");
     }
 }
 

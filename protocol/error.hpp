@@ -23,8 +23,6 @@ enum class Errc {
     cancelled,          // the operation was abandoned because the owner shut down
 };
 
-std::string_view to_string(Errc code);
-
 struct Error {
     Errc code;
     std::string message;

@@ -401,9 +401,17 @@ std::string output_word_description(ModuleType type) {
             return "outputs 0-15 as one word (bit k = output k)";
         case ModuleType::rgbdm:
             return colour_description();
-        default:
+        case ModuleType::mux8m:
             return "(pos << 8) | neg, each 0-7; pos = neg: all disconnected";
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;  // input modules have no output word
     }
+    return "";
 }
 
 std::string analog_description(Content content, ModuleType type, int channel) {
@@ -454,9 +462,18 @@ std::string channel_name(Content content, ModuleType type, int channel) {
         case Content::raw:
         case Content::engineering:
             return multichannel(type) ? fmt::format("c{}", channel) : std::string{};
-        default:
-            return "";
+        case Content::input_word:
+        case Content::output_word:
+        case Content::stop_input:
+        case Content::counter:
+        case Content::reset:
+        case Content::link:
+        case Content::status:
+        case Content::age:
+        case Content::online:
+            break;  // one value, no channel
     }
+    return "";
 }
 
 std::string_view data_type(const Region& region) {
@@ -590,16 +607,6 @@ std::array<std::uint16_t, 2> words(float value, WordOrder order) {
     return words(std::bit_cast<std::uint32_t>(value), order);
 }
 
-std::uint32_t u32_from_words(std::array<std::uint16_t, 2> value, WordOrder order) {
-    const auto [high, low] =
-        order == WordOrder::big ? value : std::array<std::uint16_t, 2>{value[1], value[0]};
-    return static_cast<std::uint32_t>(high) << 16 | low;
-}
-
-float float_from_words(std::array<std::uint16_t, 2> value, WordOrder order) {
-    return std::bit_cast<float>(u32_from_words(value, order));
-}
-
 float engineering_float(ModuleType type, std::uint16_t raw) {
     return static_cast<float>(engineering_value(type, raw));
 }
@@ -666,8 +673,16 @@ void store_reading(const Tables& tables, ModuleAddress module, const Reading& re
                 put_words(tables, address,
                           words(engineering_float(module.type, channel_raw(reading, c)), order));
                 break;
-            default:
-                break;
+            case Content::output_bit:
+            case Content::output_word:
+            case Content::stop_input:
+            case Content::counter:
+            case Content::reset:
+            case Content::link:
+            case Content::status:
+            case Content::age:
+            case Content::online:
+                break;  // not a reading's: outputs, the ID-2, diagnostics
         }
     });
 }

@@ -52,8 +52,6 @@ struct Tables {
 
 std::array<std::uint16_t, 2> words(std::uint32_t value, WordOrder order);
 std::array<std::uint16_t, 2> words(float value, WordOrder order);  // IEEE 754 bits
-std::uint32_t u32_from_words(std::array<std::uint16_t, 2> words, WordOrder order);
-float float_from_words(std::array<std::uint16_t, 2> words, WordOrder order);
 // The vendor formula raw / 65535 × full scale, rounded once to single precision.
 float engineering_float(ModuleType type, std::uint16_t raw);
 

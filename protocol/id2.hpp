@@ -12,7 +12,6 @@
 namespace ioport::id2 {
 
 inline constexpr char lf = '\n';
-inline constexpr std::size_t max_reply_length = 5;  // the counter, "65535"
 
 enum class Command : char { stop_input = 'I', count = 'C', reset = 'R' };
 

@@ -1,18 +1,25 @@
 #include "protocol/ioport.hpp"
 
-#include <fmt/format.h>
+#include <algorithm>
 #include <charconv>
+
+#include <fmt/format.h>
 
 #include "protocol/hex.hpp"
 
 namespace ioport {
 namespace {
 
-constexpr std::array<std::string_view, 9> type_names{"dim16", "dom16", "acm3p", "acm3c", "lim16",
-                                                     "rgbdm", "dccim", "dcvim", "mux8m"};
+// Indexed by the enums. A table with fewer entries than its enum has values would still compile,
+// the rest empty: the static_asserts catch that.
+constexpr std::array<std::string_view, module_type_count> type_names{
+    "dim16", "dom16", "acm3p", "acm3c", "lim16", "rgbdm", "dccim", "dcvim", "mux8m"};
+static_assert(std::ranges::none_of(type_names, &std::string_view::empty), "a type has no name");
 constexpr std::array<std::string_view, colour_count> colour_names{
     "off", "red", "green", "blue", "cyan", "magenta", "yellow", "white"};
+static_assert(std::ranges::none_of(colour_names, &std::string_view::empty), "a colour has no name");
 constexpr std::array<char, colour_count> colour_codes{'0', 'R', 'G', 'B', 'C', 'M', 'Y', 'W'};
+static_assert(std::ranges::count(colour_codes, '\0') == 0, "a colour has no wire code");
 
 bool is_module_digit(char c) {
     return c >= '0' && c < '0' + modules_per_type;
@@ -31,7 +38,7 @@ std::optional<ModuleType> module_type_from_name(std::string_view text) {
 }
 
 std::optional<ModuleType> module_type_from_letter(char c) {
-    if (c < 'a' || c > 'i') return std::nullopt;
+    if (c < 'a' || c >= 'a' + module_type_count) return std::nullopt;
     return static_cast<ModuleType>(c - 'a');
 }
 
@@ -44,9 +51,13 @@ int reply_words(ModuleType type) {
         case ModuleType::rgbdm:
         case ModuleType::mux8m:
             return 0;
-        default:
-            return 1;
+        case ModuleType::dim16:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;
     }
+    return 1;
 }
 
 std::size_t reply_length(ModuleType type) {
@@ -62,9 +73,8 @@ Result<ModuleAddress> parse_module_address(std::string_view text) {
     const auto bad = [&] {
         return fail(Errc::invalid_argument,
                     fmt::format("'{}' is not a module: write TYPE:NUMBER, e.g. dim16:0, with TYPE "
-                                "one of dim16 dom16 acm3p acm3c lim16 rgbdm dccim dcvim mux8m and "
-                                "NUMBER 0-7",
-                                text));
+                                "one of {} and NUMBER 0-7",
+                                text, fmt::join(type_names, " ")));
     };
     if (sep == std::string_view::npos) return bad();
     const auto type = module_type_from_name(text.substr(0, sep));
@@ -115,10 +125,16 @@ Result<> validate_output_value(ModuleType type, std::uint16_t value) {
                         fmt::format("mux8m value 0x{:04X} is out of range: (pos << 8) | neg with "
                                     "pos and neg 0-7",
                                     value));
-        default:
-            return fail(Errc::invalid_argument,
-                        fmt::format("{} is an input module: it takes no output value", name(type)));
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;
     }
+    return fail(Errc::invalid_argument,
+                fmt::format("{} is an input module: it takes no output value", name(type)));
 }
 
 Result<std::string> encode_request(ModuleAddress module, std::uint16_t output_value) {
@@ -143,8 +159,13 @@ Result<std::string> encode_request(ModuleAddress module, std::uint16_t output_va
             frame += static_cast<char>('0' + mux.neg);
             break;
         }
-        default:
-            break;
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;  // a read: the address alone
     }
     frame += cr;
     return frame;
@@ -184,9 +205,14 @@ Unit engineering_unit(ModuleType type) {
             return Unit::ampere;
         case ModuleType::dcvim:
             return Unit::volt;
-        default:
-            return Unit::none;
+        case ModuleType::dim16:
+        case ModuleType::dom16:
+        case ModuleType::lim16:
+        case ModuleType::rgbdm:
+        case ModuleType::mux8m:
+            break;
     }
+    return Unit::none;
 }
 
 std::string_view symbol(Unit unit) {
@@ -255,7 +281,12 @@ Result<DeviceRequest> parse_request(std::string_view frame) {
                                               static_cast<std::uint8_t>(payload[1] - '0')}
                                        .value();
             break;
-        default:
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
             if (!payload.empty()) return bad("a read request has no payload");
             break;
     }

@@ -17,12 +17,12 @@ namespace ioport {
 inline constexpr char cr = '\r';
 inline constexpr int modules_per_type = 8;
 inline constexpr int slot_count = 72;  // 9 types × 8 module numbers
-// Longest reply frame before the CR: acm3p/acm3c, 12 hex digits.
-inline constexpr std::size_t max_reply_length = 12;
 // Longest request frame before the CR: dom16, "b0HHHH".
 inline constexpr std::size_t max_request_length = 6;
 
-// Declaration order is the protocol's letter order: dim16 = 'a' … mux8m = 'i'.
+// Declaration order is the protocol's letter order: dim16 = 'a' … mux8m = 'i'. A new type goes
+// last and module_type_count below counts it; then every switch over ModuleType (none has a
+// default), every table of names and the slot count fail to compile until they handle it.
 enum class ModuleType : std::uint8_t {
     dim16,
     dom16,
@@ -35,9 +35,20 @@ enum class ModuleType : std::uint8_t {
     mux8m
 };
 
+inline constexpr int module_type_count = static_cast<int>(ModuleType::mux8m) + 1;
+static_assert(slot_count == module_type_count * modules_per_type, "a slot for every module");
+
 inline constexpr std::array all_module_types{
     ModuleType::dim16, ModuleType::dom16, ModuleType::acm3p, ModuleType::acm3c, ModuleType::lim16,
     ModuleType::rgbdm, ModuleType::dccim, ModuleType::dcvim, ModuleType::mux8m};
+static_assert(
+    std::ssize(all_module_types) == module_type_count &&
+        [] {
+            for (int i = 0; i < module_type_count; ++i)
+                if (static_cast<int>(all_module_types[i]) != i) return false;
+            return true;
+        }(),
+    "every module type, in declaration order");
 
 constexpr char letter(ModuleType type) {
     return static_cast<char>('a' + static_cast<int>(type));
@@ -78,7 +89,7 @@ Result<ModuleAddress> parse_module_address(std::string_view text);
 // dom16 the output word (bit k = output k), rgbdm a colour code, mux8m (pos << 8) | neg.
 
 enum class Colour : std::uint8_t { off, red, green, blue, cyan, magenta, yellow, white };
-inline constexpr int colour_count = 8;
+inline constexpr int colour_count = static_cast<int>(Colour::white) + 1;
 std::string_view name(Colour colour);
 char wire_code(Colour colour);  // '0' R G B C M Y W
 std::optional<Colour> colour_from_name(std::string_view name);

@@ -118,24 +118,6 @@ std::uint16_t limit(Function function) {
 
 }  // namespace
 
-std::string_view to_string(Exception exception) {
-    switch (exception) {
-        case Exception::illegal_function:
-            return "illegal function (01)";
-        case Exception::illegal_data_address:
-            return "illegal data address (02)";
-        case Exception::illegal_data_value:
-            return "illegal data value (03)";
-        case Exception::server_device_failure:
-            return "server device failure (04)";
-        case Exception::gateway_path_unavailable:
-            return "gateway path unavailable (0A)";
-        case Exception::gateway_target_failed:
-            return "gateway target device failed to respond (0B)";
-    }
-    return "unknown exception";
-}
-
 std::string_view to_string(Table table) {
     switch (table) {
         case Table::coils:

@@ -45,7 +45,6 @@ enum class Exception : std::uint8_t {
     gateway_path_unavailable = 0x0A,
     gateway_target_failed = 0x0B,
 };
-std::string_view to_string(Exception exception);  // "illegal data address (02)"
 
 enum class Table : std::uint8_t { coils, discrete_inputs, holding_registers, input_registers };
 std::string_view to_string(Table table);  // "coils", "discrete inputs", …

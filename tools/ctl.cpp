@@ -1,10 +1,12 @@
 #include "tools/ctl.hpp"
 
+#include <array>
 #include <charconv>
 #include <vector>
 
 #include <fmt/format.h>
 
+#include "config/command_line.hpp"
 #include "config/duration.hpp"
 #include "config/number.hpp"
 #include "link/blocking_link.hpp"
@@ -31,16 +33,19 @@ Commands:
   mux N POS NEG                mux8m N: test point POS (0-7) on dev+, NEG (0-7) on dev-
   mux N off                    mux8m N: disconnect all test points
   id2 stop|count|reset         the ID-2: stop input, pulse counter, counter reset (9600 baud)
-  scan                         probe all 72 module addresses and list the modules that answer.
-                               Output modules can only be probed with a command: scan sends
-                               them their off state (dom16 0x0000, rgbdm off, mux8m disconnected)
+  scan                         probe the 48 input module addresses and list the modules that
+                               answer. Output modules are not probed: their only command sets
+                               their outputs, and they cannot be read back (see --reset-outputs)
 
 Options:
   -p, --port PATH      serial device (default: $IOPORT_PORT, else /dev/ttyUSB0)
   -b, --baud N         115200 or 38400 for a hub (default 115200); 9600 for id2 (default)
   -t, --timeout DUR    per attempt, e.g. 100ms (default 100ms; scan 30ms; id2 200ms)
   -r, --retries N      extra attempts after no answer or a bad answer (default 1; scan 0)
-      --inputs-only    scan: probe input modules only, send nothing to outputs
+      --reset-outputs  scan: probe the output modules too, by sending them their off state
+                       (dom16 0x0000, rgbdm off, mux8m disconnected): a running plant's
+                       outputs are switched off
+      --inputs-only    scan: probe input modules only, send nothing to outputs (the default)
       --json           machine-readable output on stdout
   -h, --help           this text
   -V, --version        the version
@@ -55,6 +60,21 @@ namespace {
 Error usage_error(const std::string& message) {
     return {Errc::invalid_argument, message + "\n(ioportctl --help lists the commands)"};
 }
+
+// The long options without a letter.
+enum : int { json = 256, inputs_only, reset_outputs };
+
+constexpr std::array<option, 9> long_options{{
+    {"help", no_argument, nullptr, 'h'},
+    {"version", no_argument, nullptr, 'V'},
+    {"port", required_argument, nullptr, 'p'},
+    {"baud", required_argument, nullptr, 'b'},
+    {"timeout", required_argument, nullptr, 't'},
+    {"retries", required_argument, nullptr, 'r'},
+    {"json", no_argument, nullptr, json},
+    {"inputs-only", no_argument, nullptr, inputs_only},
+    {"reset-outputs", no_argument, nullptr, reset_outputs},
+}};
 
 Result<std::uint8_t> module_number(std::string_view text, std::string_view type) {
     const auto n = parse_unsigned(text, modules_per_type - 1);
@@ -175,9 +195,13 @@ int exit_code(Errc code) {
         case Errc::timeout:
         case Errc::line_noisy:
             return exit_no_answer;
-        default:
-            return exit_io;
+        case Errc::port_lost:
+        case Errc::port_closed:
+        case Errc::io_error:
+        case Errc::cancelled:
+            break;
     }
+    return exit_io;
 }
 
 int report(const Error& error, std::ostream& err) {
@@ -252,9 +276,17 @@ std::string describe_write(const Write& write) {
             return mux.disconnected() ? "all test points disconnected"
                                       : fmt::format("tp{} on dev+, tp{} on dev-", mux.pos, mux.neg);
         }
-        default:
+        case ModuleType::dom16:
             return fmt::format("outputs 0x{:04X} (on: {})", write.value, bits_on(write.value, 'o'));
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;  // a Write is to an output module
     }
+    return fmt::format("0x{:04X}", write.value);
 }
 
 int run_exchange(BlockingLink& link, const Exchange& exchange, const Invocation& invocation,
@@ -304,13 +336,20 @@ struct Found {
     std::string problem;  // empty when the answer was valid
 };
 
+// A scan must not change a running plant. Input modules are probed with a read, which changes
+// nothing. An output module (dom16, rgbdm, mux8m) has one request, which sets its outputs, and
+// none that reads them back (protocol.md §1). Anything else is outside the protocol: a module
+// may ignore it (the simulator does, as a strict module would) or act on it. No probe of an
+// output module is known to leave it as it is, so output modules are probed only when asked
+// (--reset-outputs), by sending them their off state.
 int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out,
              std::ostream& err) {
+    const bool outputs = invocation.options.reset_outputs;
     std::vector<Found> found;
     int probed = 0;
     for (int s = 0; s < slot_count; ++s) {
         const auto module = module_at_slot(s);
-        if (invocation.options.inputs_only && is_output(module.type)) continue;
+        if (is_output(module.type) && !outputs) continue;
         ++probed;
         const auto exchange = make_exchange(module, 0);  // outputs: their off state
         const auto reading = link.transact(*exchange);
@@ -327,7 +366,14 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
             case Errc::malformed:
                 found.push_back({module, rtt, reading.error().message});
                 break;
-            default:
+            case Errc::invalid_argument:
+            case Errc::port_not_found:
+            case Errc::permission_denied:
+            case Errc::port_busy:
+            case Errc::port_lost:
+            case Errc::port_closed:
+            case Errc::io_error:
+            case Errc::cancelled:
                 return report(reading.error(), err);
         }
     }
@@ -338,9 +384,10 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
             rows.push_back(fmt::format(
                 R"({{"module":"{}","number":{},"round_trip_us":{},"ok":{}}})", name(f.module.type),
                 f.module.number, f.round_trip_us, f.problem.empty()));
-        out << fmt::format(R"({{"port":"{}","baud":{},"probed":{},"modules":[{}]}})",
-                           link.settings().device, link.settings().baud, probed,
-                           fmt::join(rows, ","))
+        out << fmt::format(
+                   R"({{"port":"{}","baud":{},"probed":{},"outputs_probed":{},"modules":[{}]}})",
+                   link.settings().device, link.settings().baud, probed, outputs,
+                   fmt::join(rows, ","))
             << "\n";
         return exit_ok;
     }
@@ -351,6 +398,11 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
                            f.problem.empty() ? "" : "  (answered, but: " + f.problem + ")");
     out << fmt::format("{} module(s) answered on {} ({} addresses probed at {} baud)\n",
                        found.size(), link.settings().device, probed, link.settings().baud);
+    if (!outputs && !invocation.options.inputs_only)
+        out << "Output modules (dom16, rgbdm, mux8m) were not probed: their only command sets "
+               "their outputs.\nioportctl scan --reset-outputs probes them by switching them "
+               "off.\n";
+    if (outputs) out << "The output modules that answered are now off.\n";
     return exit_ok;
 }
 
@@ -358,59 +410,70 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
 
 Result<Invocation> parse_arguments(std::span<const std::string_view> args,
                                    std::string default_port) {
-    Invocation invocation{{std::move(default_port), {}, {}, {}, false, false}, Help{}};
+    Invocation invocation{{std::move(default_port), {}, {}, {}, false, false, false}, Help{}};
     auto& options = invocation.options;
-    std::vector<std::string_view> words;
-    for (std::size_t i = 0; i < args.size(); ++i) {
-        const auto arg = args[i];
-        const auto value = [&](std::string_view option) -> Result<std::string_view> {
-            if (i + 1 >= args.size())
-                return Unexpected(usage_error(fmt::format("{} needs a value", option)));
-            return args[++i];
-        };
-        if (arg == "-h" || arg == "--help") return Invocation{options, Help{}};
-        if (arg == "-V" || arg == "--version") return Invocation{options, Version{}};
-        if (arg == "--json") {
-            options.json = true;
-        } else if (arg == "--inputs-only") {
-            options.inputs_only = true;
-        } else if (arg == "-p" || arg == "--port") {
-            const auto v = value(arg);
-            if (!v) return Unexpected(v.error());
-            options.port = *v;
-        } else if (arg == "-b" || arg == "--baud") {
-            const auto v = value(arg);
-            if (!v) return Unexpected(v.error());
-            const auto baud = parse_unsigned(*v, 115200);
-            if (!baud || (*baud != 9600 && *baud != 38400 && *baud != 115200))
-                return Unexpected(
-                    usage_error(fmt::format("baud '{}': use 115200 or 38400 (9600 for id2)", *v)));
-            options.baud = static_cast<int>(*baud);
-        } else if (arg == "-t" || arg == "--timeout") {
-            const auto v = value(arg);
-            if (!v) return Unexpected(v.error());
-            const auto timeout = parse_duration(*v);
-            if (!timeout || *timeout < 1ms || *timeout > 10s)
-                return Unexpected(usage_error(
-                    fmt::format("timeout '{}': use a duration from 1ms to 10s, e.g. 100ms", *v)));
-            options.timeout = *timeout;
-        } else if (arg == "-r" || arg == "--retries") {
-            const auto v = value(arg);
-            if (!v) return Unexpected(v.error());
-            const auto retries = parse_unsigned(*v, 10);
-            if (!retries) return Unexpected(usage_error(fmt::format("retries '{}': use 0-10", *v)));
-            options.retries = static_cast<int>(*retries);
-        } else if (arg.starts_with("-") && arg.size() > 1 && !(arg[1] >= '0' && arg[1] <= '9')) {
-            return Unexpected(usage_error(fmt::format("unknown option '{}'", arg)));
-        } else {
-            words.push_back(arg);
+    CommandLine line("ioportctl", args, "hVp:b:t:r:", long_options);
+    for (;;) {
+        auto next = line.next();
+        if (!next) return Unexpected(usage_error(next.error()));
+        if (!*next) break;
+        const auto& [code, value, name] = **next;
+        if (!value && (code == 'p' || code == 'b' || code == 't' || code == 'r'))
+            return Unexpected(usage_error(fmt::format("{} needs a value", name)));
+        switch (code) {
+            case 'h':
+                return Invocation{options, Help{}};
+            case 'V':
+                return Invocation{options, Version{}};
+            case json:
+                options.json = true;
+                break;
+            case inputs_only:
+                options.inputs_only = true;
+                break;
+            case reset_outputs:
+                options.reset_outputs = true;
+                break;
+            case 'p':
+                options.port = *value;
+                break;
+            case 'b': {
+                const auto baud = parse_unsigned(*value, 115200);
+                if (!baud || (*baud != 9600 && *baud != 38400 && *baud != 115200))
+                    return Unexpected(usage_error(
+                        fmt::format("baud '{}': use 115200 or 38400 (9600 for id2)", *value)));
+                options.baud = static_cast<int>(*baud);
+                break;
+            }
+            case 't': {
+                const auto timeout = parse_duration(*value);
+                if (!timeout || *timeout < 1ms || *timeout > 10s)
+                    return Unexpected(usage_error(fmt::format(
+                        "timeout '{}': use a duration from 1ms to 10s, e.g. 100ms", *value)));
+                options.timeout = *timeout;
+                break;
+            }
+            case 'r': {
+                const auto retries = parse_unsigned(*value, 10);
+                if (!retries)
+                    return Unexpected(usage_error(fmt::format("retries '{}': use 0-10", *value)));
+                options.retries = static_cast<int>(*retries);
+                break;
+            }
+            default:  // a code of the table above without its case here
+                return Unexpected(usage_error(fmt::format("{} is not implemented", name)));
         }
     }
-    auto command = parse_command(words);
+    auto command = parse_command(line.operands());
     if (!command) return Unexpected(command.error());
     invocation.command = *command;
     if (options.inputs_only && !std::holds_alternative<Scan>(invocation.command))
         return Unexpected(usage_error("--inputs-only goes with scan"));
+    if (options.reset_outputs && !std::holds_alternative<Scan>(invocation.command))
+        return Unexpected(usage_error("--reset-outputs goes with scan"));
+    if (options.inputs_only && options.reset_outputs)
+        return Unexpected(
+            usage_error("--inputs-only and --reset-outputs contradict each other: give one"));
     return invocation;
 }
 

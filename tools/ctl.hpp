@@ -32,7 +32,8 @@ struct Options {
     std::optional<std::chrono::microseconds> timeout;
     std::optional<int> retries;
     bool json = false;
-    bool inputs_only = false;
+    bool inputs_only = false;    // scan: the default, said explicitly
+    bool reset_outputs = false;  // scan: probe output modules too, by switching them off
 };
 
 struct Read {

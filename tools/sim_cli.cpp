@@ -1,10 +1,12 @@
 #include "tools/sim_cli.hpp"
 
+#include <array>
 #include <charconv>
 #include <cstdio>
 
 #include <fmt/format.h>
 
+#include "config/command_line.hpp"
 #include "config/duration.hpp"
 #include "config/number.hpp"
 #include "sim/control_client.hpp"
@@ -36,6 +38,30 @@ namespace {
 Error usage_error(const std::string& message) {
     return {Errc::invalid_argument, message + "\n(ioport-sim --help for usage)"};
 }
+
+// The long options without a letter.
+enum : int {
+    long_link = 256,
+    long_hub,
+    long_id2,
+    long_control,
+    long_baud,
+    long_turnaround,
+    long_no_line_timing,
+    long_seed
+};
+
+constexpr std::array<option, 9> long_options{{
+    {"link", required_argument, nullptr, long_link},
+    {"hub", required_argument, nullptr, long_hub},
+    {"id2", no_argument, nullptr, long_id2},
+    {"control", required_argument, nullptr, long_control},
+    {"baud", required_argument, nullptr, long_baud},
+    {"turnaround", required_argument, nullptr, long_turnaround},
+    {"no-line-timing", no_argument, nullptr, long_no_line_timing},
+    {"seed", required_argument, nullptr, long_seed},
+    {"help", no_argument, nullptr, 'h'},
+}};
 
 int serve(const Serve& serve, std::ostream& out, std::ostream& err) {
     sim::DeviceModel model(serve.protocol, serve.seed);
@@ -109,59 +135,78 @@ Result<std::vector<ModuleAddress>> parse_module_list(std::string_view text) {
 }
 
 Result<Invocation> parse_arguments(std::span<const std::string_view> args) {
+    // "ctl SOCKET COMMAND...": the command's words as they are, dashes and all.
     if (!args.empty() && args[0] == "ctl") {
         if (args.size() < 3) return Unexpected(usage_error("ctl takes SOCKET COMMAND..."));
         std::string command;
-        for (std::size_t i = 2; i < args.size(); ++i)
-            command += (i > 2 ? " " : "") + std::string(args[i]);
+        for (std::size_t i = 2; i < args.size(); ++i) {
+            if (i > 2) command += ' ';
+            command += args[i];
+        }
         return Control{std::string(args[1]), command};
     }
     Serve serve;
     bool hub = false, id2 = false;
     std::optional<int> baud;
-    for (std::size_t i = 0; i < args.size(); ++i) {
-        const auto arg = args[i];
-        if (arg == "-h" || arg == "--help") return Help{};
-        if (arg == "--id2") {
+    CommandLine line("ioport-sim", args, "h", long_options);
+    for (;;) {
+        auto next = line.next();
+        if (!next) return Unexpected(usage_error(next.error()));
+        if (!*next) break;
+        const auto& [code, given, name] = **next;
+        if (code == 'h') return Help{};
+        if (code == long_id2) {
             id2 = true;
             continue;
         }
-        if (arg == "--no-line-timing") {
+        if (code == long_no_line_timing) {
             serve.settings.line_timing = false;
             continue;
         }
-        if (i + 1 >= args.size())
-            return Unexpected(
-                usage_error(fmt::format("unknown option or missing value: '{}'", arg)));
-        const auto value = args[++i];
-        if (arg == "--link") {
-            serve.settings.link_path = value;
-        } else if (arg == "--control") {
-            serve.settings.control_path = std::string(value);
-        } else if (arg == "--hub") {
-            auto modules = parse_module_list(value);
-            if (!modules) return Unexpected(modules.error());
-            serve.modules = std::move(*modules);
-            hub = true;
-        } else if (arg == "--baud") {
-            const auto speed = parse_unsigned(value, 115200);
-            if (!speed || (*speed != 9600 && *speed != 38400 && *speed != 115200))
-                return Unexpected(
-                    usage_error(fmt::format("baud '{}': 9600, 38400 or 115200", value)));
-            baud = static_cast<int>(*speed);
-        } else if (arg == "--turnaround") {
-            const auto turnaround = parse_duration(value);
-            if (!turnaround) return Unexpected(usage_error(turnaround.error().message));
-            serve.settings.turnaround = *turnaround;
-        } else if (arg == "--seed") {
-            const auto seed = parse_unsigned(value, ~0UL);
-            if (!seed)
-                return Unexpected(usage_error(fmt::format("seed '{}': a whole number", value)));
-            serve.seed = *seed;
-        } else {
-            return Unexpected(usage_error(fmt::format("unknown option '{}'", arg)));
+        if (!given) return Unexpected(usage_error(fmt::format("{} needs a value", name)));
+        const auto value = *given;
+        switch (code) {
+            case long_link:
+                serve.settings.link_path = value;
+                break;
+            case long_control:
+                serve.settings.control_path = std::string(value);
+                break;
+            case long_hub: {
+                auto modules = parse_module_list(value);
+                if (!modules) return Unexpected(modules.error());
+                serve.modules = std::move(*modules);
+                hub = true;
+                break;
+            }
+            case long_baud: {
+                const auto speed = parse_unsigned(value, 115200);
+                if (!speed || (*speed != 9600 && *speed != 38400 && *speed != 115200))
+                    return Unexpected(
+                        usage_error(fmt::format("baud '{}': 9600, 38400 or 115200", value)));
+                baud = static_cast<int>(*speed);
+                break;
+            }
+            case long_turnaround: {
+                const auto turnaround = parse_duration(value);
+                if (!turnaround) return Unexpected(usage_error(turnaround.error().message));
+                serve.settings.turnaround = *turnaround;
+                break;
+            }
+            case long_seed: {
+                const auto seed = parse_unsigned(value, ~0UL);
+                if (!seed)
+                    return Unexpected(usage_error(fmt::format("seed '{}': a whole number", value)));
+                serve.seed = *seed;
+                break;
+            }
+            default:  // a code of the table above without its case here
+                return Unexpected(usage_error(fmt::format("{} is not implemented", name)));
         }
     }
+    if (!line.operands().empty())
+        return Unexpected(
+            usage_error(fmt::format("unknown argument '{}'", line.operands().front())));
     if (serve.settings.link_path.empty()) return Unexpected(usage_error("--link PATH is required"));
     if (hub == id2) return Unexpected(usage_error("give either --hub MODULES or --id2"));
     serve.protocol = id2 ? sim::Protocol::id2 : sim::Protocol::ioport;

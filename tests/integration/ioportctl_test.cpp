@@ -3,7 +3,11 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
+#include <sstream>
+#include <string>
+#include <vector>
 
 #include "tests/support/process.hpp"
 
@@ -24,13 +28,31 @@ class IoportctlTest : public ::testing::Test {
     }
 };
 
-TEST_F(IoportctlTest, ScanListsExactlyTheModulesOnTheHub) {
-    const auto scan = ctl({"scan", "--timeout", "20ms"});
+// The requests the simulator received since the last "log clear", one per line of its log
+// ("<µs> <request> <answer>").
+std::vector<std::string> requests(test::SimProcess& sim) {
+    std::istringstream log(sim.ctl("log"));
+    std::vector<std::string> sent;
+    std::string at, request, answer;
+    while (log >> at >> request >> answer)
+        if (at != "ok") sent.push_back(request);
+    return sent;
+}
+
+bool any_to_outputs(const std::vector<std::string>& sent) {
+    return std::ranges::any_of(sent, [](const std::string& request) {
+        return request.starts_with('b') || request.starts_with('f') || request.starts_with('i');
+    });
+}
+
+TEST_F(IoportctlTest, ScanWithResetOutputsListsExactlyTheModulesOnTheHub) {
+    const auto scan = ctl({"scan", "--timeout", "20ms", "--reset-outputs"});
     ASSERT_EQ(scan.exit_code, 0) << scan.err;
     EXPECT_NE(scan.out.find("9 module(s) answered"), std::string::npos) << scan.out;
     EXPECT_NE(scan.out.find("72 addresses probed"), std::string::npos);
-    const auto json = ctl({"scan", "--timeout", "20ms", "--json"});
+    const auto json = ctl({"scan", "--timeout", "20ms", "--json", "--reset-outputs"});
     ASSERT_EQ(json.exit_code, 0) << json.err;
+    EXPECT_NE(json.out.find(R"("probed":72,"outputs_probed":true)"), std::string::npos) << json.out;
     std::string found;
     for (std::size_t at = 0; (at = json.out.find(R"("module":")", at)) != std::string::npos;) {
         at += 10;
@@ -38,18 +60,57 @@ TEST_F(IoportctlTest, ScanListsExactlyTheModulesOnTheHub) {
             json.out.substr(at, 5) + ":" + json.out[json.out.find(R"("number":)", at) + 9] + ",";
     }
     EXPECT_EQ(found, "dim16:0,dom16:0,acm3p:1,acm3c:0,lim16:2,rgbdm:3,dccim:0,dcvim:7,mux8m:0,");
-    // Probing outputs sent them their off state.
+}
+
+// A scan must not change a running plant: by default it sends the output modules nothing, and
+// says so.
+TEST_F(IoportctlTest, ScanLeavesOutputsAsTheyAre) {
+    ASSERT_EQ(ctl({"write", "dom16:0", "0x93D1"}).exit_code, 0);
+    ASSERT_EQ(ctl({"rgb", "3", "green"}).exit_code, 0);
+    ASSERT_EQ(ctl({"mux", "0", "1", "5"}).exit_code, 0);
+    sim.ctl("log clear");
+    const auto scan = ctl({"scan", "--timeout", "20ms"});
+    ASSERT_EQ(scan.exit_code, 0) << scan.err;
+    EXPECT_NE(scan.out.find("6 module(s) answered"), std::string::npos) << scan.out;
+    EXPECT_NE(scan.out.find("48 addresses probed"), std::string::npos) << scan.out;
+    EXPECT_NE(scan.out.find("were not probed"), std::string::npos) << scan.out;
+    EXPECT_NE(scan.out.find("ioportctl scan --reset-outputs"), std::string::npos) << scan.out;
+    EXPECT_EQ(sim.ctl("get dom16:0"), "37841\n");
+    EXPECT_EQ(sim.ctl("get rgbdm:3"), "2\n");
+    EXPECT_EQ(sim.ctl("get mux8m:0"), "261\n");  // (1 << 8) | 5
+    const auto sent = requests(sim);
+    EXPECT_EQ(sent.size(), 48U);
+    EXPECT_FALSE(any_to_outputs(sent)) << scan.out;
+    const auto json = ctl({"scan", "--timeout", "20ms", "--json"});
+    ASSERT_EQ(json.exit_code, 0) << json.err;
+    EXPECT_NE(json.out.find(R"("probed":48,"outputs_probed":false)"), std::string::npos)
+        << json.out;
+    EXPECT_EQ(sim.ctl("get dom16:0"), "37841\n");
+}
+
+TEST_F(IoportctlTest, ScanResetOutputsSwitchesThemOff) {
+    ASSERT_EQ(ctl({"write", "dom16:0", "0x93D1"}).exit_code, 0);
+    ASSERT_EQ(ctl({"rgb", "3", "green"}).exit_code, 0);
+    ASSERT_EQ(ctl({"mux", "0", "1", "5"}).exit_code, 0);
+    const auto scan = ctl({"scan", "--timeout", "20ms", "--reset-outputs"});
+    ASSERT_EQ(scan.exit_code, 0) << scan.err;
+    EXPECT_NE(scan.out.find("9 module(s) answered"), std::string::npos) << scan.out;
+    EXPECT_NE(scan.out.find("are now off"), std::string::npos) << scan.out;
     EXPECT_EQ(sim.ctl("get dom16:0"), "0\n");
+    EXPECT_EQ(sim.ctl("get rgbdm:3"), "0\n");
+    EXPECT_EQ(sim.ctl("get mux8m:0"), "0\n");
 }
 
 TEST_F(IoportctlTest, ScanInputsOnlySendsNothingToOutputs) {
+    ASSERT_EQ(ctl({"write", "dom16:0", "0x93D1"}).exit_code, 0);
     sim.ctl("log clear");
     const auto scan = ctl({"scan", "--timeout", "20ms", "--inputs-only"});
     ASSERT_EQ(scan.exit_code, 0) << scan.err;
     EXPECT_NE(scan.out.find("6 module(s) answered"), std::string::npos) << scan.out;
-    const auto log = sim.ctl("log");
-    for (const char letter : {'b', 'f', 'i'})
-        EXPECT_EQ(log.find(std::string("\n") + letter), std::string::npos) << log;
+    const auto sent = requests(sim);
+    EXPECT_EQ(sent.size(), 48U);
+    EXPECT_FALSE(any_to_outputs(sent));
+    EXPECT_EQ(sim.ctl("get dom16:0"), "37841\n");
 }
 
 TEST_F(IoportctlTest, ReadsEveryInputModuleType) {

@@ -27,6 +27,34 @@ TEST(CtlArguments, ReadWithOptionsAnywhere) {
     EXPECT_TRUE(inv->options.json);
 }
 
+TEST(CtlArguments, OptionsAsPeopleTypeThem) {
+    for (const auto& args : std::vector<std::vector<std::string_view>>{
+             {"--port=/dev/x", "--timeout=50ms", "--retries=2", "--baud=38400", "read", "dim16:0"},
+             {"-p/dev/x", "-t50ms", "-r2", "-b38400", "read", "dim16:0"},
+             {"read", "-p", "/dev/x", "dim16:0", "--time", "50ms", "--ret", "2", "-b", "38400"},
+             {"-r", "2", "-p/dev/x", "read", "--baud", "38400", "--timeout", "50ms", "--",
+              "dim16:0"}}) {
+        const auto inv = parse_arguments(args, "/dev/ttyUSB0");
+        ASSERT_TRUE(inv) << args.front() << ": " << inv.error().message;
+        EXPECT_EQ(std::get<Read>(inv->command).module, (ModuleAddress{ModuleType::dim16, 0}));
+        EXPECT_EQ(inv->options.port, "/dev/x");
+        EXPECT_EQ(inv->options.timeout, 50ms);
+        EXPECT_EQ(inv->options.retries, 2);
+        EXPECT_EQ(inv->options.baud, 38400);
+    }
+    EXPECT_TRUE(std::holds_alternative<Version>(parse({"-Vh"})->command));
+    EXPECT_TRUE(std::holds_alternative<Help>(parse({"-hV"})->command));
+}
+
+// getopt_long keeps its place in globals: each parse starts afresh, also after one that stopped
+// in the middle of a cluster.
+TEST(CtlArguments, EachParseStartsAfresh) {
+    EXPECT_FALSE(parse({"-xV", "read", "dim16:0"}));
+    const auto inv = parse({"read", "dim16:1"});
+    ASSERT_TRUE(inv) << inv.error().message;
+    EXPECT_EQ(std::get<Read>(inv->command).module, (ModuleAddress{ModuleType::dim16, 1}));
+}
+
 TEST(CtlArguments, WriteWordInEveryBase) {
     for (const auto* word : {"0x93D1", "37841", "0b1001001111010001"}) {
         const auto inv = parse({"write", "dom16:0", word});
@@ -54,6 +82,18 @@ TEST(CtlArguments, RgbMuxId2Scan) {
     EXPECT_TRUE(std::holds_alternative<Version>(parse({"-V"})->command));
 }
 
+// A scan leaves output modules alone unless it is told to switch them off.
+TEST(CtlArguments, ScanResetsOutputsOnlyWhenAsked) {
+    const auto plain = parse({"scan"});
+    ASSERT_TRUE(plain) << plain.error().message;
+    EXPECT_TRUE(std::holds_alternative<Scan>(plain->command));
+    EXPECT_FALSE(plain->options.reset_outputs);
+    const auto reset = parse({"scan", "--reset-outputs"});
+    ASSERT_TRUE(reset) << reset.error().message;
+    EXPECT_TRUE(reset->options.reset_outputs);
+    EXPECT_FALSE(parse({"scan", "--inputs-only"})->options.reset_outputs);
+}
+
 TEST(CtlArguments, BadInputIsAUsageErrorThatSaysWhatIsAllowed) {
     // Vectors, not initializer_lists: those would not outlive the table's own initialisation.
     const std::vector<std::pair<std::vector<std::string_view>, std::string_view>> cases{
@@ -71,11 +111,17 @@ TEST(CtlArguments, BadInputIsAUsageErrorThatSaysWhatIsAllowed) {
         {{"id2", "jump"}, "stop, count or reset"},
         {{"scan", "extra"}, "takes no arguments"},
         {{"read", "dim16:0", "--inputs-only"}, "goes with scan"},
+        {{"write", "dom16:0", "1", "--reset-outputs"}, "--reset-outputs goes with scan"},
+        {{"scan", "--reset-outputs", "--inputs-only"}, "contradict each other"},
         {{"read", "dim16:0", "-t", "0ms"}, "from 1ms to 10s"},
         {{"read", "dim16:0", "-b", "9601"}, "use 115200 or 38400"},
         {{"read", "dim16:0", "-r", "x"}, "use 0-10"},
-        {{"read", "dim16:0", "-p"}, "needs a value"},
-        {{"read", "dim16:0", "--frobnicate"}, "unknown option"},
+        {{"read", "dim16:0", "-p"}, "-p needs a value"},
+        {{"read", "dim16:0", "--port"}, "--port needs a value"},
+        {{"read", "dim16:0", "--frobnicate"}, "unknown option '--frobnicate'"},
+        {{"read", "dim16:0", "-x"}, "unknown option '-x'"},
+        {{"read", "dim16:0", "--json=yes"}, "--json takes no value"},
+        {{"read", "dim16:0", "--", "--json"}, "read takes one MODULE"},
         {{"launch"}, "unknown command"},
     };
     for (const auto& [args, message] : cases) {

@@ -180,12 +180,12 @@ links: [{ name: a, protocol: id2, device: /dev/ttyS0, unit_id: 247, timeout: 1ms
     EXPECT_EQ(modbus.word_order, WordOrder::little);
     EXPECT_EQ(modbus.stale, Stale::hold);
     ASSERT_EQ(modbus.allow.size(), 4u);
-    EXPECT_EQ(modbus.allow[0], (Network{{10}, false, 8, "10.0.0.0/8"}));
-    EXPECT_EQ(modbus.allow[1], (Network{{192, 168, 1, 7}, false, 32, "192.168.1.7"}));
-    EXPECT_EQ(modbus.allow[2], (Network{{0xfd}, true, 8, "fd00::/8"}));
-    std::array<std::uint8_t, 16> loopback{};
-    loopback[15] = 1;
-    EXPECT_EQ(modbus.allow[3], (Network{loopback, true, 128, "::1"}));
+    // IPv4 networks as IPv4-mapped IPv6 ones.
+    using boost::asio::ip::make_network_v6;
+    EXPECT_EQ(modbus.allow[0], (Network{make_network_v6("::ffff:10.0.0.0/104"), "10.0.0.0/8"}));
+    EXPECT_EQ(modbus.allow[1], (Network{make_network_v6("::ffff:192.168.1.7/128"), "192.168.1.7"}));
+    EXPECT_EQ(modbus.allow[2], (Network{make_network_v6("fd00::/8"), "fd00::/8"}));
+    EXPECT_EQ(modbus.allow[3], (Network{make_network_v6("::1/128"), "::1"}));
     EXPECT_EQ(config->links[0].unit_id, 247);
     EXPECT_EQ(config->links[0].timeout, 1ms);
     EXPECT_EQ(config->links[0].retries, 0);
@@ -206,6 +206,24 @@ links: [{ name: a, protocol: id2, device: /dev/ttyS0 }]
 )");
     ASSERT_TRUE(off) << describe(off.error());
     EXPECT_EQ(off->modbus.keepalive, 0us);
+}
+
+TEST(GatewayConfig, LogLevelsAreSpdlogs) {
+    const std::vector<std::pair<std::string, LogLevel>> levels{
+        {"trace", LogLevel::trace}, {"debug", LogLevel::debug}, {"info", LogLevel::info},
+        {"warn", LogLevel::warn},   {"error", LogLevel::err},   {"critical", LogLevel::critical},
+        {"off", LogLevel::off}};
+    for (const auto& [name, level] : levels) {
+        const auto config =
+            parse("log_level: " + name + "\nlinks: [{ name: a, protocol: id2, device: /d }]\n");
+        ASSERT_TRUE(config) << name << describe(config.error());
+        EXPECT_EQ(config->log_level, level) << name;
+        EXPECT_EQ(log_level_from_name(to_string(level)), level) << name;
+    }
+    EXPECT_EQ(to_string(LogLevel::info), "info");
+    // spdlog's from_str() answers off for any name it does not know.
+    for (const auto* name : {"", "loud", "Off", "OFF", "INFO", "information"})
+        EXPECT_EQ(log_level_from_name(name), std::nullopt) << name;
 }
 
 TEST(GatewayConfig, ListenTakesIpLiteralsAndLocalhost) {
@@ -419,6 +437,9 @@ TEST(GatewayConfigErrors, ModbusSettingsOutOfRange) {
     expect_one_error({modbus("keepalive: 121m"), 2, "modbus.keepalive", "out of range"});
     expect_one_error({"on_shutdown: off\n" + hub, 1, "on_shutdown", "use keep or initial"});
     expect_one_error({"log_level: loud\n" + hub, 1, "log_level", "use trace or debug or info"});
+    expect_one_error({"log_level: Off\n" + hub, 1, "log_level",
+                      "'Off' is not allowed: use trace or debug or info or warn or error or "
+                      "critical or off"});
 }
 
 TEST(GatewayConfigErrors, AllowListEntries) {
@@ -430,7 +451,21 @@ TEST(GatewayConfigErrors, AllowListEntries) {
                       "prefix length after / must be 0..32"});
     expect_one_error({modbus("allow: [\"::/129\"]"), 2, "modbus.allow[0]", "must be 0..128"});
     expect_one_error({modbus("allow: [10.0.0.0/]"), 2, "modbus.allow[0]", "0..32"});
+    expect_one_error(
+        {modbus("allow: [1.0.0.0/0]"), 2, "modbus.allow[0]", "did you mean 0.0.0.0/0?"});
+    expect_one_error({modbus("allow: [\"::1/0\"]"), 2, "modbus.allow[0]", "did you mean ::/0?"});
+    expect_one_error({modbus("allow: [192.168.1.1/24]"), 2, "modbus.allow[0]",
+                      "'192.168.1.1/24' has host bits set: did you mean 192.168.1.0/24?"});
+    // Asio's own parser reads the length with atoi, which makes this /8.
+    expect_one_error({modbus("allow: [10.0.0.0/4294967304]"), 2, "modbus.allow[0]", "0..32"});
+    for (const auto* prefix : {"10.0.0.0/-1", "10.0.0.0/0x8", "10.0.0.0/ 8", "10.0.0.0/8/8"})
+        expect_one_error({modbus(std::string("allow: [\"") + prefix + "\"]"), 2, "modbus.allow[0]",
+                          "the prefix length after / must be 0..32"});
     expect_one_error({modbus("allow: [plc.local]"), 2, "modbus.allow[0]", "not an IP network"});
+    expect_one_error({modbus("allow: [10.0.0/8]"), 2, "modbus.allow[0]", "not an IP network"});
+    expect_one_error(
+        {modbus("allow: [\"fe80::1%eth0\"]"), 2, "modbus.allow[0]", "not an IP network"});
+    expect_one_error({modbus("allow: [\"/8\"]"), 2, "modbus.allow[0]", "not an IP network"});
     expect_one_error({modbus("allow: 10.0.0.0/8"), 2, "modbus.allow", "expected a list"});
     expect_one_error({"modbus:\n  allow:\n    - 10.0.0.0/8\n    - [1]\n" + hub, 4,
                       "modbus.allow[1]", "found a list"});
@@ -660,12 +695,8 @@ TEST(GatewayConfig, ResolveDeviceFollowsSymlinksAndKeepsPathsItCannotResolve) {
 
 // --- Networks -------------------------------------------------------------------------------
 
-std::array<std::uint8_t, 16> v4(std::uint8_t a, std::uint8_t b, std::uint8_t c, std::uint8_t d) {
-    return {a, b, c, d};
-}
-std::array<std::uint8_t, 16> mapped(std::uint8_t a, std::uint8_t b, std::uint8_t c,
-                                    std::uint8_t d) {
-    return {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xFF, 0xFF, a, b, c, d};
+boost::asio::ip::address ip(const std::string& text) {
+    return boost::asio::ip::make_address(text);
 }
 Network network(const std::string& text) {
     const auto config = parse("modbus: { allow: [\"" + text + "\"] }\n" + hub);
@@ -675,62 +706,74 @@ Network network(const std::string& text) {
 
 TEST(Network, ContainsIpv4) {
     const Network ten = network("10.0.0.0/8");
-    EXPECT_TRUE(contains(ten, v4(10, 0, 0, 0), false));
-    EXPECT_TRUE(contains(ten, v4(10, 255, 1, 2), false));
-    EXPECT_FALSE(contains(ten, v4(11, 0, 0, 1), false));
+    EXPECT_TRUE(contains(ten, ip("10.0.0.0")));
+    EXPECT_TRUE(contains(ten, ip("10.255.1.2")));
+    EXPECT_TRUE(contains(ten, ip("10.255.255.255")));
+    EXPECT_FALSE(contains(ten, ip("11.0.0.1")));
+    EXPECT_FALSE(contains(ten, ip("9.255.255.255")));
     const Network odd = network("192.168.1.128/25");
-    EXPECT_TRUE(contains(odd, v4(192, 168, 1, 200), false));
-    EXPECT_FALSE(contains(odd, v4(192, 168, 1, 127), false));
+    EXPECT_TRUE(contains(odd, ip("192.168.1.200")));
+    EXPECT_FALSE(contains(odd, ip("192.168.1.127")));
 }
 
 TEST(Network, ABareAddressIsASingleHost) {
     const Network host = network("127.0.0.1");
-    EXPECT_EQ(host.prefix, 32);
-    EXPECT_TRUE(contains(host, v4(127, 0, 0, 1), false));
-    EXPECT_FALSE(contains(host, v4(127, 0, 0, 2), false));
+    EXPECT_EQ(host, (Network{network("127.0.0.1/32").network, "127.0.0.1"}));
+    EXPECT_TRUE(host.network.is_host());
+    EXPECT_TRUE(contains(host, ip("127.0.0.1")));
+    EXPECT_FALSE(contains(host, ip("127.0.0.2")));
     const Network host32 = network("127.0.0.1/32");
-    EXPECT_TRUE(contains(host32, v4(127, 0, 0, 1), false));
-    EXPECT_FALSE(contains(host32, v4(127, 0, 0, 0), false));
+    EXPECT_TRUE(contains(host32, ip("127.0.0.1")));
+    EXPECT_FALSE(contains(host32, ip("127.0.0.0")));
     const Network v6host = network("::1");
-    EXPECT_EQ(v6host.prefix, 128);
-    std::array<std::uint8_t, 16> loopback{};
-    loopback[15] = 1;
-    EXPECT_TRUE(contains(v6host, loopback, true));
-    loopback[15] = 2;
-    EXPECT_FALSE(contains(v6host, loopback, true));
+    EXPECT_EQ(v6host.network.prefix_length(), 128);
+    EXPECT_TRUE(contains(v6host, ip("::1")));
+    EXPECT_FALSE(contains(v6host, ip("::2")));
+    EXPECT_TRUE(contains(network("::1/128"), ip("::1")));
 }
 
 TEST(Network, ContainsIpv6) {
     const Network ula = network("fd00::/8");
-    std::array<std::uint8_t, 16> address{0xfd, 0x12};
-    EXPECT_TRUE(contains(ula, address, true));
-    address[0] = 0xfe;
-    EXPECT_FALSE(contains(ula, address, true));
+    EXPECT_TRUE(contains(ula, ip("fd12::")));
+    EXPECT_FALSE(contains(ula, ip("fe12::")));
     const Network doc = network("2001:db8:1::/48");
-    EXPECT_TRUE(contains(doc, {0x20, 0x01, 0x0d, 0xb8, 0, 1, 0xff}, true));
-    EXPECT_FALSE(contains(doc, {0x20, 0x01, 0x0d, 0xb8, 0, 2}, true));
+    EXPECT_TRUE(contains(doc, ip("2001:db8:1:ff00::")));
+    EXPECT_FALSE(contains(doc, ip("2001:db8:2::")));
     // An IPv6 address whose first bytes look like an IPv4 network is not in it.
-    EXPECT_FALSE(contains(network("10.0.0.0/8"), {10}, true));
+    EXPECT_FALSE(contains(network("10.0.0.0/8"), ip("a00::")));
+    // A link-local client's zone (fe80::1%2, as a socket reports it) takes no part.
+    auto zoned = ip("fe80::1").to_v6();
+    zoned.scope_id(2);
+    EXPECT_TRUE(contains(network("fe80::/10"), boost::asio::ip::address(zoned)));
+    EXPECT_TRUE(contains(network("fe80::1"), boost::asio::ip::address(zoned)));
 }
 
 TEST(Network, Ipv4MappedAddressesMatchIpv4Networks) {
-    EXPECT_TRUE(contains(network("10.0.0.0/8"), mapped(10, 1, 2, 3), true));
-    EXPECT_FALSE(contains(network("10.0.0.0/8"), mapped(11, 1, 2, 3), true));
-    EXPECT_TRUE(contains(network("127.0.0.1"), mapped(127, 0, 0, 1), true));
-    EXPECT_TRUE(contains(network("::ffff:10.0.0.0/104"), v4(10, 9, 9, 9), false));
-    EXPECT_FALSE(contains(network("::ffff:10.0.0.0/104"), v4(12, 9, 9, 9), false));
+    EXPECT_TRUE(contains(network("10.0.0.0/8"), ip("::ffff:10.1.2.3")));
+    EXPECT_FALSE(contains(network("10.0.0.0/8"), ip("::ffff:11.1.2.3")));
+    EXPECT_TRUE(contains(network("127.0.0.1"), ip("::ffff:127.0.0.1")));
+    EXPECT_FALSE(contains(network("127.0.0.1"), ip("::ffff:127.0.0.2")));
+    EXPECT_TRUE(contains(network("::ffff:10.0.0.0/104"), ip("10.9.9.9")));
+    EXPECT_FALSE(contains(network("::ffff:10.0.0.0/104"), ip("12.9.9.9")));
+    // Mapped, not compatible: ::10.1.2.3 is no IPv4 client.
+    EXPECT_FALSE(contains(network("10.0.0.0/8"), ip("::10.1.2.3")));
 }
 
 TEST(Network, PrefixZeroIsEveryoneOfItsFamily) {
     const Network any4 = network("0.0.0.0/0");
-    EXPECT_TRUE(contains(any4, v4(1, 2, 3, 4), false));
-    EXPECT_TRUE(contains(any4, v4(255, 255, 255, 255), false));
-    EXPECT_TRUE(contains(any4, mapped(8, 8, 8, 8), true));
-    EXPECT_FALSE(contains(any4, {0x20, 0x01}, true));
+    EXPECT_TRUE(contains(any4, ip("1.2.3.4")));
+    EXPECT_TRUE(contains(any4, ip("0.0.0.0")));
+    EXPECT_TRUE(contains(any4, ip("255.255.255.255")));
+    EXPECT_TRUE(contains(any4, ip("::ffff:8.8.8.8")));
+    EXPECT_FALSE(contains(any4, ip("2001::")));
+    EXPECT_FALSE(contains(any4, ip("::1")));
     const Network any6 = network("::/0");
-    EXPECT_TRUE(contains(any6, {0x20, 0x01}, true));
+    EXPECT_TRUE(contains(any6, ip("2001::")));
+    EXPECT_TRUE(contains(any6, ip("::")));
+    EXPECT_TRUE(contains(any6, ip("ffff:ffff:ffff:ffff:ffff:ffff:ffff:ffff")));
     // IPv4 clients of an IPv6 socket are IPv6 addresses too (::ffff:a.b.c.d).
-    EXPECT_TRUE(contains(any6, v4(1, 2, 3, 4), false));
+    EXPECT_TRUE(contains(any6, ip("1.2.3.4")));
+    EXPECT_TRUE(contains(any6, ip("::ffff:1.2.3.4")));
 }
 
 // --- The example files ----------------------------------------------------------------------

@@ -21,6 +21,16 @@ using modbus::Table;
 using namespace std::chrono_literals;
 using Bytes = std::vector<std::uint8_t>;
 
+// A 32-bit value read back from its two registers, as a Modbus client decodes it.
+std::uint32_t u32_from_words(std::array<std::uint16_t, 2> value, WordOrder order) {
+    const auto [high, low] =
+        order == WordOrder::big ? value : std::array<std::uint16_t, 2>{value[1], value[0]};
+    return static_cast<std::uint32_t>(high) << 16 | low;
+}
+float float_from_words(std::array<std::uint16_t, 2> value, WordOrder order) {
+    return std::bit_cast<float>(u32_from_words(value, order));
+}
+
 constexpr ModuleAddress dim16(std::uint8_t n) {
     return {ModuleType::dim16, n};
 }

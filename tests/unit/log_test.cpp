@@ -22,7 +22,7 @@ TEST(JournalEntry, LevelsMapToSyslogPriorities) {
     EXPECT_EQ(priority(LogLevel::debug), "PRIORITY=7");
     EXPECT_EQ(priority(LogLevel::info), "PRIORITY=6");
     EXPECT_EQ(priority(LogLevel::warn), "PRIORITY=4");
-    EXPECT_EQ(priority(LogLevel::error), "PRIORITY=3");
+    EXPECT_EQ(priority(LogLevel::err), "PRIORITY=3");
     EXPECT_EQ(priority(LogLevel::critical), "PRIORITY=2");
     EXPECT_EQ(journal_entry(LogLevel::info, {.client = "10.0.0.5:502"}, "x").back(),
               "CLIENT=10.0.0.5:502");

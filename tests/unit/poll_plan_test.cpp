@@ -23,7 +23,7 @@ std::string drive(PollPlan& plan, Clock::time_point now, int limit) {
     for (int i = 0; i < limit; ++i) {
         const auto step = plan.next(now, false);
         if (step.kind == Kind::idle) break;
-        order += (step.kind == Kind::poll ? "p" : "r") + std::to_string(step.entry) + " ";
+        order.append(step.kind == Kind::poll ? "p" : "r").append(std::to_string(step.entry)) += ' ';
         plan.done(step.entry, true, now);
     }
     return order;
