@@ -19,7 +19,11 @@ std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link
 Result<> Gateway::start() {
     for (const auto& link : config_.links)
         links_.push_back(make_link(link));
-    server_ = std::make_unique<ModbusServer>(executor_, config_.modbus, links_, log_);
+    // Comm loss reaches the links running then: a reload replaces links_, not this callback.
+    server_ = std::make_unique<ModbusServer>(executor_, config_.modbus, links_, log_, [this] {
+        for (auto& link : links_)
+            link->enter_safe_state();
+    });
     for (auto& link : links_)
         link->start();
     return server_->start();
@@ -123,8 +127,12 @@ std::string describe(const config::GatewayConfig& config) {
         modbus.word_order == gateway::WordOrder::big ? "big" : "little",
         modbus.stale == gateway::Stale::exception ? "exception" : "hold");
     text += fmt::format(
-        "on shutdown: outputs {}; log level {}\n",
+        "on shutdown: outputs {}; on communication loss: {}; log level {}\n",
         config.on_shutdown == config::OnShutdown::keep ? "kept as they are" : "set to initial",
+        modbus.comm_loss_timeout.count() == 0
+            ? std::string("off")
+            : fmt::format("outputs to safe after {} without a request",
+                          format_duration(modbus.comm_loss_timeout)),
         config::to_string(config.log_level));
     for (const auto& link : config.links) {
         const bool id2 = link.protocol == config::Protocol::id2;
@@ -133,12 +141,13 @@ std::string describe(const config::GatewayConfig& config) {
                             link.unit_id, format_duration(link.timeout), link.retries);
         for (const auto& module : link.modules) {
             const bool output = is_output(module.address.type);
-            text += fmt::format("  {:<8} {}\n", to_string(module.address),
-                                output ? fmt::format("initial 0x{:04X}, refresh {}", module.initial,
-                                                     format_duration(module.refresh))
-                                : module.poll.count() == 0
-                                    ? std::string("every cycle")
-                                    : fmt::format("poll every {}", format_duration(module.poll)));
+            text += fmt::format(
+                "  {:<8} {}\n", to_string(module.address),
+                output ? fmt::format("initial 0x{:04X}, safe 0x{:04X}, refresh {}", module.initial,
+                                     module.safe, format_duration(module.refresh))
+                : module.poll.count() == 0
+                    ? std::string("every cycle")
+                    : fmt::format("poll every {}", format_duration(module.poll)));
         }
     }
     return text;

@@ -44,6 +44,7 @@ struct LinkScheduler::PendingWrite {
         : plan(std::move(write_plan)), done(executor, Clock::time_point::max()) {}
     gateway::WritePlan plan;
     asio::steady_timer done;  // cancelled when the outcome is known
+    bool safe_state = false;  // not a client's: the outputs to their safe values
     bool finished = false;
     std::optional<Exception> outcome = Exception::gateway_target_failed;
 };
@@ -69,7 +70,8 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
         entries_.push_back({.target = module.address,
                             .slot = slot(module.address),
                             .desired = module.initial,
-                            .initial = module.initial});
+                            .initial = module.initial,
+                            .safe = module.safe});
         state_.status[static_cast<std::size_t>(slot(module.address))] = ModuleStatus::not_polled;
     }
     (void)image(true);
@@ -252,7 +254,48 @@ asio::awaitable<std::optional<Exception>> LinkScheduler::write(gateway::WritePla
     co_return pending->outcome;
 }
 
+void LinkScheduler::enter_safe_state() {
+    if (!state_.port_open || stopping_ || finishing_) {
+        desire_safe_state();
+        return;
+    }
+    auto pending = std::make_shared<PendingWrite>(wake_.get_executor(), gateway::WritePlan{});
+    pending->safe_state = true;
+    writes_.push_back(std::move(pending));
+    wake_.cancel();
+}
+
+void LinkScheduler::desire_safe_state() {
+    for (auto& entry : entries_)
+        if (const auto* module = std::get_if<ModuleAddress>(&entry.target);
+            module && is_output(module->type))
+            entry.desired = entry.safe;
+}
+
+// Whether each command is confirmed or not, the safe value is the desired state from now on:
+// refresh keeps sending it, and reopen restores it.
+asio::awaitable<void> LinkScheduler::send_safe_state() {
+    desire_safe_state();
+    int sent = 0;
+    for (std::size_t i = 0; i < entries_.size() && link_.is_open() && !stopping_; ++i) {
+        const auto* module = std::get_if<ModuleAddress>(&entries_[i].target);
+        if (module == nullptr || !is_output(module->type)) continue;
+        const auto result = co_await transact(i, entries_[i].safe);
+        if (result) {
+            gateway::store_output(image_.tables(), *module, entries_[i].safe);
+            ++sent;
+        }
+        record(i, result);
+    }
+    log_.info(fields(), "link {}: {} output module(s) set to their safe values", config_.name,
+              sent);
+}
+
 asio::awaitable<void> LinkScheduler::execute(PendingWrite& write) {
+    if (write.safe_state) {
+        co_await send_safe_state();
+        co_return;
+    }
     std::optional<Exception> outcome;
     for (const auto& change : write.plan.changes) {
         if (!link_.is_open()) {
@@ -381,6 +424,7 @@ void LinkScheduler::port_lost(const Error& error) {
 
 void LinkScheduler::fail_pending_writes() {
     for (const auto& write : writes_) {
+        if (write->safe_state) desire_safe_state();  // restored at reopen
         write->outcome = Exception::gateway_target_failed;
         write->finished = true;
         write->done.cancel();

@@ -58,9 +58,14 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     const gateway::UnitState& state() const { return state_; }
     // The image, with the time-dependent diagnostics brought up to date when `diagnostics`.
     modbus_mapping_t* image(bool diagnostics);
+    const gateway::Tables& tables() const { return image_.tables(); }
     // Sends a validated write and completes when the device acknowledged it (nullopt) or it
     // failed (04 error ack, 0B no answer or port closed).
     asio::awaitable<std::optional<modbus::Exception>> write(gateway::WritePlan plan);
+    // Communication loss (gateway.md §5.3): every output module's safe value becomes its desired
+    // state and is sent, after the writes already queued, which clients asked for before the
+    // silence. With the port down it is the state restored at reopen.
+    void enter_safe_state();
 
     bool port_open() const { return state_.port_open; }
     int modules_online() const;
@@ -73,8 +78,9 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     struct Entry {
         Target target;  // a module, or an ID-2 command
         int slot;
-        std::uint16_t desired = 0;  // outputs: last confirmed value, or `initial`
+        std::uint16_t desired = 0;  // outputs: last confirmed value, `initial`, or `safe`
         std::uint16_t initial = 0;
+        std::uint16_t safe = 0;
         // The outcome of this entry's last transaction. A slot's status is its entry's, except
         // the ID-2's slot 0, which its two reads share (slot_status).
         gateway::ModuleStatus status = gateway::ModuleStatus::not_polled;
@@ -93,6 +99,8 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     asio::awaitable<std::optional<modbus::Exception>> reset_counter();
     asio::awaitable<void> sleep_until(Clock::time_point when);
     asio::awaitable<void> set_outputs_to_initial();
+    asio::awaitable<void> send_safe_state();
+    void desire_safe_state();
     LogFields fields(std::string_view module = {}) const;
 
     void record(std::size_t entry, const Result<Reading>& result);

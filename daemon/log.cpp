@@ -42,6 +42,7 @@ std::vector<std::string> journal_entry(LogLevel level, const LogFields& fields,
     if (fields.unit >= 0) entry.push_back(fmt::format("UNIT={}", fields.unit));
     if (!fields.module.empty()) entry.push_back(fmt::format("MODULE={}", fields.module));
     if (!fields.client.empty()) entry.push_back(fmt::format("CLIENT={}", fields.client));
+    if (fields.comm_loss) entry.emplace_back("COMM_LOSS=1");
     return entry;
 }
 

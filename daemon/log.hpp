@@ -29,6 +29,7 @@ struct LogFields {
     int unit = -1;              // its Modbus unit id; -1: none
     std::string_view module{};  // "dom16 0", "ID-2"
     std::string_view client{};  // a Modbus client, "10.0.0.5:50123"
+    bool comm_loss = false;     // COMM_LOSS=1: outputs put in their safe state (gateway.md §5.3)
 };
 
 // The journal entry of one line, as KEY=value strings: MESSAGE, PRIORITY (syslog's numbers),

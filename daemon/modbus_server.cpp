@@ -10,6 +10,7 @@
 
 #include <fmt/format.h>
 
+#include "config/duration.hpp"
 #include "daemon/descriptors.hpp"
 #include "protocol/device_identification.hpp"
 
@@ -107,13 +108,15 @@ struct ModbusServer::Connection {
 };
 
 ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                           const Units& units, Log& log)
+                           const Units& units, Log& log, std::function<void()> comm_lost)
     : executor_(executor),
       settings_(std::move(settings)),
       policy_{settings_.read_only, settings_.stale},
       log_(log),
       accept_retry_(executor),
-      scratch_(scratch_mapping()) {
+      scratch_(scratch_mapping()),
+      comm_lost_(std::move(comm_lost)),
+      comm_loss_timer_(executor) {
     set_units(units);
 }
 
@@ -162,7 +165,57 @@ Result<> ModbusServer::start() {
     auto acceptor = listen(settings_);
     if (!acceptor) return Unexpected(acceptor.error());
     accept_on(std::move(*acceptor));
+    last_request_ = Clock::now();  // comm loss counts from start-up too
+    arm_comm_loss();
     return {};
+}
+
+void ModbusServer::note_request(Clock::time_point at) {
+    since_previous_ =
+        std::max(std::chrono::microseconds{0},
+                 std::chrono::duration_cast<std::chrono::microseconds>(at - last_request_));
+    last_request_ = at;
+}
+
+void ModbusServer::answered_request() {
+    comm_loss_ = false;  // the first request after a loss read 1020 as 1; later ones read 0
+    arm_comm_loss();
+}
+
+void ModbusServer::arm_comm_loss() {
+    if (comm_loss_armed_ || comm_loss_ || stopping_ || settings_.comm_loss_timeout.count() == 0)
+        return;
+    comm_loss_armed_ = true;
+    comm_loss_timer_.expires_at(last_request_ + settings_.comm_loss_timeout);
+    comm_loss_timer_.async_wait([this](const boost::system::error_code& ec) { comm_loss_due(ec); });
+}
+
+void ModbusServer::comm_loss_due(const boost::system::error_code& ec) {
+    comm_loss_armed_ = false;
+    // Cancelled by a reload that changed the timeout (or by the stop): armed anew, or not.
+    if (ec || Clock::now() < last_request_ + settings_.comm_loss_timeout) {
+        arm_comm_loss();
+        return;
+    }
+    if (settings_.comm_loss_timeout.count() == 0 || stopping_) return;
+    comm_loss_ = true;
+    log_.warn({.comm_loss = true},
+              "no Modbus request from any client for {}: every output module is sent its safe "
+              "value and keeps it until a client writes it",
+              format_duration(settings_.comm_loss_timeout));
+    if (comm_lost_) comm_lost_();
+}
+
+int ModbusServer::counted_unit(std::span<const std::uint8_t> adu) const {
+    const auto& unit = units_[adu[modbus::mbap_length - 1]];
+    return unit ? unit->config().unit_id : -1;
+}
+
+void ModbusServer::store_front(LinkScheduler& unit) const {
+    const auto id = static_cast<std::size_t>(unit.config().unit_id);
+    gateway::store_front(unit.tables(),
+                         {traffic_[id], connections_.size(), since_previous_, comm_loss_},
+                         settings_.word_order);
 }
 
 void ModbusServer::make_room() {
@@ -203,6 +256,10 @@ void ModbusServer::apply(config::ModbusSettings next, const Units& units) {
     policy_ = {settings_.read_only, settings_.stale};
     set_units(units);
     make_room();
+    if (comm_loss_armed_)
+        comm_loss_timer_.cancel();  // re-armed with the new timeout, or not at all
+    else
+        arm_comm_loss();
     if (next_acceptor_) accept_on(std::exchange(next_acceptor_, nullptr));
     for (auto* connection : connections_) {
         if (!allowed(connection->address)) {
@@ -218,6 +275,7 @@ void ModbusServer::apply(config::ModbusSettings next, const Units& units) {
 
 void ModbusServer::shut_down() {
     stopping_ = true;
+    comm_loss_timer_.cancel();
     boost::system::error_code ignored;
     if (acceptor_) acceptor_->close(ignored);
     if (next_acceptor_) next_acceptor_->close(ignored);
@@ -344,6 +402,13 @@ asio::awaitable<boost::system::error_code> ModbusServer::send_rest(
     co_return ec;
 }
 
+// GCC 12 reports Asio's coroutine frame, allocated and freed by awaitable_frame_base's own
+// operator new and delete, as a mismatched new/delete (GCC bug 109224), or not, depending on
+// unrelated members of this class. Nothing here allocates by hand.
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+#endif
 asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     std::string why = "closed by the client";
     while (c->open) {
@@ -358,7 +423,10 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             }
             if (!*next) break;  // the rest of the request is still on its way
             const auto adu = **next;
+            note_request(c->last_activity);
+            const int unit_id = counted_unit(adu);
             auto answered = answer(*c, adu);
+            answered_request();
             auto* pending = std::get_if<Write>(&answered);
             Response response;
             if (pending) {
@@ -378,6 +446,10 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
                     ec = co_await send_rest(*c, std::span(*response).subspan(written));
                 if (ec && c->open) why = fmt::format("sending a response: {}", ec.message());
                 if (ec) c->close();
+                if (!ec && unit_id >= 0)
+                    gateway::count_response(traffic_[static_cast<std::size_t>(unit_id)],
+                                            adu[modbus::mbap_length],
+                                            std::span(*response).subspan(modbus::mbap_length));
             }
             c->last_activity = Clock::now();
             if (stopping_) {
@@ -416,6 +488,9 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     connections_.erase(c.get());
     log_.debug({.client = c->peer}, "Modbus client {} disconnected: {}", c->peer, why);
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic pop
+#endif
 
 std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
     Connection& c, std::span<const std::uint8_t> adu) {
@@ -434,8 +509,11 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
     auto plan = gateway::plan(unit->state(), policy_, pdu);
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
         return built(c, replies_->exception(request, *exception));
-    if (const auto* read = std::get_if<gateway::ReadPlan>(&plan))
-        return built(c, replies_->reply(request, unit->image(read->diagnostics)));
+    if (const auto* read = std::get_if<gateway::ReadPlan>(&plan)) {
+        auto* image = unit->image(read->diagnostics);
+        if (read->diagnostics) store_front(*unit);
+        return built(c, replies_->reply(request, image));
+    }
     return Write{unit, std::get<gateway::WritePlan>(std::move(plan)), request};
 }
 

@@ -13,6 +13,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <unordered_map>
@@ -40,9 +41,10 @@ class ModbusServer {
     using Units = std::vector<std::shared_ptr<LinkScheduler>>;
 
     // `units`: the links in configuration order; each serves its unit id (and 0 and 255 too when
-    // there is exactly one).
+    // there is exactly one). `comm_lost`: called when no request has come from any client for
+    // settings.comm_loss_timeout (gateway.md §5.3); not again until a request has come.
     ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                 const Units& units, Log& log);
+                 const Units& units, Log& log, std::function<void()> comm_lost = {});
     ModbusServer(const ModbusServer&) = delete;
     ModbusServer& operator=(const ModbusServer&) = delete;
     ~ModbusServer();
@@ -95,6 +97,15 @@ class ModbusServer {
     Response built(const Connection& connection, Result<Bytes> response);
     // Takes the descriptors that settings_.max_connections clients need (see descriptors.hpp).
     void make_room();
+    // A request arrived at `at`: 1019's interval, and the communication-loss watch.
+    void note_request(Clock::time_point at);
+    void answered_request();
+    void arm_comm_loss();
+    void comm_loss_due(const boost::system::error_code& ec);
+    // The unit id whose traffic a request counts in: its link's, or -1 for an unknown unit.
+    int counted_unit(std::span<const std::uint8_t> adu) const;
+    // Registers 1010-1020 of `unit`, as of now.
+    void store_front(LinkScheduler& unit) const;
     std::optional<std::string> refusal(const asio::ip::tcp::endpoint& peer) const;
     bool allowed(const asio::ip::address& address) const;
     void log_refusal(const asio::ip::address& address, const std::string& why);
@@ -114,6 +125,16 @@ class ModbusServer {
     std::size_t max_clients_ = 0;  // max_connections, or fewer when descriptors are short
     std::size_t ports_ = 0;
     bool stopping_ = false;
+    // §5.1, by the unit id of the link that answered (the single-link aliases 0 and 255 count as
+    // its own): kept across reloads, as a unit is the client's view.
+    std::array<gateway::Traffic, 256> traffic_{};
+    Clock::time_point last_request_ = Clock::now();
+    std::chrono::microseconds since_previous_{};
+    // §5.3. Lazily armed, as the connections' watchdogs: a request only moves last_request_.
+    std::function<void()> comm_lost_;
+    asio::steady_timer comm_loss_timer_;
+    bool comm_loss_armed_ = false;
+    bool comm_loss_ = false;  // register 1020, until the first request after the loss
 };
 
 }  // namespace ioport::daemon

@@ -107,7 +107,15 @@ constexpr int cycles_address = 1002;
 constexpr int ok_address = 1004;
 constexpr int failed_address = 1006;
 constexpr int opens_address = 1008;
-constexpr int link_registers = 10;
+// §5.1, the Modbus server's figures.
+constexpr int requests_address = 1010;
+constexpr int exceptions_address = 1012;
+constexpr int writes_confirmed_address = 1014;
+constexpr int writes_failed_address = 1016;
+constexpr int connections_address = 1018;
+constexpr int since_previous_address = 1019;
+constexpr int comm_loss_address = 1020;
+constexpr int link_registers = 21;
 constexpr int status_address = 1100;
 constexpr int age_address = 1200;
 constexpr int online_address = 1000;
@@ -382,6 +390,18 @@ constexpr std::array link_fields{
     LinkField{failed_address, "uint32", "",
               "failed transactions: timeouts, malformed answers, error acks"},
     LinkField{opens_address, "uint32", "", "times the serial port was (re)opened"},
+    LinkField{requests_address, "uint32", "",
+              "Modbus requests answered for this unit, exceptions included"},
+    LinkField{exceptions_address, "uint32", "", "exception responses sent for this unit"},
+    LinkField{writes_confirmed_address, "uint32", "",
+              "client writes to this unit answered normally, every device command confirmed"},
+    LinkField{writes_failed_address, "uint32", "", "client writes to this unit answered 04 or 0B"},
+    LinkField{connections_address, "uint16", "", "Modbus client connections open now"},
+    LinkField{since_previous_address, "uint16", "s",
+              "seconds since the request before this one (any client, any unit), saturating "
+              "at 65535"},
+    LinkField{comm_loss_address, "uint16", "",
+              "communication loss: 0 normal, 1 outputs were put in their safe state"},
 };
 
 std::string colour_description() {
@@ -723,6 +743,53 @@ void store_diagnostics(const Tables& tables, const Diagnostics& diagnostics, Wor
         put(tables, Table::discrete_inputs, online_address + s,
             status == ModuleStatus::online ? 1 : 0);
     }
+}
+
+bool is_write(std::uint8_t function) {
+    switch (static_cast<modbus::Function>(function)) {
+        case modbus::Function::write_single_coil:
+        case modbus::Function::write_single_register:
+        case modbus::Function::write_multiple_coils:
+        case modbus::Function::write_multiple_registers:
+        case modbus::Function::read_write_multiple_registers:
+            return true;
+        case modbus::Function::read_coils:
+        case modbus::Function::read_discrete_inputs:
+        case modbus::Function::read_holding_registers:
+        case modbus::Function::read_input_registers:
+            return false;
+    }
+    return false;  // any other code, device identification included
+}
+
+void count_response(Traffic& traffic, std::uint8_t function,
+                    std::span<const std::uint8_t> response) {
+    ++traffic.requests;
+    const bool exception = !response.empty() && (response[0] & 0x80U) != 0;
+    if (!exception) {
+        if (is_write(function)) ++traffic.writes_confirmed;
+        return;
+    }
+    ++traffic.exceptions;
+    const auto code = response.size() > 1 ? response[1] : std::uint8_t{0};
+    if (is_write(function) &&
+        (code == static_cast<std::uint8_t>(Exception::server_device_failure) ||
+         code == static_cast<std::uint8_t>(Exception::gateway_target_failed)))
+        ++traffic.writes_failed;
+}
+
+void store_front(const Tables& tables, const Front& front, WordOrder order) {
+    const auto& traffic = front.traffic;
+    put_words(tables, requests_address, counter_words(traffic.requests, order));
+    put_words(tables, exceptions_address, counter_words(traffic.exceptions, order));
+    put_words(tables, writes_confirmed_address, counter_words(traffic.writes_confirmed, order));
+    put_words(tables, writes_failed_address, counter_words(traffic.writes_failed, order));
+    put(tables, Table::input_registers, connections_address, saturate16(front.connections));
+    put(tables, Table::input_registers, since_previous_address,
+        saturate16(static_cast<std::uint64_t>(
+            std::chrono::duration_cast<std::chrono::seconds>(front.since_previous_request)
+                .count())));
+    put(tables, Table::input_registers, comm_loss_address, front.comm_loss ? 1 : 0);
 }
 
 // --- The printable map ----------------------------------------------------------------------

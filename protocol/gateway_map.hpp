@@ -139,6 +139,28 @@ struct Diagnostics {
 // unconfigured slots.
 void store_diagnostics(const Tables& tables, const Diagnostics& diagnostics, WordOrder order);
 
+// §5.1: what the Modbus server counts for a unit, as it sends each response.
+struct Traffic {
+    std::uint64_t requests = 0;  // exceptions included
+    std::uint64_t exceptions = 0;
+    std::uint64_t writes_confirmed = 0;  // client writes answered normally
+    std::uint64_t writes_failed = 0;     // client writes answered 04 or 0B
+};
+// Counts one response (PDU, function code first) to a request of `function`: writes are FC 05,
+// 06, 15, 16 and 23.
+void count_response(Traffic& traffic, std::uint8_t function,
+                    std::span<const std::uint8_t> response);
+
+// Input registers 1010-1020 of a unit: its traffic, and the server's own state.
+struct Front {
+    Traffic traffic;
+    std::size_t connections = 0;                         // open now, every listener
+    std::chrono::microseconds since_previous_request{};  // before the request being answered
+    bool comm_loss = false;  // §5.3: outputs were put in their safe state
+};
+// Counters modulo 2^32 in `order`; 1018 and 1019 (in whole seconds) saturate at 65535.
+void store_front(const Tables& tables, const Front& front, WordOrder order);
+
 // --- The printable map (ioportd --print-map) ------------------------------------------------
 
 struct MapRow {

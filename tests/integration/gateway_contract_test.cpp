@@ -25,6 +25,7 @@
 #include "tests/support/gateway.hpp"
 #include "tests/support/process.hpp"
 #include "tests/support/raw_client.hpp"
+#include "tests/support/timing.hpp"
 
 namespace ioport::test {
 namespace {
@@ -508,7 +509,7 @@ TEST_F(ContractTest, UnconfiguredModulesReadZeroAndRejectWrites) {
 
 TEST_F(ContractTest, AddressesOutsideEveryBlockAnswer02) {
     ASSERT_TRUE(all_online(client));
-    for (const int address : {80, 199, 328, 999, 1010, 1099, 1172, 1199, 1272})
+    for (const int address : {80, 199, 328, 999, 1021, 1099, 1172, 1199, 1272})
         EXPECT_EQ(error_of(client.read_input_registers(address, 1)), illegal_address) << address;
     for (const int address : {256, 999, 1072})
         EXPECT_EQ(error_of(client.read_discrete_inputs(address, 1)), illegal_address) << address;
@@ -530,7 +531,7 @@ TEST_F(ContractTest, ARangeRunningPastItsBlockOrSpanningTwoAnswers02) {
     // Past the end of a block.
     EXPECT_EQ(error_of(client.read_input_registers(79, 2)), illegal_address);
     EXPECT_EQ(error_of(client.read_input_registers(327, 2)), illegal_address);
-    EXPECT_EQ(error_of(client.read_input_registers(1009, 2)), illegal_address);
+    EXPECT_EQ(error_of(client.read_input_registers(1020, 2)), illegal_address);
     EXPECT_EQ(error_of(client.read_input_registers(1171, 2)), illegal_address);
     EXPECT_EQ(error_of(client.read_input_registers(1271, 2)), illegal_address);
     EXPECT_EQ(error_of(client.read_discrete_inputs(255, 2)), illegal_address);
@@ -599,9 +600,10 @@ TEST_F(ContractTest, UnsupportedFunctionsAnswer01WithTheTransactionIdEchoed) {
     RawClient raw(gateway.port());
     ASSERT_TRUE(raw.connected());
     std::uint16_t transaction = 0x1F00;
-    for (const auto& request : {Bytes{0x07}, Bytes{0x08, 0x00, 0x00, 0x12, 0x34},
-                                pdu(0x17, {0, 1, 0, 1}, {2, 0, 0}), Bytes{0x2B, 0x0E, 0x01, 0x00},
-                                Bytes{0x11}, Bytes{0x00}, Bytes{0x80}, Bytes{0xFF, 0x00}}) {
+    // (23 and 43/14 are supported: §5.2; 43 with another MEI type is not.)
+    for (const auto& request :
+         {Bytes{0x07}, Bytes{0x08, 0x00, 0x00, 0x12, 0x34}, Bytes{0x2B, 0x0D, 0x01, 0x00},
+          Bytes{0x11}, Bytes{0x00}, Bytes{0x80}, Bytes{0xFF, 0x00}}) {
         ++transaction;
         const auto response = raw.ask(1, request, transaction);
         ASSERT_TRUE(response) << "function " << int{request[0]};
@@ -1076,6 +1078,132 @@ TEST(ContractIdentity, Fc43AnswersWithThePortDownAndTheConfiguredObjects) {
     EXPECT_EQ(objects.at(6), "Press line 2");
     // The port never opened: data reads answer 0B, identification answers all the same.
     EXPECT_EQ(exception_of(raw, 1, pdu(fc_read_input_registers, {0, 1})), target_failed);
+}
+
+// --- §5.1 Traffic counters ------------------------------------------------------------------
+
+TEST_F(ContractTest, TrafficCountersCountEveryResponseOfTheUnit) {
+    ASSERT_TRUE(all_online(client));  // some reads of 1000 already: counted below
+    const auto before = read_u32(client, 1010);
+    const auto exceptions_before = read_u32(client, 1012);
+    ASSERT_TRUE(client.read_input_registers(0, 8));
+    EXPECT_FALSE(client.read_input_registers(80, 1));                 // 02
+    ASSERT_TRUE(client.write_register(1, 0x0101));                    // confirmed
+    EXPECT_EQ(error_of(client.write_register(8, 9)), illegal_value);  // refused: not a failed write
+    hub.ctl("fault dom16:1 silent");
+    EXPECT_EQ(error_of(client.write_register(1, 0x0202)), target_failed);  // failed
+    hub.ctl("fault dom16:1 none");
+    ModbusClient other(gateway.port());
+    ASSERT_TRUE(other.read_input_registers(1000, 1));  // the same unit, another connection
+    // The counters as this read finds them: it does not count itself.
+    const auto front = ir_values(client, 1010, 11);
+    const auto u32 = [&](std::size_t at) { return big_endian({front[at], front[at + 1]}); };
+    EXPECT_EQ(u32(0) - before, 2 + 6U);  // two reads of 1010 and 1012, then six requests
+    EXPECT_EQ(u32(2) - exceptions_before, 3U);
+    EXPECT_EQ(u32(4), 1U);
+    EXPECT_EQ(u32(6), 1U);
+    EXPECT_EQ(front[8], 2);  // connections open now
+    EXPECT_LE(front[9], 1);  // seconds since the request before this one
+    EXPECT_EQ(front[10], 0);
+    // Another unit counts its own.
+    client.set_unit(2);
+    EXPECT_EQ(read_u32(client, 1014), 0U);
+}
+
+// --- §5.3 Communication loss ----------------------------------------------------------------
+
+// dom16 0 safe 0x0001, rgbdm 0 safe red, mux8m 0 safe = initial (0x0707); the comm loss timeout
+// is long enough that the test's own requests keep it away while it sets up.
+class CommLossTest : public Contract {
+  protected:
+    explicit CommLossTest(std::string_view timeout = "1500ms")
+        : gateway(config(hub_link(hub.link(), modules),
+                         fmt::format("  comm_loss_timeout: {}", timeout))) {}
+    const std::vector<Module> modules{
+        {"dim16", 0},
+        {"dom16", 0, ", initial: 0x00F0, safe: 0x0001"},
+        {"rgbdm", 0, ", initial: green, safe: red"},
+        {"mux8m", 0, ", initial: 0x0707"},
+    };
+    SimProcess hub{"--hub", sim_modules(modules), {"--no-line-timing"}};
+    GatewayProcess gateway;
+    // Only the simulator is asked while the clients are silent: any Modbus request would
+    // reset the timeout being tested.
+    bool sim_becomes(const std::string& module, const std::string& value,
+                     milliseconds deadline = 5s) {
+        return eventually([&] { return sim_value(hub, module) == value; }, deadline);
+    }
+};
+
+TEST_F(CommLossTest, SilentClientsPutTheOutputsInTheirSafeStateUntilAClientWrites) {
+    {
+        ModbusClient scada(gateway.port());
+        ASSERT_TRUE(all_online(scada));
+        ASSERT_TRUE(scada.write_register(0, 0x1234));
+        ASSERT_TRUE(scada.write_register(8, 3));  // blue
+        ASSERT_TRUE(scada.write_register(16, 0x0102));
+    }  // SCADA goes away
+    const auto silent = Clock::now();
+    ASSERT_TRUE(sim_becomes("dom16:0", "1"));
+    const auto after = since(silent);
+    EXPECT_GE(after, 1400ms) << "the safe state came before the timeout";
+    EXPECT_LT(after, 1500ms + 1s * slowdown);
+    EXPECT_EQ(sim_value(hub, "rgbdm:0"), "1");     // red
+    EXPECT_EQ(sim_value(hub, "mux8m:0"), "1799");  // 0x0707: its safe value is its initial
+    EXPECT_TRUE(gateway.wait_for_log("no Modbus request from any client for 1500ms"));
+    // A returning client reads 1020 as 1 once (and 1019: more than a second of silence), then 0.
+    ModbusClient scada(gateway.port());
+    const auto first = ir_values(scada, 1019, 2);
+    EXPECT_GE(first[0], 1);
+    EXPECT_EQ(first[1], 1);
+    EXPECT_EQ(read_register(scada, 1020), 0);
+    // The outputs stay safe, the image says so, until a client writes them.
+    EXPECT_EQ(hr_values(scada, 0, 1)[0], 1);
+    EXPECT_EQ(sim_value(hub, "dom16:0"), "1");
+    ASSERT_TRUE(scada.write_register(0, 0x00FF));
+    EXPECT_EQ(sim_value(hub, "dom16:0"), "255");
+    EXPECT_EQ(hr_values(scada, 8, 1)[0], 1);  // rgbdm still red: nobody wrote it
+}
+
+// The port is lost while the clients are silent: the comm loss makes the safe values the
+// desired state all the same, and the replug restores them, not the values written before.
+TEST_F(CommLossTest, APortLostDuringCommLossComesBackWithTheSafeValues) {
+    {
+        ModbusClient scada(gateway.port());
+        ASSERT_TRUE(all_online(scada));
+        ASSERT_TRUE(scada.write_register(0, 0x1234));
+    }
+    hub.ctl("unplug");
+    ASSERT_TRUE(gateway.wait_for_log("no Modbus request from any client", 5s));
+    hub.ctl("set dom16:0 0x1234");  // what the module holds while the port is away
+    hub.ctl("replug");
+    EXPECT_TRUE(sim_becomes("dom16:0", "1")) << "the replug restored " << sim_value(hub, "dom16:0");
+}
+
+class CommLossOffTest : public CommLossTest {
+  protected:
+    CommLossOffTest() : CommLossTest("0s") {}
+};
+
+TEST_F(CommLossOffTest, ZeroTurnsItOff) {
+    {
+        ModbusClient scada(gateway.port());
+        ASSERT_TRUE(all_online(scada));
+        ASSERT_TRUE(scada.write_register(0, 0x1234));
+    }
+    // Two refreshes (1 s each), past the 1.5 s a timeout would have taken: the written value
+    // is still the one refreshed.
+    hub.ctl("log clear");
+    int refreshes = 0;
+    ASSERT_TRUE(eventually([&] {
+        const auto log = hub.ctl("log take");
+        for (auto at = log.find(" b01234 "); at != std::string::npos;
+             at = log.find(" b01234 ", at + 1))
+            ++refreshes;
+        return refreshes >= 2;
+    }));
+    EXPECT_EQ(sim_value(hub, "dom16:0"), "4660");
+    EXPECT_FALSE(gateway.wait_for_log("no Modbus request", 0ms));
 }
 
 // --- §3.5 The Modbus front ------------------------------------------------------------------

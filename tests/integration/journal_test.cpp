@@ -153,6 +153,29 @@ TEST(Journal, EntriesCarryPriorityAndTheLinkUnitAndModuleFields) {
         << "journal lines went to stderr too";
 }
 
+// gateway.md §5.3: the communication-loss warning is one entry, with COMM_LOSS=1 to find it by.
+TEST(Journal, CommunicationLossIsOneWarningWithTheCommLossField) {
+    if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
+    SimProcess hub("--hub", "dom16:0", {"--no-line-timing"});
+    TempDir journal;
+    DatagramSocket socket(journal / "socket");
+    JournaledGateway gateway(
+        journal.path(),
+        fmt::format(R"(modbus: {{ listen: "127.0.0.1:0", comm_loss_timeout: 300ms }}
+links:
+  - {{ name: hub0, protocol: ioport, device: {}, timeout: 30ms,
+      modules: [{{ type: dom16, number: 0, initial: 0x00FF, safe: 0 }}] }}
+)",
+                    hub.link()),
+        {"--log", "journal"}, no_environment);
+    auto lost = wait_for_entry(socket, "no Modbus request from any client");
+    ASSERT_FALSE(lost.empty()) << gateway.stderr_text();
+    EXPECT_EQ(lost["PRIORITY"], "4");
+    EXPECT_EQ(lost["COMM_LOSS"], "1");
+    EXPECT_TRUE(wait_for_entry(socket, "no Modbus request from any client", 600ms).empty())
+        << "logged more than once while nobody asked";
+}
+
 TEST(Journal, UnderSystemdStderrIsRecognisedAsTheJournalStream) {
     if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
     SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});

@@ -417,6 +417,47 @@ TEST(GatewayDiagnostics, CountersAreModulo2To32) {
     EXPECT_EQ(image.pair(1008), (std::array<std::uint16_t, 2>{0x1234, 0x5678}));
 }
 
+// §5.1: a request is counted when its response is sent; writes are FC 05, 06, 15, 16 and 23.
+TEST(GatewayTraffic, ResponsesAreCountedByKind) {
+    Traffic traffic;
+    const Bytes read_ok{0x03, 0x02, 0x00, 0x01};
+    count_response(traffic, 0x03, read_ok);
+    count_response(traffic, 0x06, Bytes{0x06, 0x00, 0x00, 0x12, 0x34});
+    count_response(traffic, 0x17, Bytes{0x17, 0x02, 0x00, 0x01});
+    count_response(traffic, 0x10, Bytes{0x90, 0x04});  // error ack
+    count_response(traffic, 0x05, Bytes{0x85, 0x0B});  // no answer, or a closed port
+    count_response(traffic, 0x0F, Bytes{0x8F, 0x03});  // refused before it was sent
+    count_response(traffic, 0x04, Bytes{0x84, 0x0B});  // a stale read
+    count_response(traffic, 0x2B, Bytes{0xAB, 0x02});  // identification is not a write
+    EXPECT_EQ(traffic.requests, 8u);
+    EXPECT_EQ(traffic.exceptions, 5u);
+    EXPECT_EQ(traffic.writes_confirmed, 2u);
+    EXPECT_EQ(traffic.writes_failed, 2u);
+}
+
+TEST(GatewayTraffic, Registers1010To1020) {
+    Image image;
+    Front front;
+    front.traffic = {0x1'0000'0007, 3, 0xFFFF'FFFF, 0x12'3456};
+    front.connections = 70000;
+    front.since_previous_request = 2500ms;
+    front.comm_loss = true;
+    store_front(image.tables(), front, WordOrder::big);
+    EXPECT_EQ(image.pair(1010), (std::array<std::uint16_t, 2>{0, 7}));  // modulo 2^32
+    EXPECT_EQ(image.pair(1012), (std::array<std::uint16_t, 2>{0, 3}));
+    EXPECT_EQ(image.pair(1014), (std::array<std::uint16_t, 2>{0xFFFF, 0xFFFF}));
+    EXPECT_EQ(image.pair(1016), (std::array<std::uint16_t, 2>{0x12, 0x3456}));
+    EXPECT_EQ(image.input_registers[1018], 65535);  // saturates
+    EXPECT_EQ(image.input_registers[1019], 2);      // whole seconds
+    EXPECT_EQ(image.input_registers[1020], 1);
+    front.since_previous_request = 100h;
+    front.comm_loss = false;
+    store_front(image.tables(), front, WordOrder::little);
+    EXPECT_EQ(image.pair(1016), (std::array<std::uint16_t, 2>{0x3456, 0x12}));
+    EXPECT_EQ(image.input_registers[1019], 65535);
+    EXPECT_EQ(image.input_registers[1020], 0);
+}
+
 TEST(GatewayDiagnostics, ModuleStatusAgeAndOnline) {
     Image image;
     store_diagnostics(image.tables(), sample_diagnostics(), WordOrder::big);
@@ -530,7 +571,7 @@ struct Block {
 // gateway.md §4, as written there.
 constexpr std::array ioport_blocks{
     Block{Table::input_registers, 0, 79},      Block{Table::input_registers, 200, 327},
-    Block{Table::input_registers, 1000, 1009}, Block{Table::input_registers, 1100, 1171},
+    Block{Table::input_registers, 1000, 1020}, Block{Table::input_registers, 1100, 1171},
     Block{Table::input_registers, 1200, 1271}, Block{Table::discrete_inputs, 0, 255},
     Block{Table::discrete_inputs, 1000, 1071}, Block{Table::coils, 0, 127},
     Block{Table::holding_registers, 0, 23},
@@ -539,7 +580,7 @@ constexpr std::array id2_blocks{
     Block{Table::discrete_inputs, 0, 0},
     Block{Table::input_registers, 0, 0},
     Block{Table::coils, 0, 0},
-    Block{Table::input_registers, 1000, 1009},
+    Block{Table::input_registers, 1000, 1020},
     Block{Table::input_registers, 1100, 1171},
     Block{Table::input_registers, 1200, 1271},
     Block{Table::discrete_inputs, 1000, 1071},
@@ -899,8 +940,9 @@ TEST(GatewayMap, RowsOfASmallIoportUnit) {
     EXPECT_EQ(count(Table::coils), 16);                // dom16 0
     EXPECT_EQ(count(Table::discrete_inputs), 16 + 5);  // dim16 0, online of 5 slots
     EXPECT_EQ(count(Table::holding_registers), 3);     // dom16, rgbdm, mux8m
-    EXPECT_EQ(count(Table::input_registers), 1 + 3 + 3 + 6 + 5 + 5);
-    EXPECT_EQ(rows.size(), 63U);
+    // dim16 word, acm3p raw and float, the 13 link rows (6 of §2.3, 7 of §5.1), status, age
+    EXPECT_EQ(count(Table::input_registers), 1 + 3 + 3 + 13 + 5 + 5);
+    EXPECT_EQ(rows.size(), 70U);
     EXPECT_TRUE(std::is_sorted(rows.begin(), rows.end(), [](const MapRow& a, const MapRow& b) {
         return std::pair{a.table, a.address} < std::pair{b.table, b.address};
     }));
@@ -982,12 +1024,12 @@ TEST(GatewayMap, SingleChannelAnalogModules) {
     EXPECT_EQ(volts->units, "V");
     EXPECT_NE(find_row(rows, Table::input_registers, 65), nullptr);
     EXPECT_NE(find_row(rows, Table::input_registers, 79), nullptr);
-    EXPECT_EQ(rows.size(), 2U * 5 + 6);  // raw, float, status, age, online per module; link
+    EXPECT_EQ(rows.size(), 2U * 5 + 13);  // raw, float, status, age, online per module; link
 }
 
 TEST(GatewayMap, Id2Rows) {
     const auto rows = map_rows({UnitKind::id2, 2, "press", {}});
-    ASSERT_EQ(rows.size(), 12U);  // coil, DI, DI 1000, IR, 6 link, 1100, 1200
+    ASSERT_EQ(rows.size(), 19U);  // coil, DI, DI 1000, IR, 13 link, 1100, 1200
     EXPECT_EQ(rows[0].table, Table::coils);
     EXPECT_EQ(rows[0].module, "ID-2");
     EXPECT_EQ(rows[0].access, "write");
@@ -999,9 +1041,14 @@ TEST(GatewayMap, Id2Rows) {
     EXPECT_EQ(rows[3].address, 0);
     EXPECT_EQ(rows[3].module, "ID-2");
     EXPECT_EQ(rows[4].module, "link press");
-    EXPECT_EQ(rows[10].address, 1100);
-    EXPECT_EQ(rows[10].module, "ID-2");
-    EXPECT_EQ(rows[11].address, 1200);
+    EXPECT_EQ(rows[10].address, 1010);
+    EXPECT_EQ(rows[10].data_type, "uint32");
+    EXPECT_EQ(rows[16].address, 1020);
+    EXPECT_EQ(rows[16].description,
+              "communication loss: 0 normal, 1 outputs were put in their safe state");
+    EXPECT_EQ(rows[17].address, 1100);
+    EXPECT_EQ(rows[17].module, "ID-2");
+    EXPECT_EQ(rows[18].address, 1200);
 }
 
 TEST(GatewayMap, Markdown) {
@@ -1014,7 +1061,7 @@ TEST(GatewayMap, Markdown) {
     ASSERT_EQ(text.substr(0, header.size()), header);
     EXPECT_EQ(text.substr(header.size(), text.find('\n', header.size()) + 1 - header.size()),
               "| coils | 0 | 000001 | 1 | dom16 0 | o0 | bit |  | read/write | output 0 |\n");
-    EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 2 + 63);
+    EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 2 + 70);
     // A | inside a cell would end it.
     EXPECT_NE(text.find("| 16 | 400017 | 1 | mux8m 0 |  | uint16 |  | read/write | (pos << 8) "
                         "\\| neg"),
@@ -1033,7 +1080,7 @@ TEST(GatewayMap, Csv) {
     ASSERT_EQ(text.substr(0, header.size()), header);
     EXPECT_EQ(text.substr(header.size(), text.find('\n', header.size()) + 1 - header.size()),
               "coils,0,000001,1,dom16 0,o0,bit,,read/write,output 0\r\n");
-    EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 1 + 63);
+    EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 1 + 70);
     EXPECT_NE(text.find("holding registers,8,400009,1,rgbdm 0,,uint16,,read/write,\"colour: 0 "
                         "off, 1 red,"),
               std::string::npos)

@@ -27,6 +27,7 @@ TEST(JournalEntry, LevelsMapToSyslogPriorities) {
     EXPECT_EQ(journal_entry(LogLevel::info, {.client = "10.0.0.5:502"}, "x").back(),
               "CLIENT=10.0.0.5:502");
     EXPECT_EQ(journal_entry(LogLevel::info, {}, "x").size(), 3U);
+    EXPECT_EQ(journal_entry(LogLevel::warn, {.comm_loss = true}, "x").back(), "COMM_LOSS=1");
 }
 
 TEST(JournalStream, MatchesOnlyItsOwnDeviceAndInode) {

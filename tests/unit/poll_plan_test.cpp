@@ -55,7 +55,7 @@ TEST_F(PollPlanTest, WritesTakeTurnsWithDueWorkButNeverWait) {
             plan.done(1, false, t0);  // the write to the output module failed
             continue;
         }
-        order += (step.kind == Kind::poll ? "p" : "r") + std::to_string(step.entry) + " ";
+        order.append(step.kind == Kind::poll ? "p" : "r").append(std::to_string(step.entry)) += ' ';
         plan.done(step.entry, true, t0);
     }
     // The refresh backs off after the failed writes; the inputs are served every other step.
