@@ -33,6 +33,7 @@ struct Binaries {
     std::string ioportd = IOPORTD_BINARY;
     std::string sim = IOPORT_SIM_BINARY;
     std::string plain_server = PLAIN_SERVER_BINARY;
+    std::string baseline;  // --baseline: an earlier ioportd, measured beside it in benchmark 4
 };
 
 // Where things run. The server under test (ioportd or the plain server) gets a CPU to itself;

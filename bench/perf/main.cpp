@@ -25,6 +25,8 @@ unless a program could not be started.
                     figures mean nothing
   --scale X         multiply every measured window by X (default 1)
   --ioportd PATH    the ioportd to measure (default: the one built beside this program)
+  --baseline PATH   benchmark 4 also measures this ioportd (an earlier build) in the same
+                    alternating rounds, and prints CPU per request and rate against it
   --no-pin          do not pin servers and clients to CPUs 1 and 0
   --no-latency-hold let idle CPUs halt during benchmarks 1-4 as well (see WakeupLatencyHold
                     in harness.hpp): their figures then include the hypervisor's wake-ups
@@ -78,6 +80,8 @@ int main(int argc, char** argv) {
             env.scale = std::atof(argv[++i]);
         } else if (arg == "--ioportd" && i + 1 < argc) {
             env.binaries.ioportd = argv[++i];
+        } else if (arg == "--baseline" && i + 1 < argc) {
+            env.binaries.baseline = argv[++i];
         } else if (arg == "-h" || arg == "--help") {
             std::cout << usage;
             return 0;

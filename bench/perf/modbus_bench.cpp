@@ -1,6 +1,9 @@
 // Benchmark 4, Modbus throughput and latency: the same load against ioportd and against the
 // plain select() libmodbus server (plain_server.cpp), both on the server CPU, in one run, while
 // ioportd polls a full bus and eight dom16 at 115200 baud with modelled line timing.
+#include <algorithm>
+#include <array>
+
 #include <fmt/format.h>
 
 #include "bench/perf/benchmarks.hpp"
@@ -51,18 +54,38 @@ std::vector<Verdict> modbus_throughput(const Environment& env) {
     PlainServer plain(env, dir);
     if (!sim.ready() || !gateway.started() || plain.port() == 0 || !gateway.wait_until_polling())
         return {{"4. Modbus", "servers did not start", "", false}};
+    // --baseline: another ioportd (an earlier build) on a simulator of its own, measured in the
+    // same alternating rounds, so that a change's cost on the request path is a ratio of one run.
+    std::optional<TempDir> baseline_dir;
+    std::optional<SimProcess> baseline_sim;
+    std::optional<Gateway> baseline;
+    if (!env.binaries.baseline.empty()) {
+        auto baseline_env = env;
+        baseline_env.binaries.ioportd = env.binaries.baseline;
+        baseline_dir.emplace();
+        baseline_sim.emplace(env, *baseline_dir / "tty", modules,
+                             std::vector<std::string>{"--baud", "115200", "--turnaround", "0"});
+        baseline.emplace(baseline_env, *baseline_dir,
+                         gateway_yaml({{*baseline_dir / "tty", 115200, modules}}, 300));
+        if (!baseline_sim->ready() || !baseline->started() || !baseline->wait_until_polling())
+            return {{"4. Modbus", "the baseline ioportd did not start", "", false}};
+    }
 
     const std::vector<int> counts = env.quick ? std::vector<int>{1, 8} : std::vector{1, 8, 64, 256};
     const int rounds = env.quick ? 1 : 3;
+    enum Server { on_plain_server, on_ioportd_server, on_baseline_server };
+    const auto run_on = [&](int connections, Mix mix, Server server) {
+        const auto port = server == on_plain_server     ? plain.port()
+                          : server == on_ioportd_server ? gateway.port()
+                                                        : baseline->port();
+        const auto pid = server == on_plain_server     ? plain.pid()
+                         : server == on_ioportd_server ? gateway.pid()
+                                                       : baseline->pid();
+        return run_load(
+            {port, pid, connections, mix, 1, env.quick ? 100ms : 500ms, env.window(3s), {}});
+    };
     const auto run = [&](int connections, Mix mix, bool ioportd) {
-        return run_load({ioportd ? gateway.port() : plain.port(),
-                         ioportd ? gateway.pid() : plain.pid(),
-                         connections,
-                         mix,
-                         1,
-                         env.quick ? 100ms : 500ms,
-                         env.window(3s),
-                         {}});
+        return run_on(connections, mix, ioportd ? on_ioportd_server : on_plain_server);
     };
     std::vector<Verdict> verdicts;
 
@@ -70,22 +93,42 @@ std::vector<Verdict> modbus_throughput(const Environment& env) {
                rounds, env.window(3s).count());
     Table reads({"connections", "server", "req/s", "p50 µs", "p99 µs", "p99.9 µs",
                  "server CPU µs/req", "server CPU", "errors"});
+    std::vector<std::vector<std::string>> against_baseline;  // printed after the reads
     for (const int connections : counts) {
-        std::optional<LoadResult> on_plain, on_ioportd;
-        for (int round = 0; round < rounds; ++round)
-            for (const bool ioportd :
-                 round % 2 == 0 ? std::vector{false, true} : std::vector{true, false}) {
-                auto result = run(connections, Mix::reads, ioportd);
-                auto& total = ioportd ? on_ioportd : on_plain;
+        std::array<std::optional<LoadResult>, 3> totals;
+        std::vector<Server> order{on_plain_server, on_ioportd_server};
+        if (baseline) order.push_back(on_baseline_server);
+        for (int round = 0; round < rounds; ++round) {
+            for (const auto server : order) {
+                auto result = run_on(connections, Mix::reads, server);
+                auto& total = totals[server];
                 if (total)
                     total->add(std::move(result));
                 else
                     total = std::move(result);
             }
-        const auto p = measured("plain", on_plain);
-        const auto d = measured("ioportd", on_ioportd);
+            std::rotate(order.begin(), order.begin() + 1, order.end());  // no server always first
+        }
+        const auto p = measured("plain", totals[on_plain_server]);
+        const auto d = measured("ioportd", totals[on_ioportd_server]);
         print(reads, connections, p);
         print(reads, connections, d);
+        if (baseline) {
+            const auto b = measured("baseline", totals[on_baseline_server]);
+            print(reads, connections, b);
+            const double rate = d.load.per_second() / b.load.per_second();
+            const double cpu = d.load.cpu_us_per_request() / b.load.cpu_us_per_request();
+            against_baseline.push_back(
+                {fmt::format("{}", connections), fmt::format("{:.0f}", d.load.per_second()),
+                 fmt::format("{:.0f}", b.load.per_second()), fmt::format("{:.3f}", rate),
+                 fmt::format("{:.2f}", d.load.cpu_us_per_request()),
+                 fmt::format("{:.2f}", b.load.cpu_us_per_request()),
+                 fmt::format("**{:.3f}**", cpu)});
+            machine_line(fmt::format(
+                R"({{"bench":"modbus_baseline","connections":{},"ioportd_rps":{:.0f},"baseline_rps":{:.0f},"rps_ratio":{:.3f},"ioportd_cpu_us":{:.2f},"baseline_cpu_us":{:.2f},"cpu_ratio":{:.3f}}})",
+                connections, d.load.per_second(), b.load.per_second(), rate,
+                d.load.cpu_us_per_request(), b.load.cpu_us_per_request(), cpu));
+        }
         const double rate = d.load.per_second() / p.load.per_second();
         const double cpu = d.load.cpu_us_per_request() / p.load.cpu_us_per_request();
         const double p99 = d.latency.p99 / p.latency.p99;
@@ -119,6 +162,13 @@ std::vector<Verdict> modbus_throughput(const Environment& env) {
                  "<= 1.25× plain", ok && p99 <= 1.25});
     }
 
+    if (baseline) {
+        fmt::print("\n### Reads, ioportd against the baseline {}\n", env.binaries.baseline);
+        const Table table({"connections", "ioportd req/s", "baseline req/s", "ratio",
+                           "ioportd CPU µs/req", "baseline CPU µs/req", "ratio"});
+        for (const auto& row : against_baseline)
+            table.row(row);
+    }
     // Writes: ioportd answers only after the device acknowledged, so a write costs a serial
     // transaction: the line, not the server, sets the rate. Reported against that limit.
     const double limit =

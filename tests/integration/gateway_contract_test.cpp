@@ -1204,6 +1204,11 @@ TEST_F(CommLossOffTest, ZeroTurnsItOff) {
     }));
     EXPECT_EQ(sim_value(hub, "dom16:0"), "4660");
     EXPECT_FALSE(gateway.wait_for_log("no Modbus request", 0ms));
+    // SIGHUP turns it on (and the silence already counts from the last request).
+    gateway.rewrite_config(config(hub_link(hub.link(), modules), "  comm_loss_timeout: 300ms"));
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("SIGHUP: reloaded"));
+    EXPECT_TRUE(sim_becomes("dom16:0", "1"));
 }
 
 // --- §3.5 The Modbus front ------------------------------------------------------------------
