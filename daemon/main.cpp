@@ -176,16 +176,24 @@ int main(int argc, char** argv) {
         case Options::Mode::version:
             std::cout << "ioportd " << IOPORTD_VERSION << "\n";
             return 0;
-        default:
-            break;
+        case Options::Mode::check_config:
+        case Options::Mode::print_map:
+        case Options::Mode::run:
+            break;  // they need the configuration
     }
     auto config = load(options->config_path);
     if (!config) return 1;
-    if (options->mode == Options::Mode::check_config) {
-        std::cout << options->config_path << ": valid\n" << ioport::daemon::describe(*config);
-        return 0;
+    switch (options->mode) {
+        case Options::Mode::check_config:
+            std::cout << options->config_path << ": valid\n" << ioport::daemon::describe(*config);
+            return 0;
+        case Options::Mode::print_map:
+            return print_map(*config, options->map_format);
+        case Options::Mode::run:
+        case Options::Mode::help:
+        case Options::Mode::version:
+            break;
     }
-    if (options->mode == Options::Mode::print_map) return print_map(*config, options->map_format);
     Log log(log_target(options->log_target), options->log_level.value_or(config->log_level));
     Daemon daemon(*options, std::move(*config), log);
     return daemon.run();
