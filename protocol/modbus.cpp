@@ -71,15 +71,21 @@ void decode_fixed(Request& request, std::span<const std::uint8_t> pdu) {
     }
 }
 
-void decode_multiple(Request& request, std::span<const std::uint8_t> pdu) {
-    request.address = field(pdu, 1);
-    request.quantity = field(pdu, 3);
-    if (pdu.size() < multiple_header_length) return;
-    const std::size_t byte_count = pdu[5];
-    const auto present = pdu.subspan(multiple_header_length);
+// The values after the byte count that ends a header of `header` bytes: well formed when they
+// are as many as it says and it is what the quantity needs.
+void decode_values(Request& request, std::span<const std::uint8_t> pdu, std::size_t header) {
+    if (pdu.size() < header) return;
+    const std::size_t byte_count = pdu[header - 1];
+    const auto present = pdu.subspan(header);
     request.values = present.first(std::min(byte_count, present.size()));
     request.well_formed =
         present.size() == byte_count && byte_count == expected_byte_count(request);
+}
+
+void decode_multiple(Request& request, std::span<const std::uint8_t> pdu) {
+    request.address = field(pdu, 1);
+    request.quantity = field(pdu, 3);
+    decode_values(request, pdu, multiple_header_length);
 }
 
 void decode_read_write(Request& request, std::span<const std::uint8_t> pdu) {
@@ -87,12 +93,7 @@ void decode_read_write(Request& request, std::span<const std::uint8_t> pdu) {
     request.read_quantity = field(pdu, 3);
     request.address = field(pdu, 5);
     request.quantity = field(pdu, 7);
-    if (pdu.size() < read_write_header_length) return;
-    const std::size_t byte_count = pdu[9];
-    const auto present = pdu.subspan(read_write_header_length);
-    request.values = present.first(std::min(byte_count, present.size()));
-    request.well_formed =
-        present.size() == byte_count && byte_count == std::size_t{request.quantity} * 2;
+    decode_values(request, pdu, read_write_header_length);
 }
 
 std::uint16_t limit(Function function) {
