@@ -78,6 +78,7 @@ modbus:
   word_order: little
   stale: hold
   keepalive: 90s
+  comm_loss_timeout: 2500ms
 on_shutdown: initial
 log_level: debug
 links:
@@ -88,11 +89,18 @@ links:
     unit_id: 247
     timeout: 1500us
     retries: 10
+    identity:
+      vendor_name: "ACME Automation"
+      product_code: ioportd-hub0
+      vendor_url: "https://example.invalid/hub0"
+      product_name: "Remote I/O gateway"
+      model_name: hub8u
+      user_application_name: "Press line 3, cabinet 7"
     modules:
       - { type: dim16, number: 7, poll: 250ms }
-      - { type: dom16, number: 1, initial: 0b1010, refresh: 10ms }
-      - { type: rgbdm, number: 2, initial: magenta, refresh: 2m }
-      - { type: mux8m, number: 3, initial: 0x0702 }
+      - { type: dom16, number: 1, initial: 0b1010, safe: 0, refresh: 10ms }
+      - { type: rgbdm, number: 2, initial: magenta, safe: red, refresh: 2m }
+      - { type: mux8m, number: 3, initial: 0x0702, safe: 0x0707 }
       - { type: acm3c, number: 4 }
       - { type: dccim, number: 5, poll: 0 }
       - { type: dcvim, number: 6 }
