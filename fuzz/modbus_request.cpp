@@ -750,6 +750,10 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
         check(supported == (*exception != Exception::illegal_function ||
                             (policy_.read_only && parsed && parsed->write)),
               "01 answers an unsupported function, or a write when read-only");
+        check(*exception != Exception::illegal_data_address || parsed->write ||
+                  !inside_one_block(unit->state.kind, parsed->table, parsed->address,
+                                    parsed->quantity),
+              "02 answers a read only when it does not lie inside one block of gateway.md §4");
         const auto reply = answered(replies_->exception(request, *exception));
         check_exception(adu, reply, *exception);
         check_image(*unit, before, nullptr, {});
