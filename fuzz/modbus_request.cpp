@@ -3,30 +3,55 @@
 //
 // It runs what ModbusServer::serve, ::answer and ::write run, minus the sockets and the serial
 // links: modbus::next_adu frames the stream, the unit is looked up as set_units() arranges them,
-// gateway::plan() decides, a write's changes are merged and stored as LinkScheduler::apply does
-// once the device answered, and libmodbus builds the response through the daemon's own
-// ReplyBuilder.
+// Read Device Identification (FC 43) is answered from the unit's identity right after the lookup,
+// gateway::plan() decides everything else, a write's changes are merged and stored as
+// LinkScheduler::apply does once the device answered, FC 23's read part is decided by
+// gateway::read_back() once its write is done, libmodbus builds the response through the
+// daemon's own ReplyBuilder, and each response is counted with gateway::count_response into the
+// unit's traffic, which a read of the diagnostics stores with gateway::store_front.
 //
 // Input: a scenario of `scenario_length` bytes, then the stream.
 //   byte 0     bit 0 read_only, bit 1 stale: hold, bit 2 only the hub is configured (so unit ids
 //              0 and 255 reach it too), bit 3 the hub's port is closed, bit 4 the ID-2's port is
-//              closed, bit 5 word_order: little
+//              closed, bit 5 word_order: little, bit 6 communication loss (§5.3) before the
+//              first request
 //   bytes 1-8  two bits per configured module, in configuration order (the ID-2 last): its
 //              status, 0 online, 1 no answer, 2 bad answer, 3 not polled yet
 //   bytes 9-10 two bits per device command sent for a write, cycling: 0 and 1 acknowledged,
 //              2 error ack, 3 no answer
 // All zeros is the everyday case: every port open, every module online, every command acked.
 //
-// Invariants, from gateway.md rather than from the code under test: each response echoes the
-// request's transaction id and unit id, has a consistent length and is one of the responses the
-// request allows (the exception planned, with the high bit set, or the normal response whose
-// values are the image's); a planned request lies inside one block of §4; the image changes
-// only at the outputs of modules whose device acknowledged a write, to the merged value, and a
-// dom16's coils and register always agree; an unfinished request always fits the server's
-// buffer.
+// Invariants, from gateway.md rather than from the code under test:
+// - each response echoes the request's transaction id and unit id, has a consistent length and
+//   is one of the responses the request allows (the exception planned, with the high bit set, or
+//   the normal response whose values are the image's);
+// - a planned request lies inside one block of §4 (the diagnostics are 1000-1020); FC 23's write
+//   and read ranges both lie in the holding registers 0-23;
+// - the image changes only at the outputs of modules whose device acknowledged a write, to the
+//   merged value, and a dom16's coils and register always agree;
+// - FC 23 (§5.2): a failed write answers its exception and reads nothing; otherwise the response
+//   is function 0x17, a byte count of 2 x the read quantity and the holding registers as they
+//   are after the write (or 0B, with stale: exception, when the read touches a module that is not
+//   online then);
+// - FC 43/14 (§5.2, MAP v1.1b3 §6.21): a MEI type other than 14 answers 01, a Read Device ID code
+//   outside 01-04 answers 03, code 04 answers exactly the one object asked for or 02; otherwise
+//   the PDU is 2B 0E <code> 82 <more follows 00|FF> <next object id> <number of objects> and the
+//   objects, whose ids are at most 6, increasing and consecutive from where the stream starts
+//   (the object asked for, or 0x00 when it is not one of the category's: 00-02 basic, 00-06
+//   regular and extended), each the unit's value; "more follows" exactly when the next object
+//   does not fit; the image does not change, whatever the port, the modules or read_only;
+// - the traffic counters (§5.1): requests >= exceptions, writes confirmed + failed <= requests,
+//   and they count as the spec says (every response to a known unit is a request, a response
+//   with the high bit an exception, FC 05/06/15/16/23 answered normally a confirmed write and
+//   answered 04 or 0B a failed one); a read of 1010-1020 returns them as they were before that
+//   request, in the configured word order, 1018 the one connection, 1019 the seconds since the
+//   previous request saturating at 65535, 1020 1 only for the first request after a
+//   communication loss and else 0;
+// - an unfinished request always fits the server's buffer.
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <chrono>
 #include <cstdint>
 #include <cstring>
 #include <memory>
@@ -37,8 +62,10 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
+#include "daemon/identity.hpp"
 #include "daemon/modbus_reply.hpp"
 #include "fuzz/fuzz.hpp"
+#include "protocol/device_identification.hpp"
 #include "protocol/gateway_map.hpp"
 #include "protocol/modbus.hpp"
 
@@ -53,6 +80,8 @@ using modbus::Table;
 constexpr std::size_t scenario_length = 11;
 
 // Two modules of every type, a dom16 pair side by side (one write can span both), and an ID-2.
+// The hub's identity has objects of the longest length allowed, so that a stream of the regular
+// objects does not fit one response ("more follows"); the ID-2 has ioportd's own.
 constexpr std::string_view configuration = R"(
 modbus:
   listen: "127.0.0.1:1502"
@@ -61,6 +90,12 @@ links:
     protocol: ioport
     device: /dev/ttyUSB0
     unit_id: 1
+    identity:
+      vendor_name: "Vendor name of sixty-four printable characters: a response fills"
+      product_code: "Product code of 64 characters, so that a stream fits no one PDU."
+      vendor_url: "Vendor URL of sixty-four characters: https://example.invalid/012"
+      product_name: "Product name of sixty-four characters: more follows, then the id"
+      model_name: hub8u
     modules:
       - { type: dim16, number: 0 }
       - { type: dim16, number: 7 }
@@ -96,6 +131,38 @@ const config::GatewayConfig& gateway_config() {
     return config;
 }
 
+// The version the daemon is built as (daemon/CMakeLists.txt); the fuzz target gets the same.
+constexpr std::string_view version = IOPORTD_VERSION;
+
+// A link's Read Device Identification objects as gateway.md §5.2 sets them: `identity:` where
+// given, else ioportd's own; MajorMinorRevision the version; ModelName "ioport hub" or "ID-2";
+// UserApplicationName the link's name.
+modbus::DeviceIdentity spec_identity(const config::LinkConfig& link) {
+    const bool id2 = link.protocol == config::Protocol::id2;
+    constexpr auto revision = static_cast<std::size_t>(modbus::DeviceObject::major_minor_revision);
+    const std::array<std::string_view, modbus::device_object_count> defaults{
+        "ioportd developers",
+        "ioportd",
+        version,
+        "man:ioportd(8)",
+        "ioportd serial-to-Modbus gateway",
+        id2 ? "ID-2" : "ioport hub",
+        link.name};
+    modbus::DeviceIdentity identity;
+    for (std::size_t id = 0; id < identity.size(); ++id)
+        identity[id] = link.identity[id].empty() || id == revision ? std::string(defaults[id])
+                                                                   : link.identity[id];
+    return identity;
+}
+
+// What the daemon answers (daemon/identity.hpp), checked against the spec's objects.
+modbus::DeviceIdentity unit_identity(const config::LinkConfig& link) {
+    auto identity = daemon::device_identity(link, version);
+    check(identity == spec_identity(link),
+          "a unit's identity objects are those of gateway.md §5.2");
+    return identity;
+}
+
 std::uint16_t be16(std::span<const std::uint8_t> bytes, std::size_t at) {
     return static_cast<std::uint16_t>(bytes[at] << 8 | bytes[at + 1]);
 }
@@ -108,7 +175,7 @@ struct Block {
     int last;
 };
 
-constexpr std::array<Block, 4> diagnostics_blocks{{{Table::input_registers, 1000, 1009},
+constexpr std::array<Block, 4> diagnostics_blocks{{{Table::input_registers, 1000, 1020},
                                                    {Table::input_registers, 1100, 1171},
                                                    {Table::input_registers, 1200, 1271},
                                                    {Table::discrete_inputs, 1000, 1071}}};
@@ -143,6 +210,9 @@ struct Unit {
     gateway::UnitState state;
     daemon::UnitImage image;
     std::array<std::uint16_t, slot_count> desired{};  // outputs: last confirmed value
+    modbus::DeviceIdentity identity;
+    gateway::Traffic traffic;  // as the server keeps it: gateway::count_response
+    gateway::Traffic counted;  // as gateway.md §5.1 counts: the harness's own
 };
 
 // A copy of a unit's tables. Copied and compared with memcpy and ==, which the coverage
@@ -210,6 +280,13 @@ class Harness {
     void refresh_diagnostics(Unit& unit);
     void check_image(const Unit& unit, const Image& before, const modbus::Request* request,
                      const std::array<bool, slot_count>& acked);
+    // FC 23's response once its write succeeded.
+    void check_read_back(const Unit& unit, const modbus::Request& request,
+                         std::span<const std::uint8_t> adu, const Bytes& reply,
+                         const gateway::Plan& read) const;
+    // Registers 1010-1020 in a read from `address` of `quantity` input registers.
+    void check_front(const gateway::Traffic& counted, std::uint16_t address, std::uint16_t quantity,
+                     const Bytes& reply) const;
 
     gateway::Policy policy_;
     gateway::WordOrder word_order_;
@@ -219,6 +296,11 @@ class Harness {
     daemon::Mapping scratch_ = daemon::scratch_mapping();
     std::unique_ptr<daemon::ReplyBuilder> replies_;
     std::uint64_t handled_ = 0;
+    // §5.1 and §5.3 as the server keeps them: the time between the request before this one and
+    // this one (a made-up clock, so that 1019 saturates after a few requests), and whether the
+    // outputs were put in their safe state since the last request.
+    std::chrono::microseconds since_previous_{};
+    bool comm_loss_ = false;
 };
 
 ModuleStatus status_from(unsigned bits) {
@@ -252,7 +334,8 @@ Harness::Harness(std::span<const std::uint8_t, scenario_length> scenario)
     : policy_{(scenario[0] & 1U) != 0,
               (scenario[0] & 2U) != 0 ? gateway::Stale::hold : gateway::Stale::exception},
       word_order_((scenario[0] & 32U) != 0 ? gateway::WordOrder::little : gateway::WordOrder::big),
-      devices_(be16(scenario, 9)) {
+      devices_(be16(scenario, 9)),
+      comm_loss_((scenario[0] & 64U) != 0) {
     const auto& config = gateway_config();
     const bool hub_only = (scenario[0] & 4U) != 0;
     std::size_t module_index = 0;
@@ -264,6 +347,7 @@ Harness::Harness(std::span<const std::uint8_t, scenario_length> scenario)
         if (hub_only && link.protocol == config::Protocol::id2) continue;
         auto unit = std::make_unique<Unit>();
         unit->link = &link;
+        unit->identity = unit_identity(link);
         // As LinkScheduler's constructor sets the state up, then the scenario's statuses.
         const bool id2 = link.protocol == config::Protocol::id2;
         unit->state.kind = id2 ? gateway::UnitKind::id2 : gateway::UnitKind::ioport;
@@ -326,6 +410,7 @@ void Harness::serve(std::span<const std::uint8_t> stream) {
                   adu.size() >= modbus::mbap_length + 1 && adu.size() <= modbus::max_adu_length,
               "a request is the front of the stream, as long as its header says");
         handle(adu);
+        comm_loss_ = false;  // §5.3: the first request after a loss reads 1020 as 1, later ones 0
         buffered = buffered.subspan(adu.size());
     }
 }
@@ -455,15 +540,166 @@ void Harness::check_image(const Unit& unit, const Image& before, const modbus::R
     }
 }
 
+bool same_image(const Image& a, const Image& b) {
+    return a.coils == b.coils && a.discrete_inputs == b.discrete_inputs &&
+           a.holding_registers == b.holding_registers && a.input_registers == b.input_registers;
+}
+
+// §5.1 counted as the spec words it: every response to a known unit is a request, one with the
+// high bit set an exception; a write (FC 05, 06, 15, 16, 23) answered normally is confirmed, one
+// answered 04 or 0B failed.
+void count_as_spec(gateway::Traffic& counted, std::uint8_t function, const Bytes& reply) {
+    constexpr std::array<std::uint8_t, 5> writes{0x05, 0x06, 0x0F, 0x10, 0x17};
+    const bool write = std::find(writes.begin(), writes.end(), function) != writes.end();
+    ++counted.requests;
+    if ((reply[0] & 0x80U) == 0) {
+        if (write) ++counted.writes_confirmed;
+        return;
+    }
+    ++counted.exceptions;
+    if (write && (reply[1] == 0x04 || reply[1] == 0x0B)) ++counted.writes_failed;
+}
+
+bool same_traffic(const gateway::Traffic& a, const gateway::Traffic& b) {
+    return a.requests == b.requests && a.exceptions == b.exceptions &&
+           a.writes_confirmed == b.writes_confirmed && a.writes_failed == b.writes_failed;
+}
+
+// FC 43 / MEI 14 (gateway.md §5.2, MAP v1.1b3 §6.21) against the unit's objects.
+void check_identification(std::span<const std::uint8_t> adu, const Bytes& reply,
+                          const modbus::DeviceIdentity& identity) {
+    constexpr std::size_t max_pdu = 253;
+    constexpr std::size_t header = 7;  // 2B 0E code conformity more next count
+    constexpr std::size_t last_regular = 6;
+    const auto pdu = adu.subspan(modbus::mbap_length);
+    if (pdu.size() < 2 || pdu[1] != 0x0E) {
+        check_exception(adu, reply, Exception::illegal_function);  // another MEI type
+        return;
+    }
+    const std::uint8_t code = pdu.size() == 4 ? pdu[2] : 0;
+    if (code < 1 || code > 4) {
+        check_exception(adu, reply, Exception::illegal_data_value);
+        return;
+    }
+    const std::size_t asked = pdu[3];
+    if (code == 4 && asked > last_regular) {
+        check_exception(adu, reply, Exception::illegal_data_address);
+        return;
+    }
+    check(reply.size() >= header && reply.size() <= max_pdu,
+          "an identification response is a header and objects, within a PDU");
+    check(reply[0] == 0x2B && reply[1] == 0x0E && reply[2] == code && reply[3] == 0x82,
+          "an identification response is 2B 0E, the code asked for and conformity level 82");
+    const auto more = reply[4];
+    const std::size_t next = reply[5];
+    check(more == 0x00 || more == 0xFF, "more follows is 00 or FF");
+    std::size_t objects = 0;
+    std::size_t first = 0;
+    std::size_t previous = 0;
+    for (std::size_t at = header; at < reply.size();) {
+        check(at + 2 <= reply.size(), "an object has its id and its length");
+        const std::size_t id = reply[at];
+        const std::size_t length = reply[at + 1];
+        check(at + 2 + length <= reply.size(), "an object is as long as its length says");
+        check(id <= last_regular && (objects == 0 || id > previous),
+              "object ids are at most 6 and increase");
+        check(objects == 0 || id == previous + 1, "a stream's objects are consecutive");
+        const auto& value = identity[id];
+        check(length == value.size() &&
+                  std::equal(value.begin(), value.end(), reply.begin() + at + 2),
+              "an object is the unit's value");
+        if (objects == 0) first = id;
+        previous = id;
+        ++objects;
+        at += 2 + length;
+    }
+    check(objects == reply[6], "the number of objects is the objects'");
+    if (code == 4) {
+        check(objects == 1 && first == asked && more == 0 && next == 0,
+              "individual access answers the one object asked for");
+        return;
+    }
+    const std::size_t last = code == 1 ? 2 : last_regular;  // basic 00-02; regular, extended 00-06
+    check(objects >= 1 && first == (asked <= last ? asked : 0),
+          "a stream starts at the object asked for, or at 00 when it is not of the category");
+    if (more == 0)
+        check(previous == last && next == 0, "a whole stream ends at its category's last object");
+    else
+        check(previous < last && next == previous + 1 &&
+                  reply.size() + 2 + identity[next].size() > max_pdu,
+              "more follows exactly when the next object does not fit, and names it");
+}
+
+void Harness::check_read_back(const Unit& unit, const modbus::Request& request,
+                              std::span<const std::uint8_t> adu, const Bytes& reply,
+                              const gateway::Plan& read) const {
+    // §3.3: a read touching a configured module that is not online answers 0B with stale:
+    // exception; FC 23's read part is such a read, decided after its write.
+    bool stale = false;
+    for (int reg = request.read_address; reg < request.read_address + request.read_quantity;
+         ++reg) {
+        const auto status = unit.state.status[static_cast<std::size_t>(slot_of_register(reg))];
+        stale = stale || (status != ModuleStatus::not_configured && status != ModuleStatus::online);
+    }
+    if (stale && policy_.stale == gateway::Stale::exception) {
+        check_exception(adu, reply, Exception::gateway_target_failed);
+        return;
+    }
+    const auto* plan = std::get_if<gateway::ReadPlan>(&read);
+    check(plan != nullptr && !plan->diagnostics, "FC 23's read part reads outputs");
+    const auto image = snapshot(unit.image.tables());
+    const std::size_t count = std::size_t{request.read_quantity} * 2;
+    check(reply.size() == 2 + count && reply[0] == 0x17 && reply[1] == count,
+          "FC 23 answers 0x17, a byte count of twice the read quantity and the registers");
+    for (std::size_t i = 0; i < request.read_quantity; ++i)
+        check(be16(reply, 2 + 2 * i) == image.holding_registers[request.read_address + i],
+              "FC 23 reads the holding registers as they are after its write");
+}
+
+void Harness::check_front(const gateway::Traffic& counted, std::uint16_t address,
+                          std::uint16_t quantity, const Bytes& reply) const {
+    constexpr int first = 1010;
+    constexpr int last = 1020;
+    std::array<std::uint16_t, last - first + 1> expected{};
+    const auto u32 = [&](std::size_t at, std::uint64_t value) {
+        const auto wrapped = static_cast<std::uint32_t>(value);
+        const auto high = static_cast<std::uint16_t>(wrapped >> 16U);
+        const auto low = static_cast<std::uint16_t>(wrapped);
+        const bool big = word_order_ == gateway::WordOrder::big;
+        expected[at] = big ? high : low;
+        expected[at + 1] = big ? low : high;
+    };
+    u32(0, counted.requests);
+    u32(2, counted.exceptions);
+    u32(4, counted.writes_confirmed);
+    u32(6, counted.writes_failed);
+    expected[8] = 1;  // the harness's one connection
+    expected[9] = static_cast<std::uint16_t>(std::min<std::int64_t>(
+        std::chrono::duration_cast<std::chrono::seconds>(since_previous_).count(), 0xFFFF));
+    expected[10] = comm_loss_ ? 1 : 0;
+    const int from = std::max<int>(first, address);
+    const int to = std::min<int>(last, address + quantity - 1);
+    for (int a = from; a <= to; ++a) {
+        const auto value = be16(reply, 2 + 2 * static_cast<std::size_t>(a - address));
+        check(value == expected[static_cast<std::size_t>(a - first)],
+              "1010-1020 read the traffic as it was before this request");
+        check(a != last || value <= 1, "1020 is 0 or 1");
+    }
+}
+
 void Harness::handle(std::span<const std::uint8_t> adu) {
     ++handled_;
+    // 16384.000123 s more before each request: 1019 reads 16384, 32768, 49152, then 65535.
+    since_previous_ =
+        std::chrono::microseconds(static_cast<std::int64_t>(handled_) * 16'384'000'123);
     const daemon::PaddedRequest request(adu);
     const auto transaction = be16(adu, 0);
     const auto unit_id = adu[modbus::mbap_length - 1];
     const auto pdu = adu.subspan(modbus::mbap_length);
     Unit* unit = by_id_[unit_id];
 
-    // What was sent, and the checks every response passes.
+    // What was sent, and the checks every response passes; a response for a known unit is
+    // counted, as the server counts it when sent.
     const auto answered = [&](const Result<Bytes>& built) {
         check(built.has_value(), "libmodbus builds the response");
         const auto& bytes = *built;
@@ -473,7 +709,17 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
         check(be16(bytes, 4) == bytes.size() - (modbus::mbap_length - 1),
               "the length field counts the unit id and the PDU");
         check(bytes[modbus::mbap_length - 1] == unit_id, "the unit id is echoed");
-        return Bytes(bytes.begin() + modbus::mbap_length, bytes.end());
+        Bytes reply(bytes.begin() + modbus::mbap_length, bytes.end());
+        if (unit != nullptr) {
+            gateway::count_response(unit->traffic, pdu[0], reply);
+            count_as_spec(unit->counted, pdu[0], reply);
+            const auto& traffic = unit->traffic;
+            check(same_traffic(traffic, unit->counted), "responses count as gateway.md §5.1 says");
+            check(traffic.requests >= traffic.exceptions, "requests >= exceptions");
+            check(traffic.writes_confirmed + traffic.writes_failed <= traffic.requests,
+                  "confirmed + failed writes <= requests");
+        }
+        return reply;
     };
 
     if (unit == nullptr) {
@@ -483,6 +729,19 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
         return;
     }
     const auto before = snapshot(unit->image.tables());
+
+    // Identification is the unit's: decided before any plan, whatever the port or read_only.
+    if (pdu[0] == modbus::encapsulated_interface_transport) {
+        const auto identification = modbus::read_device_identification(pdu, unit->identity);
+        const auto reply = identification
+                               ? answered(daemon::ReplyBuilder::framed(request, *identification))
+                               : answered(replies_->exception(request, identification.error()));
+        check_identification(adu, reply, unit->identity);
+        check(same_image(snapshot(unit->image.tables()), before),
+              "device identification changes nothing in the image");
+        return;
+    }
+
     const auto plan = gateway::plan(unit->state, policy_, pdu);
     const auto parsed = modbus::parse_request(pdu);
 
@@ -491,6 +750,10 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
         check(supported == (*exception != Exception::illegal_function ||
                             (policy_.read_only && parsed && parsed->write)),
               "01 answers an unsupported function, or a write when read-only");
+        check(*exception != Exception::illegal_data_address || parsed->write ||
+                  !inside_one_block(unit->state.kind, parsed->table, parsed->address,
+                                    parsed->quantity),
+              "02 answers a read only when it does not lie inside one block of gateway.md §4");
         const auto reply = answered(replies_->exception(request, *exception));
         check_exception(adu, reply, *exception);
         check_image(*unit, before, nullptr, {});
@@ -502,12 +765,28 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
     check(inside_one_block(unit->state.kind, parsed->table, parsed->address, parsed->quantity),
           "a planned request lies inside one block of gateway.md §4");
     check(!policy_.read_only || !parsed->write, "read-only plans no write");
+    const bool read_write = parsed->function == modbus::Function::read_write_multiple_registers;
+    if (read_write) {
+        const auto in_holding = [](int first, int count) {
+            return first + count - 1 <= ioport_blocks.back().last;
+        };
+        check(unit->state.kind == gateway::UnitKind::ioport &&
+                  parsed->table == Table::holding_registers &&
+                  in_holding(parsed->address, parsed->quantity) &&
+                  in_holding(parsed->read_address, parsed->read_quantity),
+              "FC 23's write and read ranges lie in the holding registers 0-23");
+    }
 
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan)) {
         check(!parsed->write, "only a read has a read plan");
         check(read->diagnostics == in_diagnostics(parsed->table, parsed->address),
               "diagnostics are refreshed exactly for reads of them");
-        if (read->diagnostics) refresh_diagnostics(*unit);
+        const auto counted = unit->counted;  // before this request: it does not count itself
+        if (read->diagnostics) {
+            refresh_diagnostics(*unit);
+            gateway::store_front(unit->image.tables(),
+                                 {unit->traffic, 1, since_previous_, comm_loss_}, word_order_);
+        }
         const auto reply = answered(replies_->reply(request, unit->image.mapping()));
         const auto image = snapshot(unit->image.tables());
         const bool bits = parsed->table == Table::coils || parsed->table == Table::discrete_inputs;
@@ -529,24 +808,40 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
                 check(be16(reply, 2 + 2 * i) == table[at], "a register read is the image's");
             }
         }
+        if (read->diagnostics && parsed->table == Table::input_registers)
+            check_front(counted, parsed->address, parsed->quantity, reply);
         auto expected = before;
         if (read->diagnostics) take_diagnostics(expected, image);
-        check(image.coils == expected.coils &&
-                  image.holding_registers == expected.holding_registers &&
-                  image.discrete_inputs == expected.discrete_inputs &&
-                  image.input_registers == expected.input_registers,
+        check(same_image(image, expected),
               "a read changes only diagnostics, and only when it reads them");
         return;
     }
 
     const auto& write_plan = std::get<gateway::WritePlan>(plan);
     check_write_plan(*unit, *parsed, write_plan);
+    check(read_write ? write_plan.read_address == parsed->read_address &&
+                           write_plan.read_quantity == parsed->read_quantity
+                     : write_plan.read_quantity == 0,
+          "only FC 23 reads after its write, the range it asked for");
     std::array<bool, slot_count> acked{};
     const auto failed = write(*unit, write_plan, acked);
     check_image(*unit, before, &*parsed, acked);
     if (failed) {
+        // FC 23 too: a failed write answers its exception and reads nothing.
         const auto reply = answered(replies_->exception(request, *failed));
         check_exception(adu, reply, *failed);
+        return;
+    }
+    if (read_write) {
+        const auto read =
+            gateway::read_back(unit->state, policy_, parsed->read_address, parsed->read_quantity);
+        const auto* exception = std::get_if<Exception>(&read);
+        const auto reply = exception ? answered(replies_->exception(request, *exception))
+                                     : answered(daemon::ReplyBuilder::read_back(
+                                           request, parsed->read_address, parsed->read_quantity,
+                                           *unit->image.mapping()));
+        check_read_back(*unit, *parsed, adu, reply, read);
+        check_image(*unit, before, &*parsed, acked);
         return;
     }
     const auto reply = answered(replies_->reply(request, scratch_.get()));

@@ -78,6 +78,7 @@ modbus:
   word_order: little
   stale: hold
   keepalive: 90s
+  comm_loss_timeout: 2500ms
 on_shutdown: initial
 log_level: debug
 links:
@@ -88,11 +89,18 @@ links:
     unit_id: 247
     timeout: 1500us
     retries: 10
+    identity:
+      vendor_name: "ACME Automation"
+      product_code: ioportd-hub0
+      vendor_url: "https://example.invalid/hub0"
+      product_name: "Remote I/O gateway"
+      model_name: hub8u
+      user_application_name: "Press line 3, cabinet 7"
     modules:
       - { type: dim16, number: 7, poll: 250ms }
-      - { type: dom16, number: 1, initial: 0b1010, refresh: 10ms }
-      - { type: rgbdm, number: 2, initial: magenta, refresh: 2m }
-      - { type: mux8m, number: 3, initial: 0x0702 }
+      - { type: dom16, number: 1, initial: 0b1010, safe: 0, refresh: 10ms }
+      - { type: rgbdm, number: 2, initial: magenta, safe: red, refresh: 2m }
+      - { type: mux8m, number: 3, initial: 0x0702, safe: 0x0707 }
       - { type: acm3c, number: 4 }
       - { type: dccim, number: 5, poll: 0 }
       - { type: dcvim, number: 6 }
@@ -152,6 +160,18 @@ def write_registers(address, values):
             + struct.pack(f">{len(values)}H", *values))
 
 
+def read_write(read_address, read_quantity, write_address, values):
+    """FC 23: the write part is done first, then the read part (gateway.md §5.2)."""
+    return (struct.pack(">BHHHHB", 0x17, read_address, read_quantity, write_address,
+                        len(values), 2 * len(values))
+            + struct.pack(f">{len(values)}H", *values))
+
+
+def identification(code, object_id, mei=0x0E):
+    """FC 43 / MEI 14 Read Device Identification: code 1 basic, 2 regular, 3 extended, 4 one."""
+    return struct.pack(">BBBB", 0x2B, mei, code, object_id)
+
+
 EVERYDAY = bytes(11)
 
 
@@ -187,7 +207,7 @@ modbus("id2-unit", [
 ])
 modbus("exceptions", [
     adu(20, 9, read(0x03, 0, 1)),       # 0A: no such unit
-    adu(21, 1, read(0x2B, 0, 1)),       # 01: unsupported function
+    adu(21, 1, read(0x2B, 0, 1)),       # 01: FC 43 with MEI type 0, not 14
     adu(22, 1, bytes([0xFF])),          # 01, with the high bit already set
     adu(23, 1, read(0x03, 0, 126)),     # 03: over the limit
     adu(24, 1, read(0x04, 80, 1)),      # 02: outside every block
@@ -215,3 +235,43 @@ modbus("pipelined-then-malformed", [
     struct.pack(">HHHB", 62, 1, 6, 1) + read(0x03, 0, 1),  # protocol id 1: closed
 ])
 modbus("unfinished", [adu(70, 1, read(0x03, 0, 1))[:10]])
+# FC 23 on the harness's hub: dom16 0 and 1 at registers 0-1, rgbdm 0 and 2 at 8 and 10, mux8m 0
+# and 4 at 16 and 20.
+modbus("read-write-registers", [
+    adu(80, 1, read_write(0, 24, 8, [3])),            # rgbdm 0 blue, then every register
+    adu(81, 1, read_write(16, 1, 0, [0x1234, 0x5678])),  # spans dom16 0 and 1
+    adu(82, 1, read_write(8, 1, 8, [9])),             # 03: colour 9, nothing written
+    adu(83, 1, read_write(0, 1, 9, [1])),             # 02: rgbdm 1 is not configured
+    adu(84, 1, read_write(20, 5, 0, [1])),            # 02: the read runs past register 23
+    adu(85, 1, read_write(0, 126, 0, [1])),           # 03: read quantity over 125
+    adu(86, 2, read_write(0, 1, 0, [1])),             # 02: the ID-2 has no holding registers
+    adu(87, 1, read(0x04, 1010, 11)),                 # the traffic so far
+])
+# rgbdm 2 not polled yet; the devices ack, then error-ack, then do not answer.
+modbus("read-write-devices-fail", [
+    adu(90, 1, read_write(8, 3, 8, [2])),   # written and acked, but the read touches rgbdm 2: 0B
+    adu(91, 1, read_write(0, 2, 0, [1, 2])),  # 04 then no answer: 0B, nothing read
+    adu(92, 1, read(0x04, 1010, 8)),
+], scenario=bytes([0, 0, 0, 0xC0, 0, 0, 0, 0, 0, 0x00, 0x38]))
+modbus("device-identification", [
+    adu(100, 1, identification(1, 0)),
+    adu(101, 1, identification(2, 0)),      # the hub's long objects: more follows at 04
+    adu(102, 1, identification(2, 4)),
+    adu(103, 1, identification(3, 0)),
+    adu(104, 1, identification(4, 6)),
+    adu(105, 1, identification(4, 7)),      # 02: no object 07
+    adu(106, 1, identification(5, 0)),      # 03: no code 05
+    adu(107, 1, identification(1, 0, mei=0x0D)),  # 01: CANopen, not served
+    adu(108, 2, identification(1, 3)),      # 03 is not basic: the stream starts at 00
+    adu(109, 2, identification(2, 0)),      # ioportd's own objects, all in one response
+    adu(110, 9, identification(1, 0)),      # 0A: no such unit
+    adu(111, 1, identification(1, 0) + b"\x00"),  # 03: one byte too many
+])
+# read_only, word_order little, the hub's port closed and its modules never polled, and the
+# outputs in their safe state (comm loss) before the first request.
+modbus("identification-read-only-comm-loss", [
+    adu(120, 1, read(0x04, 1010, 11)),      # 1020 reads 1
+    adu(121, 1, identification(2, 0)),      # answered all the same
+    adu(122, 1, read_write(0, 1, 0, [1])),  # 01: read_only
+    adu(123, 1, read(0x04, 1010, 11)),      # 1020 reads 0
+], scenario=bytes([0b1101001, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0, 0, 0, 0, 0]))

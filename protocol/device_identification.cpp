@@ -6,7 +6,6 @@ namespace {
 // A response PDU is at most 253 bytes; its header takes 7 (function, MEI type, Read Device ID
 // code, conformity level, more follows, next object id, number of objects).
 constexpr std::size_t max_pdu = 253;
-constexpr std::size_t header_length = 7;
 constexpr std::uint8_t more_follows = 0xFF;
 
 enum class Access : std::uint8_t { basic = 1, regular = 2, extended = 3, individual = 4 };

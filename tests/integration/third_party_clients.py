@@ -2,6 +2,8 @@
 """ioportd through Modbus clients that are not ours: pymodbus (python3-pymodbus) and mbpoll,
 both from Debian, against the real daemon and the real simulator on ptys.
 
+FC 23 and FC 43/14 go through pymodbus alone: mbpoll has neither (its -u is FC 17, RTU only).
+
 Usage: third_party_clients.py IOPORTD IOPORT_SIM
 """
 import os
@@ -16,6 +18,8 @@ import time
 import unittest
 
 from pymodbus.client import ModbusTcpClient
+from pymodbus.constants import DeviceInformation
+from pymodbus.mei_message import ReadDeviceInformationRequest
 
 IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
 
@@ -31,24 +35,31 @@ def eventually(condition, deadline=5.0):
 
 
 class Rig:
-    """ioport-sim with a hub and ioportd on it, in a temporary directory."""
+    """ioport-sim with a hub (unit 1) and one with an ID-2 (unit 2), and ioportd on them, in a
+    temporary directory."""
 
     def __init__(self):
         self.dir = tempfile.mkdtemp(prefix="ioportd-3p-")
         self.link = os.path.join(self.dir, "ttyHUB")
+        self.id2_link = os.path.join(self.dir, "ttyID2")
         self.control = os.path.join(self.dir, "hub.ctl")
-        self.sim = subprocess.Popen(
-            [IOPORT_SIM, "--link", self.link, "--control", self.control, "--no-line-timing",
-             "--hub", "dim16:0,dom16:0,acm3p:0,rgbdm:0"],
-            stdout=subprocess.PIPE, text=True)
-        banner = self.sim.stdout.readline()
-        assert banner.startswith("ioport-sim: "), banner
+        self.sims = []
         self.daemon = None
         try:
+            self.start_sim("--control", self.control, "--hub", "dim16:0,dom16:0,acm3p:0,rgbdm:0",
+                           link=self.link)
+            self.start_sim("--id2", link=self.id2_link)
             self.start_daemon()
         except BaseException:
             self.close()
             raise
+
+    def start_sim(self, *args, link):
+        sim = subprocess.Popen([IOPORT_SIM, "--link", link, "--no-line-timing", *args],
+                               stdout=subprocess.PIPE, text=True)
+        self.sims.append(sim)
+        banner = sim.stdout.readline()
+        assert banner.startswith("ioport-sim: "), banner
 
     def start_daemon(self):
         config = os.path.join(self.dir, "ioportd.yaml")
@@ -59,12 +70,17 @@ links:
   - name: hub0
     protocol: ioport
     device: {self.link}
+    unit_id: 1
     timeout: 30ms
     modules:
       - {{ type: dim16, number: 0 }}
       - {{ type: dom16, number: 0 }}
       - {{ type: acm3p, number: 0 }}
       - {{ type: rgbdm, number: 0 }}
+  - name: press
+    protocol: id2
+    device: {self.id2_link}
+    unit_id: 2
 """)
         self.log = os.path.join(self.dir, "ioportd.log")
         with open(self.log, "w") as log:
@@ -90,8 +106,9 @@ links:
         if self.daemon:
             self.daemon.terminate()
             code = self.daemon.wait(5)
-        self.sim.terminate()
-        self.sim.wait(5)
+        for sim in self.sims:
+            sim.terminate()
+            sim.wait(5)
         shutil.rmtree(self.dir, ignore_errors=True)
         return code
 
@@ -148,6 +165,70 @@ class ThirdPartyClients(unittest.TestCase):
         self.assertEqual(self.client.write_register(8, 9, slave=1).exception_code, 0x03)
         self.assertEqual(self.client.read_input_registers(80, 1, slave=1).exception_code, 0x02)
         self.assertEqual(self.client.write_register(9, 1, slave=1).exception_code, 0x02)
+
+    def identify(self, unit, code, object_id=0x00):
+        return self.client.execute(
+            ReadDeviceInformationRequest(read_code=code, object_id=object_id, unit=unit))
+
+    def test_pymodbus_reads_the_device_identification(self):
+        out = subprocess.run([IOPORTD, "--version"], capture_output=True, text=True, timeout=10)
+        self.assertEqual(out.returncode, 0, out.stderr)
+        version = re.fullmatch(r"ioportd (\S+)\n", out.stdout).group(1)
+        for unit, model, name in ((1, "ioport hub", "hub0"), (2, "ID-2", "press")):
+            objects = {0x00: "ioportd developers", 0x01: "ioportd", 0x02: version,
+                       0x03: "man:ioportd(8)", 0x04: "ioportd serial-to-Modbus gateway",
+                       0x05: model, 0x06: name}
+            objects = {k: v.encode() for k, v in objects.items()}
+            basic = {k: objects[k] for k in (0x00, 0x01, 0x02)}
+            with self.subTest(unit=unit):
+                # Stream access: basic (00-02), regular and extended (00-06, as there are no
+                # extended objects), each whole in one response.
+                for code, expected in ((DeviceInformation.Basic, basic),
+                                       (DeviceInformation.Regular, objects),
+                                       (DeviceInformation.Extended, objects)):
+                    r = self.identify(unit, code)
+                    self.assertFalse(r.isError(), r)
+                    self.assertEqual(r.read_code, code)
+                    self.assertEqual(r.conformity, 0x82)
+                    self.assertEqual((r.more_follows, r.next_object_id), (0x00, 0x00))
+                    self.assertEqual(r.number_of_objects, len(expected))
+                    self.assertEqual(r.information, expected)
+                # A stream from an object of its category starts there; from one that is not
+                # (03 is regular), at 00.
+                r = self.identify(unit, DeviceInformation.Regular, 0x04)
+                self.assertEqual(r.information, {k: objects[k] for k in (0x04, 0x05, 0x06)})
+                r = self.identify(unit, DeviceInformation.Basic, 0x03)
+                self.assertEqual(r.information, basic)
+                # Individual access: the one object, or 02 for an object there is not.
+                for object_id in (0x02, 0x05, 0x06):
+                    r = self.identify(unit, DeviceInformation.Specific, object_id)
+                    self.assertFalse(r.isError(), r)
+                    self.assertEqual((r.read_code, r.conformity, r.more_follows),
+                                     (DeviceInformation.Specific, 0x82, 0x00))
+                    self.assertEqual(r.information, {object_id: objects[object_id]})
+                self.assertEqual(
+                    self.identify(unit, DeviceInformation.Specific, 0x07).exception_code, 0x02)
+                self.assertEqual(self.identify(unit, 5).exception_code, 0x03)
+
+    def test_pymodbus_read_write_registers(self):
+        # The write first, confirmed by the device, then the read: it sees the value written.
+        r = self.client.readwrite_registers(read_address=0, read_count=1, write_address=0,
+                                            write_registers=[0x5AA5], unit=1)
+        self.assertFalse(r.isError(), r)
+        self.assertEqual(self.rig.ctl("get dom16:0"), str(0x5AA5))
+        self.assertEqual((r.function_code, r.registers), (0x17, [0x5AA5]))
+        # Another range read than written: dom16 0 (0-7, 1-7 not configured) and rgbdm 0 (8).
+        r = self.client.readwrite_registers(read_address=0, read_count=9, write_address=8,
+                                            write_registers=[6], unit=1)
+        self.assertFalse(r.isError(), r)
+        self.assertEqual(self.rig.ctl("get rgbdm:0").split()[0], "6")
+        self.assertEqual((r.function_code, r.registers), (0x17, [0x5AA5, 0, 0, 0, 0, 0, 0, 0, 6]))
+        # Colour 9 does not exist: 03, nothing written, nothing read.
+        r = self.client.readwrite_registers(read_address=0, read_count=9, write_address=8,
+                                            write_registers=[9], unit=1)
+        self.assertEqual((r.function_code, r.exception_code), (0x97, 0x03))
+        self.assertEqual(self.rig.ctl("get rgbdm:0").split()[0], "6")
+        self.assertEqual(self.client.read_holding_registers(8, 1, slave=1).registers, [6])
 
     def test_mbpoll_reads_and_writes(self):
         self.rig.ctl("set dim16:0 0x00F0")
