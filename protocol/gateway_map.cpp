@@ -661,10 +661,18 @@ Plan plan(const UnitState& unit, const Policy& policy, std::span<const std::uint
         return Exception::illegal_data_address;
     if (!request->write) return plan_read(unit, policy, *request, *start);
     auto write = plan_write(unit, *request, locate_each(unit.kind, *request));
-    if (auto* changes = std::get_if<WritePlan>(&write); changes && read_write) {
-        changes->read_address = request->read_address;
-        changes->read_quantity = request->read_quantity;
-    }
+    auto* changes = std::get_if<WritePlan>(&write);
+    if (changes == nullptr || !read_write) return write;
+    changes->read_address = request->read_address;
+    changes->read_quantity = request->read_quantity;
+    // A read part that would answer 0B whatever the write does answers it now, before anything
+    // is sent: a client must never be told 0B for outputs that were set. The modules written are
+    // judged as they will be once their commands are confirmed.
+    auto written = unit;
+    for (const auto& change : changes->changes)
+        written.status[static_cast<std::size_t>(slot(change.module))] = ModuleStatus::online;
+    const auto read = read_back(written, policy, changes->read_address, changes->read_quantity);
+    if (const auto* stale_read = std::get_if<Exception>(&read)) return *stale_read;
     return write;
 }
 

@@ -733,6 +733,17 @@ TEST(GatewayPlan, ReadWriteMultipleRegisters) {
               Plan{Exception::gateway_target_failed});
     EXPECT_EQ(plan(id2_unit(), strict, read_write(0, 1, 0, {1})),
               Plan{Exception::illegal_data_address});
+    // A read part that touches a module the write does not reach and that is not online answers
+    // 0B at once, before anything is sent: never 0B for outputs that were set. A module the
+    // write reaches is judged as it will be once confirmed.
+    auto offline_rgbdm = unit;
+    set(offline_rgbdm, rgbdm(0), ModuleStatus::no_answer);
+    EXPECT_EQ(plan(offline_rgbdm, strict, read_write(0, 9, 1, {7})),
+              Plan{Exception::gateway_target_failed});
+    const WritePlan held{{{dom16(1), 0xFFFF, 7}}, false, 0, 9};
+    EXPECT_EQ(plan(offline_rgbdm, hold, read_write(0, 9, 1, {7})), Plan{held});
+    const WritePlan reached{{{rgbdm(0), 0xFFFF, 2}}, false, 8, 1};
+    EXPECT_EQ(plan(offline_rgbdm, strict, read_write(8, 1, 8, {2})), Plan{reached});
     // The read part, once the write is done: as FC 03 of its range would be then.
     EXPECT_EQ(read_back(unit, strict, 0, 9), ok_read());
     auto offline = unit;
