@@ -1,9 +1,11 @@
 // ioportd-soak: runs ioport-sim and ioportd for a given time with 64 Modbus clients reading and
 // writing (bench/workload.hpp, every answer checked against the simulator's history) while the
 // simulator injects faults: random serial faults on 1-10 % of transactions, an unplug now and
-// then, a module going silent for a while. Restarts ioportd if it dies (and counts it). Prints
-// a table and one machine-readable line; exits 0 when nothing wrong was served, no write was
-// lost and ioportd never died.
+// then, a module going silent for a while, and SCADA falling silent with writes in flight
+// (every client stops for longer than modbus.comm_loss_timeout while dom16 1 answers slowly, so
+// its coil writes queue; every other time the port is also unplugged during the loss). Restarts
+// ioportd if it dies (and counts it). Prints a table and one machine-readable line; exits 0 when
+// nothing wrong was served, no write was lost and ioportd never died.
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <signal.h>
@@ -13,6 +15,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -41,7 +44,8 @@ using namespace std::chrono_literals;
 constexpr std::string_view usage = R"(Usage: ioportd-soak [OPTIONS]
 
 Runs ioport-sim and ioportd for DURATION with Modbus clients reading and writing while the
-simulator injects faults, checks every answer against the simulator's history, and prints what
+simulator injects faults and the clients fall silent past the comm-loss timeout now and then
+(outputs to their safe state, gateway.md 5.3), checks every answer against the simulator's history, and prints what
 was served, what went wrong and how ioportd's memory grew. Exit status 0: no wrong value, no
 lost write, no write answered without reaching the device or pushed after failing, ioportd
 never died; 1 otherwise; 2 on bad usage.
@@ -235,9 +239,15 @@ int main(int argc, char** argv) {
     // mistakes a simulator starved of CPU on a busy machine for a module answering two
     // timeouts late, which no master can tell from the next module's answer.
     constexpr auto timeout = 100ms;
+    // Communication loss: 400 ms without a request. The readers among the clients ask every
+    // 20 ms at most, so only the scenario's silences (and a machine that starves them all) get
+    // there.
+    constexpr auto comm_loss_timeout = 400ms;
     std::ofstream(config_path) << fmt::format(
-        "modbus:\n  listen: \"127.0.0.1:{}\"\n  max_connections: {}\nlinks:\n{}", port,
-        options->clients + 16, ioport::bench::hub_link_yaml(link, timeout, 1, 1000ms));
+        "modbus:\n  listen: \"127.0.0.1:{}\"\n  max_connections: {}\n  comm_loss_timeout: {}ms\n"
+        "links:\n{}",
+        port, options->clients + 16, comm_loss_timeout.count(),
+        ioport::bench::hub_link_yaml(link, timeout, 1, 1000ms));
 
     Process sim({options->sim, "--link", link, "--control", control_path, "--hub",
                  ioport::bench::hub_sim_modules(), "--seed", std::to_string(options->seed)},
@@ -276,6 +286,7 @@ int main(int argc, char** argv) {
     settings.input_period = 100ms;
     settings.seed = options->seed;
     settings.timeout = timeout;
+    settings.comm_loss_timeout = comm_loss_timeout;
     ioport::bench::Workload workload(settings);
     if (auto started = workload.start(); !started) {
         std::cerr << "ioportd-soak: " << started.error().message << "\n";
@@ -310,6 +321,19 @@ int main(int argc, char** argv) {
     auto next_unplug = started + between(5s, 10s);
     auto next_outage = started + between(2s, 5s);
     std::optional<std::pair<std::string, Clock::time_point>> silent;
+    // SCADA falling silent: dom16 1 is made slow first (answers 40 ms late, inside the 100 ms
+    // timeout), so that the coil writes of 16 clients queue up and are in flight when every
+    // client stops, and the loss is declared while they still drain. Every other time the port
+    // is unplugged just after the loss was declared, and the silence lasts past a refresh after
+    // the reopen, which must carry the safe values. The first early, so that a short run has a
+    // few.
+    const std::string slow_module = "dom16:1";
+    auto next_silence = started + between(2s, 4s);
+    std::optional<Clock::time_point> slowed;  // since then; the silence begins 300 ms later
+    int silences = 0;
+    int silences_failed = 0;
+    int unplugs_during_loss = 0;
+    std::vector<long long> silence_ms;
     auto next_report = started + 60s;
     while (Clock::now() < end) {
         const auto now = Clock::now();
@@ -329,6 +353,7 @@ int main(int argc, char** argv) {
             const auto late = fmt::format(" {}ms", (timeout * 3 / 2).count());
             for (const auto& module : modules) {
                 if (silent && silent->first == module) continue;
+                if (slowed && module == slow_module) continue;
                 const auto& kind = kinds[random() % kinds.size()];
                 const double probability =
                     0.01 + 0.09 * static_cast<double>(random() % 1000) / 1000;
@@ -353,6 +378,37 @@ int main(int argc, char** argv) {
             silent.reset();
             next_outage = now + between(15s, 40s);
         }
+        if (options->faults && !slowed && now >= next_silence && now + 3s < end) {
+            // A silent module stays silent: its writes queue anyway.
+            if (!silent || silent->first != slow_module)
+                (void)control.command(fmt::format("fault {} delay 40ms", slow_module));
+            slowed = now;
+        }
+        if (slowed && now >= *slowed + 300ms) {
+            const bool unplug = silences % 2 == 1;
+            const auto length = unplug ? 1500ms : between(0ms, 300ms);
+            const auto result = workload.silence(length, [&](Clock::time_point held) {
+                if (!unplug) return;
+                // The port lost while the safe push may still wait behind the queued writes:
+                // the reopen must restore the safe state.
+                const auto at = held + comm_loss_timeout + between(0ms, 200ms);
+                while (Clock::now() < at)
+                    std::this_thread::sleep_for(std::min<Clock::duration>(at - Clock::now(), 5ms));
+                (void)control.command(fmt::format("unplug {}ms", between(50ms, 300ms).count()));
+                ++unplugs_during_loss;
+            });
+            ++silences;
+            if (result) {
+                silence_ms.push_back(result->length.count());
+            } else {
+                ++silences_failed;
+                std::cerr << "ioportd-soak: silence: " << result.error().message << "\n";
+            }
+            if (!silent || silent->first != slow_module)
+                (void)control.command(fmt::format("fault {} none", slow_module));
+            slowed.reset();
+            next_silence = Clock::now() + between(4s, 7s);
+        }
         if (now >= next_report) {
             const auto so_far = workload.snapshot();
             std::cerr << fmt::format(
@@ -366,7 +422,9 @@ int main(int argc, char** argv) {
     }
     (void)control.command("fault all none");
     if (silent) (void)control.command(fmt::format("fault {} none", silent->first));
-    const auto faults = total_injected(control) + static_cast<std::uint64_t>(unplugs + outages);
+    const auto faults = total_injected(control) +
+                        static_cast<std::uint64_t>(unplugs + outages + unplugs_during_loss);
+    std::ranges::sort(silence_ms);
     const auto report = workload.finish();
     const auto elapsed = std::chrono::duration<double>(Clock::now() - started).count();
     const bool daemon_alive = daemon && daemon->alive();
@@ -378,6 +436,11 @@ int main(int argc, char** argv) {
         "ioportd soak: {:.0f} s, {} clients, seed {}\n"
         "  requests served        {} ({:.0f}/s): reads {} (0B {}), writes {} (04 {}, 0B {})\n"
         "  faults injected        {} (serial faults, {} unplugs, {} module outages)\n"
+        "  comm-loss episodes     {} (silences of {}-{} ms; {} with an unplug during the loss)\n"
+        "    1020 after them      first request read 1: {}, the next 0: {}\n"
+        "    writes in flight     {} when the clients fell silent\n"
+        "    safe values seen     {} at the simulator (output modules, per episode); possible "
+        "comm losses {}\n"
         "  wrong values served    {}\n"
         "  lost writes            {}\n"
         "  failed writes pushed   {}\n"
@@ -389,7 +452,10 @@ int main(int argc, char** argv) {
         "  write latency          p99 {:.1f} ms, max {:.1f} ms\n",
         elapsed, options->clients, options->seed, report.requests(),
         static_cast<double>(report.requests()) / elapsed, report.reads, report.reads_stale,
-        report.writes, report.writes_04, report.writes_0b, faults, unplugs, outages,
+        report.writes, report.writes_04, report.writes_0b, faults, unplugs, outages, silences,
+        silence_ms.empty() ? 0 : silence_ms.front(), silence_ms.empty() ? 0 : silence_ms.back(),
+        unplugs_during_loss, report.silences_signalled, report.silences_cleared,
+        report.writes_in_flight_at_silence, report.safe_pushes, report.possible_losses,
         report.wrong_values, report.lost_writes, report.failed_writes_pushed,
         report.unanswered_writes, report.transport_errors, restarts, rss_peak, growth, rss_warm,
         rss_last, std::chrono::duration<double, std::milli>(report.read_latency.p99).count(),
@@ -401,14 +467,16 @@ int main(int argc, char** argv) {
     std::cout << fmt::format(
         "SOAK seconds={:.0f} clients={} requests={} faults={} wrong_values={} lost_writes={} "
         "failed_writes_pushed={} unanswered_writes={} transport_errors={} restarts={} "
-        "peak_rss_kb={} rss_growth_kb={}\n",
+        "peak_rss_kb={} rss_growth_kb={} comm_loss_episodes={} comm_loss_signalled={} "
+        "writes_in_flight_at_silence={} safe_pushes={}\n",
         elapsed, options->clients, report.requests(), faults, report.wrong_values,
         report.lost_writes, report.failed_writes_pushed, report.unanswered_writes,
-        report.transport_errors, restarts, rss_peak, growth);
+        report.transport_errors, restarts, rss_peak, growth, silences, report.silences_signalled,
+        report.writes_in_flight_at_silence, report.safe_pushes);
     const bool clean = report.wrong_values == 0 && report.lost_writes == 0 &&
                        report.failed_writes_pushed == 0 && report.unanswered_writes == 0 &&
                        report.unexpected_exceptions == 0 && restarts == 0 && daemon_alive &&
-                       report.requests() > 0;
+                       report.requests() > 0 && silences_failed == 0;
     std::error_code ignored;
     if (clean)
         std::filesystem::remove_all(dir, ignored);

@@ -23,23 +23,35 @@ struct ModuleInfo {
     bool output;
     int words;  // registers of its data: 3 for acm3p, else 1
     std::uint16_t initial;
+    std::uint16_t safe;  // outputs: after a communication loss; never `initial`
 };
 
 // Indices into this table name modules below. Inputs first.
 constexpr int input_module_count = 5;
 const std::array<ModuleInfo, 11> modules{{
-    {{ModuleType::dim16, 0}, false, 1, 0},
-    {{ModuleType::dim16, 1}, false, 1, 0},
-    {{ModuleType::lim16, 0}, false, 1, 0},
-    {{ModuleType::acm3p, 0}, false, 3, 0},
-    {{ModuleType::dccim, 0}, false, 1, 0},
-    {{ModuleType::dom16, 0}, true, 1, 0x00F0},
-    {{ModuleType::dom16, 1}, true, 1, 0},
-    {{ModuleType::dom16, 2}, true, 1, 0},
-    {{ModuleType::dom16, 3}, true, 1, 0},
-    {{ModuleType::rgbdm, 0}, true, 1, 2},
-    {{ModuleType::mux8m, 0}, true, 1, 0x0707},
+    {{ModuleType::dim16, 0}, false, 1, 0, 0},
+    {{ModuleType::dim16, 1}, false, 1, 0, 0},
+    {{ModuleType::lim16, 0}, false, 1, 0, 0},
+    {{ModuleType::acm3p, 0}, false, 3, 0, 0},
+    {{ModuleType::dccim, 0}, false, 1, 0, 0},
+    // The safe words of dom16 0, 2 and 3 are never written by a client (see run_client): the
+    // device applying one is the gateway's safe state, nothing else.
+    {{ModuleType::dom16, 0}, true, 1, 0x00F0, 0xA50F},
+    {{ModuleType::dom16, 1}, true, 1, 0, 0x8421},
+    {{ModuleType::dom16, 2}, true, 1, 0, 0x5AA5},
+    {{ModuleType::dom16, 3}, true, 1, 0, 0xC3C3},
+    {{ModuleType::rgbdm, 0}, true, 1, 2, 1},  // green; red when safe
+    {{ModuleType::mux8m, 0}, true, 1, 0x0707, 0x0000},
 }};
+// The modules whose safe word only the gateway sends.
+bool safe_word_unique(int module) {
+    return module == 5 || module == 7 || module == 8;
+}
+// A word a client must not write to `module`: its initial or safe value.
+bool reserved_word(int module, std::uint16_t value) {
+    const auto& info = modules[static_cast<std::size_t>(module)];
+    return value == info.initial || value == info.safe;
+}
 
 std::string sim_name(ModuleAddress address) {
     return fmt::format("{}:{}", name(address.type), address.number);
@@ -72,8 +84,12 @@ const std::vector<ReadKind> read_kinds{
     {Table::coils, 16, 16, {6}},                     // dom16 1 bit by bit
     {Table::holding_registers, 8, 1, {9}},           // rgbdm 0
     {Table::holding_registers, 16, 1, {10}},         // mux8m 0
-    {Table::input_registers, 1000, 10, {}},          // diagnostics: must always answer
+    // Diagnostics, the traffic registers and 1020 (communication loss) included: must always
+    // answer. Last: silence() reads it too.
+    {Table::input_registers, 1000, 21, {}},
 };
+const int diagnostics_kind = static_cast<int>(read_kinds.size()) - 1;
+constexpr int loss_register = 1020;
 
 // --- Writes ---------------------------------------------------------------------------------
 
@@ -170,8 +186,8 @@ std::string hub_link_yaml(const std::string& device, std::chrono::milliseconds t
     for (const auto& module : modules) {
         std::string extra;
         if (module.output)
-            extra =
-                fmt::format(", initial: 0x{:04X}, refresh: {}ms", module.initial, refresh.count());
+            extra = fmt::format(", initial: 0x{:04X}, safe: 0x{:04X}, refresh: {}ms",
+                                module.initial, module.safe, refresh.count());
         else if (module.address.type == ModuleType::dccim)
             extra = ", poll: 100ms";  // a module that is not read every cycle
         text += fmt::format("      - {{ type: {}, number: {}{} }}\n", name(module.address.type),
@@ -200,6 +216,13 @@ std::string Report::summary() const {
         static_cast<double>(read_latency.p99.count()) / 1000.0,
         static_cast<double>(write_latency.max.count()) / 1000.0,
         static_cast<double>(write_latency.p99.count()) / 1000.0);
+    if (silences > 0 || possible_losses > 0)
+        text += fmt::format(
+            "comm-loss silences {} (first request after read 1020 = 1: {}, the next 0: {}), "
+            "writes in flight at them {}, safe values seen at the device {}, possible comm "
+            "losses {}\n",
+            silences, silences_signalled, silences_cleared, writes_in_flight_at_silence,
+            safe_pushes, possible_losses);
     for (const auto& problem : problems)
         text += "  " + problem + "\n";
     return text;
@@ -227,10 +250,18 @@ struct Workload::Op {
     // Reads: the words per sample in order (acm3p: three). Writes: per target of the job, the
     // value written under the target's mask.
     std::array<std::uint16_t, 4> words{};
+    int loss_register = -1;  // diagnostics reads: what 1020 read
+    int after_silence = 0;   // silence()'s reads: 1 the first request after it, 2 the second
+    // The first request after a silence: the last request before it was sent then, and the last
+    // answer to one came then.
+    Clock::time_point quiet_from{};
+    Clock::time_point drained{};
 };
 
 struct Workload::ClientSlot {
     std::atomic<Clock::rep> in_flight{no_request};
+    std::atomic<Clock::rep> last_sent{0};
+    std::atomic<Clock::rep> last_received{0};
     std::mutex mutex;
     std::vector<Op> done;
 };
@@ -243,6 +274,11 @@ struct Window {
     bool spans_modules;
     bool timed_out;
     int seen = 0;  // commands carrying `value` applied inside the window
+    Clock::time_point last_seen{};
+    // Acknowledged, sent before a comm loss, and not yet applied when the safe push began: its
+    // value must never reach the device now.
+    bool after_safe = false;
+    bool overwritten = false;  // reported
 };
 
 // A write answered 04/0B whose own transmissions the device may still apply after the answer:
@@ -258,21 +294,41 @@ struct LateTransmissions {
 constexpr auto late_grace = 1s;
 
 struct Workload::Target {
-    TargetInfo info;
+    TargetInfo info{};
     std::deque<Window> windows;
     std::vector<std::uint16_t> allowed;  // outside the windows: what commands may carry
     std::unordered_set<std::uint16_t> confirmable;
     std::optional<std::uint16_t> last_failed;
     std::optional<LateTransmissions> late;
+    // Communication loss: the safe bits (comm loss on), and whether they may be sent since the
+    // possible loss `period` began (until a write sent after it ended is acknowledged).
+    std::optional<std::uint16_t> safe;
+    bool safe_possible = false;
+    std::size_t period = 0;
+    Clock::time_point safe_seen_at = Clock::time_point::min();  // last command carrying them
+    // The desired state became safe then (the push began, or a confirmed loss had time to).
+    Clock::time_point expired_at = Clock::time_point::min();
+    Clock::time_point settled_sent = Clock::time_point::min();  // last acknowledged write's sent
 };
 
+namespace {
+
+// A write sent this long before a silence began reached the gateway before the gateway could
+// declare the loss (it reads a request as soon as it runs; both wait for the same thread).
+std::chrono::microseconds arrival_bound(std::chrono::milliseconds timeout) {
+    return timeout / 2;
+}
+constexpr auto loss_requests_kept = 10s;
+
+}  // namespace
+
 Workload::Workload(WorkloadSettings settings) : settings_(std::move(settings)) {
-    for (int i = 0; i < settings_.clients; ++i)
+    for (int i = 0; i <= settings_.clients; ++i)  // the last: silence()'s reads
         slots_.push_back(std::make_unique<ClientSlot>());
-    carried_.resize(static_cast<std::size_t>(settings_.clients));
-    newest_served_.assign(static_cast<std::size_t>(settings_.clients),
-                          std::vector<std::size_t>(input_module_count, 0));
+    carried_.resize(slots_.size());
+    newest_served_.assign(slots_.size(), std::vector<std::size_t>(input_module_count, 0));
     applied_.resize(modules.size());
+    module_value_.assign(modules.size(), 0);  // the power-on state
     input_history_.resize(input_module_count);
     input_index_.resize(input_module_count);
     for (int m = 0; m < input_module_count; ++m) {
@@ -281,9 +337,20 @@ Workload::Workload(WorkloadSettings settings) : settings_(std::move(settings)) {
         input_index_[static_cast<std::size_t>(m)][0].push_back(0);
     }
     for (const auto& info : all_targets) {
-        const auto initial = static_cast<std::uint16_t>(
-            modules[static_cast<std::size_t>(info.module)].initial & info.mask);
-        targets_.push_back(Target{info, {}, {initial}, {initial}, std::nullopt, std::nullopt});
+        const auto& module = modules[static_cast<std::size_t>(info.module)];
+        const auto initial = static_cast<std::uint16_t>(module.initial & info.mask);
+        Target target;
+        target.info = info;
+        target.allowed = {initial};
+        target.confirmable = {initial};
+        if (loss_on()) target.safe = static_cast<std::uint16_t>(module.safe & info.mask);
+        targets_.push_back(std::move(target));
+    }
+    if (loss_on()) {
+        // The gateway counts the silence from its start, which was before ours: a loss is
+        // possible until the first request.
+        periods_.push_back({Clock::time_point::min(), std::nullopt, std::nullopt, 0});
+        period_open_ = true;
     }
     read_histogram_.assign(histogram_bins, 0);
     write_histogram_.assign(histogram_bins, 0);
@@ -316,6 +383,10 @@ bool Workload::write_in_flight() const {
 
 Report Workload::finish() {
     stop_ = true;
+    {
+        std::lock_guard lock(gate_mutex_);  // a client held by silence() sees stop_ now
+    }
+    gate_.notify_all();
     for (auto& client : clients_)
         if (client.joinable()) client.join();
     inputs_stop_ = true;
@@ -441,9 +512,15 @@ void Workload::run_client(int index) {
                                                  settings_.write_share;
         std::array<std::uint16_t, 2> values{};  // the job's new values, whole words
         int rc = 0;
-        // Published before `sent` is taken: the checker's horizon never passes a request that
-        // is still out (see check()).
-        slot.in_flight.store(Clock::now().time_since_epoch().count());
+        {
+            // Held while silence() has closed the gate. Published before `sent` is taken: the
+            // checker's horizon never passes a request that is still out (see check()), and
+            // silence() never misses one that is about to go.
+            std::unique_lock lock(gate_mutex_);
+            gate_.wait(lock, [&] { return !gate_closed_ || stop_; });
+            if (stop_) break;
+            slot.in_flight.store(Clock::now().time_since_epoch().count());
+        }
         if (write) {
             op.write = true;
             op.kind =
@@ -453,11 +530,15 @@ void Workload::run_client(int index) {
             const bool multiple = std::uniform_int_distribution<int>(0, 1)(random) == 1;
             ++write_in_flight_;
             if (op.kind == 0 || op.kind == 17) {
-                // Unique words, so that each one names its write in the simulator's log.
+                // Unique words, so that each one names its write in the simulator's log; never
+                // an initial or a safe value, so that those name the gateway's.
                 do {
                     values[0] = next_word++;
-                } while (values[0] == desired[first] || values[0] == modules[5].initial);
-                values[1] = static_cast<std::uint16_t>(values[0] ^ 0xFFFF);
+                    values[1] = static_cast<std::uint16_t>(values[0] ^ 0xFFFF);
+                } while (values[0] == desired[first] ||
+                         (op.kind == 0
+                              ? reserved_word(5, values[0])
+                              : reserved_word(7, values[0]) || reserved_word(8, values[1])));
                 op.words = {values[0], values[1]};
                 op.sent = Clock::now();
                 rc = op.kind == 17 ? modbus_write_registers(context.get(), 2, 2, values.data())
@@ -498,7 +579,7 @@ void Workload::run_client(int index) {
             op.kind = std::uniform_int_distribution<int>(
                 0, static_cast<int>(read_kinds.size()) - 1)(random);
             const auto& kind = read_kinds[static_cast<std::size_t>(op.kind)];
-            std::array<std::uint16_t, 16> registers{};
+            std::array<std::uint16_t, 32> registers{};
             std::array<std::uint8_t, 16> bits{};
             op.sent = Clock::now();
             switch (kind.table) {
@@ -530,8 +611,13 @@ void Workload::run_client(int index) {
                 } else {
                     std::copy_n(registers.begin(), op.words.size(), op.words.begin());
                 }
+                if (op.kind == diagnostics_kind)
+                    op.loss_register =
+                        registers[static_cast<std::size_t>(loss_register - kind.address)];
             }
         }
+        slot.last_sent.store(op.sent.time_since_epoch().count());
+        slot.last_received.store(op.received.time_since_epoch().count());
         {
             std::lock_guard lock(slot.mutex);
             slot.done.push_back(op);
@@ -548,6 +634,100 @@ void Workload::run_client(int index) {
             std::uniform_int_distribution<long long>(0, settings_.pause.count())(random));
         if (pause.count() > 0) std::this_thread::sleep_for(pause);
     }
+}
+
+// --- Communication loss ---------------------------------------------------------------------
+
+Result<Workload::Silence> Workload::silence(
+    std::chrono::milliseconds length, const std::function<void(Clock::time_point)>& meanwhile) {
+    if (!loss_on()) return fail(Errc::invalid_argument, "silence(): comm_loss_timeout is off");
+    // Our own connection, made before the silence: a connection is not a request.
+    Context context(modbus_new_tcp("127.0.0.1", static_cast<int>(settings_.port)));
+    if (!context) return fail(Errc::io_error, "silence(): no libmodbus context");
+    const auto timeout = settings_.response_timeout.count();
+    modbus_set_response_timeout(context.get(), static_cast<std::uint32_t>(timeout / 1000),
+                                static_cast<std::uint32_t>(timeout % 1000 * 1000));
+    modbus_set_slave(context.get(), 1);
+    if (modbus_connect(context.get()) != 0 || modbus_get_socket(context.get()) >= FD_SETSIZE)
+        return fail(Errc::io_error,
+                    fmt::format("silence(): cannot connect: {}", modbus_strerror(errno)));
+
+    Silence result;
+    Clock::time_point held;
+    {
+        std::lock_guard lock(gate_mutex_);
+        gate_closed_ = true;
+        held = Clock::now();
+        result.writes_in_flight = write_in_flight_.load();
+    }
+    const auto open_gate = [&] {
+        {
+            std::lock_guard lock(gate_mutex_);
+            gate_closed_ = false;
+        }
+        gate_.notify_all();
+    };
+    if (meanwhile) meanwhile(held);
+    // Every request that went out before the gate closed is answered (a write to a slow module
+    // may take seconds): from then on nothing is sent.
+    const auto client_slots = std::span(slots_).first(static_cast<std::size_t>(settings_.clients));
+    const auto give_up = Clock::now() + 30s;
+    while (std::ranges::any_of(client_slots,
+                               [](const auto& slot) { return slot->in_flight != no_request; })) {
+        if (Clock::now() >= give_up || stop_) {
+            open_gate();
+            return fail(Errc::timeout, "silence(): a request was not answered within 30 s");
+        }
+        std::this_thread::sleep_for(5ms);
+    }
+    Clock::time_point last_sent{};
+    auto drained = held;
+    for (const auto& slot : client_slots) {
+        last_sent = std::max(last_sent, Clock::time_point(Clock::duration(slot->last_sent)));
+        drained = std::max(drained, Clock::time_point(Clock::duration(slot->last_received)));
+    }
+    // The gateway declares the loss at its last request plus the timeout: past that, with a
+    // margin for a busy machine, and `length` past the last answer.
+    const auto until =
+        std::max(last_sent + settings_.comm_loss_timeout + settings_.slack, drained + length);
+    while (!stop_ && Clock::now() < until)
+        std::this_thread::sleep_for(std::min<Clock::duration>(until - Clock::now(), 5ms));
+
+    // The first request after the silence and the second, both reads of the diagnostics.
+    auto& slot = *slots_.back();
+    for (int order = 1; order <= 2; ++order) {
+        Op op;
+        op.kind = diagnostics_kind;
+        op.after_silence = order;
+        op.quiet_from = last_sent;
+        op.drained = drained;
+        const auto& kind = read_kinds[static_cast<std::size_t>(diagnostics_kind)];
+        std::array<std::uint16_t, 32> registers{};
+        slot.in_flight.store(Clock::now().time_since_epoch().count());
+        op.sent = Clock::now();
+        const int rc =
+            modbus_read_input_registers(context.get(), kind.address, kind.count, registers.data());
+        op.received = Clock::now();
+        op.outcome = outcome_of(rc);
+        if (op.outcome == 0)
+            op.loss_register = registers[static_cast<std::size_t>(loss_register - kind.address)];
+        if (order == 1)
+            result.length =
+                std::chrono::duration_cast<std::chrono::milliseconds>(op.sent - last_sent);
+        (order == 1 ? result.first : result.second) = op.loss_register;
+        slot.last_sent.store(op.sent.time_since_epoch().count());
+        {
+            std::lock_guard lock(slot.mutex);
+            slot.done.push_back(op);
+        }
+        slot.in_flight.store(no_request);
+        ++completed_;
+    }
+    open_gate();
+    std::lock_guard lock(check_mutex_);
+    ++report_.silences;
+    report_.writes_in_flight_at_silence += static_cast<std::uint64_t>(result.writes_in_flight);
+    return result;
 }
 
 // --- Checker --------------------------------------------------------------------------------
@@ -578,7 +758,20 @@ void Workload::finalize_windows(Target& target, Clock::time_point until) {
                                     modules[static_cast<std::size_t>(target.info.module)].address),
                                 target.info.mask, window.value, ms_since(started_, window.sent),
                                 ms_since(started_, window.received)));
-                target.allowed = {window.value};
+                // The device keeps it, unless the safe state came after it (a comm loss declared
+                // after the write reached the gateway).
+                target.allowed = {window.seen > 0 && target.safe &&
+                                          (target.safe_seen_at > window.last_seen ||
+                                           target.expired_at > window.last_seen)
+                                      ? *target.safe
+                                      : window.value};
+                target.settled_sent = window.sent;
+                // Sent after the silence ended: the gateway had pushed the safe state (if it
+                // declared a loss) before this write, which is the desired state now.
+                if (target.safe_possible) {
+                    const auto& ended = periods_[target.period].until;
+                    if (ended && window.sent >= *ended) target.safe_possible = false;
+                }
                 break;
             case Window::Outcome::failed:
                 target.last_failed = window.value;
@@ -603,8 +796,22 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
     const auto bits = static_cast<std::uint16_t>(value & target.info.mask);
     const auto allowed = std::ranges::find(target.allowed, bits) != target.allowed.end();
     const bool inside = !target.windows.empty() && target.windows.front().sent <= at;
+    const auto what = [&] {
+        return to_string(modules[static_cast<std::size_t>(target.info.module)].address);
+    };
     if (inside && bits == target.windows.front().value) {
-        ++target.windows.front().seen;  // the write itself
+        auto& window = target.windows.front();
+        if (window.after_safe && !window.overwritten) {
+            window.overwritten = true;
+            problem(&Report::wrong_values,
+                    fmt::format("safe state overwritten: {} bits {:04X} = {:04X}, a write sent at "
+                                "{:.1f} ms, before the comm loss, reached the device at {:.1f} ms, "
+                                "after the safe push had begun",
+                                what(), target.info.mask, bits, ms_since(started_, window.sent),
+                                ms_since(started_, at)));
+        }
+        ++window.seen;  // the write itself
+        window.last_seen = at;
         return;
     }
     // Before the rest: the owner may have sent its next write before the late transmission of
@@ -615,24 +822,48 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
         ++report_.failed_writes_applied_late;
         return;
     }
+    // The safe state, after a possible comm loss: the push, or a refresh or restore of it.
+    if (target.safe_possible && bits == target.safe) {
+        // Where nobody writes the safe word and the device had another, the push has begun:
+        // every module's desired state is safe from now on.
+        if (safe_word_unique(target.info.module) && !allowed) push_began(at);
+        target.safe_seen_at = at;
+        if (!inside) {
+            target.allowed = {bits};
+            target.late.reset();
+        }
+        return;
+    }
     if (inside) {
+        auto& window = target.windows.front();
+        // An acknowledged write that reached the device keeps it until its owner's next write
+        // or a safe state after it: a refresh of the old value now undid it.
+        if (allowed && window.outcome == Window::Outcome::acknowledged && window.seen > 0 &&
+            !window.overwritten) {
+            window.overwritten = true;
+            problem(&Report::lost_writes,
+                    fmt::format("lost write: {} bits {:04X} = {:04X} (sent at {:.1f} ms) reached "
+                                "the device, then {:04X} overwrote it at {:.1f} ms, before its "
+                                "answer",
+                                what(), target.info.mask, window.value,
+                                ms_since(started_, window.sent), bits, ms_since(started_, at)));
+        }
         if (allowed) return;  // a refresh of the old value while the write waits
     } else if (allowed) {
         target.allowed = {bits};
         target.late.reset();  // the gateway has moved on: a failed value from now on is pushed
         return;
     }
-    const auto what = to_string(modules[static_cast<std::size_t>(target.info.module)].address);
     if (target.last_failed && bits == *target.last_failed)
         problem(&Report::failed_writes_pushed,
                 fmt::format("failed write pushed: {} bits {:04X} = {:04X} was answered with an "
                             "exception, yet the device was sent it at {:.1f} ms",
-                            what, target.info.mask, bits, ms_since(started_, at)));
+                            what(), target.info.mask, bits, ms_since(started_, at)));
     else
         problem(&Report::wrong_values,
                 fmt::format("wrong state: {} bits {:04X} = {:04X} sent to the device at {:.1f} ms, "
                             "expected {:04X}",
-                            what, target.info.mask, bits, ms_since(started_, at),
+                            what(), target.info.mask, bits, ms_since(started_, at),
                             target.allowed.empty() ? 0 : target.allowed.front()));
     target.allowed.push_back(bits);  // report a wrong state once, not every refresh after it
 }
@@ -691,8 +922,35 @@ void Workload::check() {
     for (std::size_t c = 0; c < slots_.size(); ++c) {
         std::lock_guard lock(slots_[c]->mutex);
         auto& done = slots_[c]->done;
+        if (loss_on())
+            for (const auto& op : done)
+                record_request(op);
         carried_[c].insert(carried_[c].end(), done.begin(), done.end());
         done.clear();
+    }
+    if (loss_on()) {
+        find_loss_periods(horizon);
+        // A silence confirmed by the first request after it: the gateway declared the loss
+        // before that request reached it, and (as silence() checks) within the timeout and the
+        // slack of the last request before. Once it had, and every write from before had been
+        // answered, the push was next, after one transaction at most (a refresh or poll read
+        // the plan puts between two writes); or the port was lost, and the safe state is what
+        // a reopen restores. From then on (and the slack, for a simulator short of CPU) the
+        // old values are gone.
+        const auto one_transaction = (settings_.retries + 1) * settings_.timeout + settings_.slack;
+        std::erase_if(confirmations_, [&](const Op& op) {
+            if (op.received > horizon) return false;
+            if (op.outcome != 0 || op.loss_register != 1) return true;
+            const auto declared = std::min(
+                op.received, op.quiet_from + settings_.comm_loss_timeout + settings_.slack);
+            const auto at = std::max(declared, op.drained) + one_transaction;
+            for (std::size_t k = periods_.size(); k-- > 0;)
+                if (periods_[k].from < op.received) {
+                    expiries_.push_back({at, k, op.received});
+                    break;
+                }
+            return true;
+        });
     }
 
     // Writes sent before the horizon have all been answered: their windows go to their targets.
@@ -748,14 +1006,19 @@ void Workload::check() {
 
     // The device's commands, in order, against each target's windows.
     for (const auto& command : commands) {
+        advance_to(command.at);
         ++report_.commands_applied;
         applied_[static_cast<std::size_t>(command.module)].try_emplace(command.value, command.at);
         for (auto& target : targets_)
             if (target.info.module == command.module && checked(target.info.module))
                 apply_command(target, command.at, command.value);
+        if (loss_on()) count_safe_push(command);
     }
+    advance_to(horizon);
     for (auto& target : targets_)
         finalize_windows(target, horizon);
+    while (!recent_.empty() && recent_.front().first + loss_requests_kept < horizon)
+        recent_.pop_front();
 
     // Reads answered before the horizon.
     std::lock_guard inputs_lock(inputs_mutex_);
@@ -793,6 +1056,7 @@ void Workload::check_read(int client, const Op& op) {
         return;
     }
     ++report_.reads_ok;
+    if (op.loss_register >= 0) check_loss_register(client, op);
     std::size_t word = 0;
     for (const int m : kind.samples) {
         const auto& module = modules[static_cast<std::size_t>(m)];
@@ -849,6 +1113,172 @@ void Workload::check_read(int client, const Op& op) {
             newest = *best;
         }
     }
+}
+
+// --- Communication loss checks --------------------------------------------------------------
+
+void Workload::record_request(const Op& op) {
+    if (op.outcome < 0) return;  // no answer: it may never have reached the gateway
+    const auto timeout = settings_.comm_loss_timeout;
+    // It reached the gateway between `sent` and `received`: no loss can be declared in
+    // [received, sent + timeout).
+    if (op.received - op.sent < timeout) excluded_.emplace_back(op.received, op.sent + timeout);
+    recent_.emplace_back(op.sent, op.received);
+    if (op.after_silence == 1) confirmations_.push_back(op);
+}
+
+void Workload::find_loss_periods(Clock::time_point horizon) {
+    // Every request sent before the horizon is known, so what is excluded before it is final.
+    std::ranges::sort(excluded_);
+    std::size_t used = 0;
+    for (; used < excluded_.size() && excluded_[used].first <= horizon; ++used) {
+        const auto [from, to] = excluded_[used];
+        if (period_open_) {
+            periods_.back().until = from;
+            period_open_ = false;
+            covered_until_ = to;
+        } else if (from > covered_until_) {
+            periods_.push_back({covered_until_, from, std::nullopt, 0});
+            ++report_.possible_losses;
+            covered_until_ = to;
+        } else {
+            covered_until_ = std::max(covered_until_, to);
+        }
+    }
+    excluded_.erase(excluded_.begin(), excluded_.begin() + static_cast<std::ptrdiff_t>(used));
+    if (!period_open_ && horizon > covered_until_) {
+        periods_.push_back({covered_until_, std::nullopt, std::nullopt, 0});
+        ++report_.possible_losses;
+        period_open_ = true;
+    }
+}
+
+void Workload::advance_to(Clock::time_point at) {
+    for (;;) {
+        const bool period_due = activated_ < periods_.size() && periods_[activated_].from <= at;
+        const auto expiry = std::ranges::min_element(expiries_, {}, &Expiry::at);
+        const bool expiry_due = expiry != expiries_.end() && expiry->at <= at;
+        if (period_due && (!expiry_due || periods_[activated_].from <= expiry->at)) {
+            activate(activated_++);
+        } else if (expiry_due) {
+            const auto due = *expiry;
+            expiries_.erase(expiry);
+            expire(due);
+        } else {
+            return;
+        }
+    }
+}
+
+void Workload::activate(std::size_t period) {
+    const auto from = periods_[period].from;
+    for (auto& target : targets_) {
+        if (!target.safe || !checked(target.info.module)) continue;
+        finalize_windows_before(target, from);
+        target.safe_possible = true;
+        target.period = period;
+        target.confirmable.insert(*target.safe);  // the image shows it once the device took it
+    }
+}
+
+void Workload::expire(const Expiry& expiry) {
+    const auto from = periods_[expiry.period].from;
+    const auto bound = arrival_bound(settings_.comm_loss_timeout);
+    for (auto& target : targets_) {
+        if (!target.safe || !checked(target.info.module)) continue;
+        finalize_windows_before(target, expiry.at);
+        if (target.settled_sent >= expiry.boundary) continue;  // written after the loss since
+        target.allowed = {*target.safe};
+        const bool open = !target.windows.empty() && target.windows.front().sent <= expiry.at;
+        if (!open) {
+            target.expired_at = expiry.at;
+            continue;
+        }
+        // A write still waiting for its answer: from before the loss, it applied before the
+        // push or never; from after, it decides when it is answered.
+        auto& window = target.windows.front();
+        if (window.sent + bound < from) {
+            target.expired_at = expiry.at;
+            if (window.outcome == Window::Outcome::acknowledged && window.seen == 0)
+                window.after_safe = true;
+        }
+    }
+}
+
+void Workload::push_began(Clock::time_point at) {
+    if (activated_ == 0) return;
+    auto& period = periods_[activated_ - 1];
+    if (period.push_seen) return;
+    period.push_seen = at;
+    expire({at, activated_ - 1, Clock::time_point::max()});
+}
+
+void Workload::count_safe_push(const Applied& command) {
+    const auto m = static_cast<std::size_t>(command.module);
+    const auto before = std::exchange(module_value_[m], command.value);
+    if (activated_ == 0 || !checked(command.module) || command.value != modules[m].safe ||
+        before == command.value)
+        return;
+    // Not the gateway's when some target of the module took it as a client's write, or when no
+    // loss is possible for it.
+    bool possible = false;
+    for (const auto& target : targets_) {
+        if (target.info.module != command.module) continue;
+        possible = possible || target.safe_possible;
+        if (!target.windows.empty() && target.windows.front().seen > 0 &&
+            target.windows.front().last_seen == command.at)
+            return;
+    }
+    auto& period = periods_[activated_ - 1];
+    const auto bit = 1U << m;
+    if (!possible || (period.modules_pushed & bit) != 0) return;
+    period.modules_pushed |= bit;
+    ++report_.safe_pushes;
+}
+
+void Workload::check_loss_register(int client, const Op& op) {
+    const int value = op.loss_register;
+    if (op.after_silence == 1) {
+        if (value == 1)
+            ++report_.silences_signalled;
+        else
+            problem(&Report::wrong_values,
+                    fmt::format("comm loss not signalled: the first request after a silence of "
+                                "the timeout and more (sent at {:.1f} ms) read 1020 = {}",
+                                ms_since(started_, op.sent), value));
+    }
+    if (op.after_silence == 2 && value == 0) ++report_.silences_cleared;
+    if (value == 0) return;
+    std::optional<std::size_t> period;
+    if (value == 1)
+        for (std::size_t k = periods_.size(); k-- > 0;)
+            if (periods_[k].from < op.received) {
+                period = k;
+                break;
+            }
+    if (!period) {
+        problem(
+            &Report::wrong_values,
+            fmt::format("client {}: 1020 read {} (answered at {:.1f} ms) with no silence of the "
+                        "timeout before it",
+                        client, value, ms_since(started_, op.received)));
+        return;
+    }
+    // The loss was declared before `latest`; a request sent less than a timeout before that,
+    // and answered before this one was sent, reached the gateway after the loss (a request
+    // from before the loss reached it at least a timeout earlier) and cleared 1020.
+    const auto latest =
+        std::min(periods_[*period].until.value_or(Clock::time_point::max()), op.received);
+    for (const auto& [sent, received] : recent_)
+        if (sent >= latest - settings_.comm_loss_timeout && received < op.sent) {
+            problem(&Report::wrong_values,
+                    fmt::format("client {}: 1020 read 1 (sent at {:.1f} ms), though a request "
+                                "sent at {:.1f} ms and answered at {:.1f} ms came after the "
+                                "silence: only the first request after a loss reads 1",
+                                client, ms_since(started_, op.sent), ms_since(started_, sent),
+                                ms_since(started_, received)));
+            return;
+        }
 }
 
 }  // namespace ioport::bench

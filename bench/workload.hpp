@@ -25,6 +25,23 @@
 //     acknowledged keeps its value, gateway.md §4). The write's own transmissions may still
 //     reach the device just after the exception (the gateway gave up waiting for them); at most
 //     retries + 1 of them, before the desired value is sent again.
+//     A write answered normally stays the device's state until a later write of its owner,
+//     or until the safe state of a communication loss declared after it reached the gateway
+//     (below): a command carrying anything else meanwhile overwrote it, a lost write too.
+//   Communication loss (gateway.md §5.3, with comm_loss_timeout set). The gateway may declare it
+//     only after a silence: a moment t is possible when no request lies wholly within
+//     (t - timeout, t] (a request reached the gateway between `sent` and `received`). From the
+//     start of such a silence on, the safe value is a value somebody asked for (the gateway),
+//     until a write sent after the silence ended replaces it. The writes that reached the
+//     gateway before it declared the loss are applied first, then the safe state: an
+//     acknowledged write sent well before the silence (half a timeout: it reached the gateway
+//     before) whose value first reaches the device after the safe push began is a wrong value.
+//     Once the push began (seen on a module whose safe word nobody writes), or once a silence
+//     was confirmed (the first request after it read 1020 = 1) and the gateway had time for one
+//     transaction more, the values from before the loss are gone: the desired state is safe,
+//     and refreshes and restores after a reopen carry it. Register 1020 reads 1 only for the
+//     first request after a possible loss: never once another request reached the gateway
+//     after the silence ended (the workload's diagnostics reads include it).
 //
 // Every output bit has one writer (one client owns each write job), so "the last confirmed
 // value" is known without guessing how concurrent writes were ordered.
@@ -33,10 +50,13 @@
 #include <array>
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <unordered_map>
@@ -55,7 +75,10 @@ using namespace std::chrono_literals;
 // The hub every workload runs against: five input modules, six output modules.
 // For ioport-sim --hub:
 std::string hub_sim_modules();
-// A links: entry of ioportd's configuration for that hub on `device`.
+// A links: entry of ioportd's configuration for that hub on `device`. Every output module has a
+// `safe` value other than its `initial` (what it is set to at a communication loss, when
+// modbus.comm_loss_timeout is on); the workload's clients never write the safe words of dom16 0,
+// 2 and 3, so the device applying one of those is the gateway's safe state.
 std::string hub_link_yaml(const std::string& device, std::chrono::milliseconds timeout, int retries,
                           std::chrono::milliseconds refresh = 300ms);
 
@@ -73,6 +96,12 @@ struct WorkloadSettings {
     std::chrono::milliseconds timeout = 50ms;  // the link's, per attempt
     // false: nobody here writes dom16 0 and nothing about it is checked (a test writes it).
     bool write_dom16_0 = true;
+    // The gateway's modbus.comm_loss_timeout; 0 (off): no safe value may ever reach the device.
+    std::chrono::milliseconds comm_loss_timeout{0};
+    // What a busy machine may add to a step of the gateway or the simulator: the gateway's
+    // timer firing, the simulator reading a command. A silence lasts this much past the
+    // timeout, so that the loss was declared before its first request.
+    std::chrono::milliseconds slack = 250ms;
 };
 
 struct Latency {
@@ -101,6 +130,17 @@ struct Report {
     std::uint64_t transactions = 0;      // on the serial line (the simulator's log)
     std::uint64_t commands_applied = 0;  // output commands the device acknowledged
     std::uint64_t input_states = 0;      // states the workload gave the input modules
+    // Communication loss (gateway.md §5.3), when the workload knows the timeout.
+    std::uint64_t silences = 0;                     // made by silence()
+    std::uint64_t silences_signalled = 0;           // the first request after it read 1020 = 1
+    std::uint64_t silences_cleared = 0;             // the second one read 0
+    std::uint64_t writes_in_flight_at_silence = 0;  // clients waiting for a write's answer then
+    // Output modules the device saw set to their safe value after a possible comm loss (the
+    // push itself, or the first refresh or restore carrying it), once per module and silence.
+    std::uint64_t safe_pushes = 0;
+    // Silences of at least the timeout in the clients' requests (possible comm losses): the
+    // workload's own, and any the machine made by starving every client at once.
+    std::uint64_t possible_losses = 0;
     Latency read_latency;
     Latency write_latency;
     std::vector<std::string> problems;  // the first ones, described
@@ -144,6 +184,23 @@ class Workload {
     // Some client waits for the answer to a write now.
     bool write_in_flight() const;
 
+    // A communication loss (gateway.md §5.3; needs settings.comm_loss_timeout): every client
+    // stops sending (a write it waits for is still answered, and applied first); nothing is
+    // sent until the timeout and a margin have passed since the last request, and `length`
+    // since the last answer; then the first request is a read of 1020 from a connection of the
+    // workload's own (must read 1), then a second (must read 0), then the clients go on.
+    // `meanwhile` runs once the clients are held, given the moment they were (a scenario's fault
+    // during the loss). Both reads are checked like the rest; a first read other than 1 is a
+    // wrong value.
+    struct Silence {
+        int writes_in_flight = 0;            // clients waiting for a write's answer when held
+        std::chrono::milliseconds length{};  // from the last request sent to the first after
+        int first = -1;                      // 1020 as the first request after it read it
+        int second = -1;                     // and the second; -1: no answer
+    };
+    Result<Silence> silence(std::chrono::milliseconds length,
+                            const std::function<void(Clock::time_point)>& meanwhile = {});
+
     struct Op;
     struct Target;
     struct InputState {
@@ -158,6 +215,19 @@ class Workload {
         int module;
         std::uint16_t value;
     };
+    // A stretch of time in which the gateway may have declared a communication loss: no request
+    // lies wholly within the timeout before any moment of it.
+    struct LossPeriod {
+        Clock::time_point from;
+        std::optional<Clock::time_point> until;      // a request certainly reached the gateway then
+        std::optional<Clock::time_point> push_seen;  // the safe push was seen beginning
+        std::uint32_t modules_pushed = 0;            // bit per module: safe value seen
+    };
+    struct Expiry {
+        Clock::time_point at;
+        std::size_t period;
+        Clock::time_point boundary;  // writes sent from then on are after the loss
+    };
 
     void run_client(int index);
     void run_inputs();
@@ -169,6 +239,15 @@ class Workload {
     void apply_command(Target& target, Clock::time_point at, std::uint16_t value);
     void finalize_windows(Target& target, Clock::time_point until);
     void finalize_windows_before(Target& target, Clock::time_point at);
+    bool loss_on() const { return settings_.comm_loss_timeout.count() > 0; }
+    void record_request(const Op& op);
+    void find_loss_periods(Clock::time_point horizon);
+    void advance_to(Clock::time_point at);
+    void activate(std::size_t period);
+    void expire(const Expiry& expiry);
+    void push_began(Clock::time_point at);
+    void count_safe_push(const Applied& command);
+    void check_loss_register(int client, const Op& op);
     void problem(std::uint64_t Report::*counter, std::string text);
     Report current_report() const;
 
@@ -180,10 +259,15 @@ class Workload {
     std::atomic<int> write_in_flight_{0};
     Clock::time_point started_ = Clock::now();
     std::vector<std::thread> clients_;
+    // silence(): clients wait here before each request while it is closed.
+    std::mutex gate_mutex_;
+    std::condition_variable gate_;
+    bool gate_closed_ = false;
     std::thread inputs_;
     std::thread checker_;
 
-    // Per client: the send time of the request in flight (max when none), and finished ops.
+    // Per client: the send time of the request in flight (max when none), and finished ops. One
+    // more, the last, for silence()'s reads.
     struct ClientSlot;
     std::vector<std::unique_ptr<ClientSlot>> slots_;
 
@@ -209,6 +293,16 @@ class Workload {
     std::chrono::microseconds max_read_latency_{};
     std::chrono::microseconds max_write_latency_{};
     std::unique_ptr<sim::ControlClient> checker_control_;
+    // Communication loss, under check_mutex_.
+    std::vector<LossPeriod> periods_;
+    std::size_t activated_ = 0;  // periods_[0, activated_) have begun for the targets
+    bool period_open_ = false;   // periods_.back() has no end yet
+    Clock::time_point covered_until_ = Clock::time_point::min();
+    std::vector<std::pair<Clock::time_point, Clock::time_point>> excluded_;  // [r, s + timeout)
+    std::deque<std::pair<Clock::time_point, Clock::time_point>> recent_;     // (sent, received)
+    std::vector<Op> confirmations_;  // silence()'s first reads, until past the horizon
+    std::vector<Expiry> expiries_;
+    std::vector<std::uint16_t> module_value_;  // the last command each output module applied
 };
 
 }  // namespace ioport::bench

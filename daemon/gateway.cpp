@@ -80,6 +80,10 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
         if (links[i]) continue;
         links[i] = make_link(config_.links[i]);
         links[i]->start();
+        // Outputs stay safe until a client writes them (gateway.md §5.3): a link started anew
+        // while the clients are still silent starts in its safe state, not at `initial`, and
+        // the loss is not declared again before a request comes.
+        if (server_->comm_lost()) links[i]->enter_safe_state();
     }
     links_ = std::move(links);
     server_->apply(config_.modbus, links_);

@@ -64,6 +64,8 @@ class ModbusServer {
     void apply(config::ModbusSettings next, const Units& units);
 
     std::size_t connections() const { return connections_.size(); }
+    // A communication loss is in effect: declared, and no request since (register 1020).
+    bool comm_lost() const { return comm_loss_; }
     asio::ip::tcp::endpoint local_endpoint() const;
 
   private:

@@ -294,6 +294,87 @@ TEST_F(Faults, AModuleThatStopsAnsweringMidRunAndComesBack) {
     EXPECT_LT(all_back, 4500ms * slowdown);  // back-off is at most 4 s
 }
 
+// --- SCADA falls silent -----------------------------------------------------------------------
+
+// Short, for a few losses in seconds; the workload's readers ask every few ms, so only the
+// scenario's silences get there.
+constexpr auto comm_loss_timeout = 300ms;
+
+class CommLoss : public Faults {
+  protected:
+    CommLoss() : Faults(fmt::format("  comm_loss_timeout: {}ms", comm_loss_timeout.count())) {}
+};
+
+// gateway.md §5.3 under load: the clients write outputs, dom16 1 answers 30 ms late (inside the
+// 50 ms timeout), so the coil writes of 16 clients queue, and every client falls silent with
+// them in flight; the gateway declares the loss while they still drain. The writes answered
+// normally must reach the device before the safe state does (0 lost writes: none overwritten
+// by anything but a later write or a safe state after it), no output may ever be set to a value
+// nobody asked for (the safe value only after a real silence), 1020 reads 1 for the first
+// request afterwards and 0 for the next; then the clients write again. Every other time the
+// port is unplugged during the loss, while the safe push may still wait behind the writes: the
+// reopen restores the safe state.
+TEST_F(CommLoss, ScadaFallsSilentWithWritesInFlightNoWriteLostNoValueNobodyAskedFor) {
+    ASSERT_TRUE(all_online(diagnostics));
+    bench::WorkloadSettings settings;
+    settings.port = gateway.port();
+    settings.sim_control = hub.control();
+    // 21 clients own one write job each (16 of them a coil of dom16 1), 3 only read.
+    settings.clients = 24;
+    settings.pause = 5ms;
+    settings.timeout = serial_timeout;
+    settings.comm_loss_timeout = comm_loss_timeout;
+    settings.slack = 250ms * slowdown;
+    bench::Workload load(settings);
+    ASSERT_TRUE(load.start());
+    constexpr int episodes = 4;
+    std::vector<milliseconds> silences;
+    int unplugged = 0;
+    for (int episode = 0; episode < episodes; ++episode) {
+        SCOPED_TRACE(episode);
+        hub.ctl("fault dom16:1 delay 30ms");
+        ASSERT_TRUE(eventually([&] { return load.write_in_flight(); }));
+        pace_until(Clock::now() + 300ms);  // the coil writes queue up
+        // With the unplug, silent for long enough after the reopen for the refreshes to show
+        // what the gateway restored.
+        const bool unplug = episode % 2 == 1;
+        const auto silence = load.silence(unplug ? 1200ms : 100ms, [&](Clock::time_point held) {
+            if (!unplug) return;
+            // Just past the moment the gateway declares the loss.
+            pace_until(held + comm_loss_timeout + 50ms);
+            hub.ctl("unplug 100ms");
+            ++unplugged;
+        });
+        ASSERT_TRUE(silence) << silence.error().message;
+        EXPECT_EQ(silence->first, 1) << "1020 for the first request after the silence";
+        EXPECT_EQ(silence->second, 0) << "1020 for the second";
+        silences.push_back(silence->length);
+        hub.ctl("fault dom16:1 none");
+        pace_until(Clock::now() + 600ms);  // the clients write again
+    }
+    EXPECT_TRUE(all_online(diagnostics));
+    pace_until(Clock::now() + 500ms);  // a refresh period, so that the last states are checked
+    const auto report = load.finish();
+
+    expect_three_things(report, gateway);
+    const auto [median, max] = median_max(silences);
+    figure("comm-loss episodes", std::to_string(report.silences));
+    figure("episodes with an unplug during the loss", std::to_string(unplugged));
+    figure("silence, median / max", fmt::format("{} / {}", ms(median), ms(max)));
+    figure("writes in flight when the clients fell silent",
+           std::to_string(report.writes_in_flight_at_silence));
+    figure("safe values seen at the simulator (output modules, per episode)",
+           std::to_string(report.safe_pushes));
+    figure("first request after read 1020 = 1 / the next read 0",
+           fmt::format("{} / {}", report.silences_signalled, report.silences_cleared));
+    EXPECT_EQ(report.silences, static_cast<std::uint64_t>(episodes));
+    EXPECT_EQ(report.silences_signalled, report.silences);
+    EXPECT_EQ(report.silences_cleared, report.silences);
+    EXPECT_GT(report.writes_in_flight_at_silence, 0U);
+    EXPECT_GE(report.safe_pushes, static_cast<std::uint64_t>(episodes));
+    EXPECT_TRUE(gateway.wait_for_log("safe values"));
+}
+
 // --- Modbus clients -------------------------------------------------------------------------
 
 Bytes pdu(std::uint8_t function, std::initializer_list<std::uint16_t> words) {
@@ -386,6 +467,8 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
         RawClient client(port);
         for (int i = 0; i < 20; ++i) {
             std::uint8_t function = 0;
+            // Every function but those that work (gateway.md §3.5); 43 works with MEI type 14
+            // alone, and this PDU's MEI type is 0.
             do {
                 function = static_cast<std::uint8_t>(function_random() % 256);
             } while (function == 0 || (function >= 1 && function <= 6) || function == 15 ||

@@ -5,6 +5,7 @@
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <poll.h>
+#include <signal.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -1179,6 +1180,30 @@ TEST_F(CommLossTest, APortLostDuringCommLossComesBackWithTheSafeValues) {
     hub.ctl("set dom16:0 0x1234");  // what the module holds while the port is away
     hub.ctl("replug");
     EXPECT_TRUE(sim_becomes("dom16:0", "1")) << "the replug restored " << sim_value(hub, "dom16:0");
+}
+
+// A SIGHUP during the loss that restarts the link (here for a new safe value) starts it in the
+// safe state: its outputs go to the new safe values, never back to `initial`, which nobody asked
+// for since the clients fell silent.
+TEST_F(CommLossTest, AReloadDuringCommLossRestartsTheLinkInTheSafeState) {
+    {
+        ModbusClient scada(gateway.port());
+        ASSERT_TRUE(all_online(scada));
+        ASSERT_TRUE(scada.write_register(0, 0x1234));
+    }
+    ASSERT_TRUE(sim_becomes("dom16:0", "1"));
+    auto changed = modules;
+    changed[1] = {"dom16", 0, ", initial: 0x00F0, safe: 0x0002"};
+    gateway.rewrite_config(config(hub_link(hub.link(), changed), "  comm_loss_timeout: 1500ms"));
+    hub.ctl("log clear");
+    const auto from = gateway.log().size();
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("restarted: hub0", 5s, from));
+    EXPECT_TRUE(sim_becomes("dom16:0", "2"))
+        << "the restarted link set dom16 0 to " << sim_value(hub, "dom16:0");
+    EXPECT_EQ(hub.ctl("log").find(" b000F0 "), std::string::npos)
+        << "dom16 0 was sent its initial value";
+    EXPECT_EQ(sim_value(hub, "rgbdm:0"), "1");  // still red
 }
 
 class CommLossOffTest : public CommLossTest {
