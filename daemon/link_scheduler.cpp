@@ -334,9 +334,9 @@ asio::awaitable<std::optional<Exception>> LinkScheduler::apply(
 asio::awaitable<std::optional<Exception>> LinkScheduler::reset_counter() {
     if (!link_.is_open()) co_return Exception::gateway_target_failed;
     const auto result = co_await link_.transact(make_exchange(id2::Command::reset));
-    if (result) co_return std::nullopt;  // the count read next shows it; until then it is as old
-    // as it reads. A failed reset is a failure of the device like any other, and it leaves the
-    // count in doubt: it is stale until it has been read again.
+    // A confirmed reset shows in the image with the next read of the count. A failed one is a
+    // failure of the device like any other, and leaves the count in doubt: stale until read.
+    if (result) co_return std::nullopt;
     record(id2_count_entry, result);
     co_return result.error().code == Errc::error_ack ? Exception::server_device_failure
                                                      : Exception::gateway_target_failed;
