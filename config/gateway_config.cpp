@@ -322,7 +322,9 @@ struct Fields {
 };
 
 using Keys = std::span<const std::string_view>;
-constexpr std::array<std::string_view, 4> top_keys{"modbus", "links", "on_shutdown", "log_level"};
+constexpr std::array<std::string_view, 5> top_keys{"modbus", "http", "links", "on_shutdown",
+                                                   "log_level"};
+constexpr std::array<std::string_view, 2> http_keys{"listen", "allow"};
 constexpr std::array<std::string_view, 9> modbus_keys{
     "listen", "max_connections", "idle_timeout",     "allow", "read_only", "word_order",
     "stale",  "keepalive",       "comm_loss_timeout"};
@@ -380,6 +382,7 @@ class Loader {
     void read_root(const YAML::Node& root, GatewayConfig& config);
     void read_modbus(const Entry& entry, ModbusSettings& modbus);
     void read_allow(const Fields& fields, std::vector<Network>& allow);
+    void read_http(const Entry& entry, std::optional<HttpSettings>& http);
     void read_links(const Entry& entry, std::vector<LinkConfig>& links);
     void read_link(const YAML::Node& node, std::size_t index, std::vector<LinkConfig>& links);
     struct LinkOutcome {
@@ -464,6 +467,7 @@ void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
     }
     const Fields top = fields(root, "", top_keys);
     if (const Entry* modbus = top.find("modbus")) read_modbus(*modbus, config.modbus);
+    if (const Entry* http = top.find("http")) read_http(*http, config.http);
     require(top, "links", "the gateway needs at least one link");
     if (const Entry* links = top.find("links")) read_links(*links, config.links);
     read(top, "on_shutdown", "keep or initial", config.on_shutdown,
@@ -493,6 +497,26 @@ void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
          duration(microseconds{0}, 2h));
     read(f, "comm_loss_timeout", "a duration such as 10s, or 0 for off", modbus.comm_loss_timeout,
          duration(microseconds{0}, 24h));
+}
+
+void Loader::read_http(const Entry& entry, std::optional<HttpSettings>& http) {
+    http = HttpSettings{};
+    if (entry.value.IsNull()) return;  // "http:" alone: every default
+    const auto settings = mapping(entry, "http", http_keys, "{ listen: \"127.0.0.1:8502\" }");
+    if (!settings) return;
+    const Fields& f = *settings;
+    read_allow(f, http->allow);
+    Endpoint listen{http->listen_host, http->listen_port};
+    const Entry* off = f.find("listen");
+    if (off != nullptr && off->value.IsScalar() && off->value.Scalar().empty()) {
+        http.reset();
+        return;
+    }
+    if (read(f, "listen", "host:port, or \"\" for off", listen,
+             [](const YAML::Node& value) { return parse_listen(value.Scalar()); })) {
+        http->listen_host = listen.host;
+        http->listen_port = listen.port;
+    }
 }
 
 void Loader::read_allow(const Fields& f, std::vector<Network>& allow) {

@@ -58,6 +58,14 @@ struct ModbusSettings {
     friend bool operator==(const ModbusSettings&, const ModbusSettings&) = default;
 };
 
+// The HTTP side (gateway.md §5.4): metrics, status page, health. Read-only.
+struct HttpSettings {
+    std::string listen_host = "127.0.0.1";  // as ModbusSettings::listen_host
+    std::uint16_t listen_port = 8502;
+    std::vector<Network> allow;  // empty: anyone
+    friend bool operator==(const HttpSettings&, const HttpSettings&) = default;
+};
+
 struct ModuleConfig {
     ModuleAddress address;
     std::chrono::microseconds poll{0};       // input modules: at most this often; 0 = every cycle
@@ -95,6 +103,8 @@ struct LinkConfig {
 struct GatewayConfig {
     std::string file;  // as given, for messages
     ModbusSettings modbus;
+    // No `http:` section, or `listen: ""`: no HTTP server (an upgrade never opens a port).
+    std::optional<HttpSettings> http;
     std::vector<LinkConfig> links;
     OnShutdown on_shutdown = OnShutdown::keep;
     LogLevel log_level = LogLevel::info;

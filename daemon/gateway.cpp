@@ -6,30 +6,44 @@
 #include <fmt/ranges.h>
 
 #include "config/duration.hpp"
+#include "daemon/process_stats.hpp"
+#include "daemon/status_pages.hpp"
 
 namespace ioport::daemon {
 
 Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log)
-    : executor_(executor), config_(std::move(config)), log_(log) {}
+    : executor_(executor), config_(std::move(config)), log_(log), boot_time_(read_boot_time()) {}
 
-std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) const {
-    return std::make_shared<LinkScheduler>(executor_, link, config_.modbus.word_order, log_);
+std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) {
+    return std::make_shared<LinkScheduler>(executor_, link, config_.modbus.word_order, log_,
+                                           events_);
+}
+
+std::shared_ptr<HttpServer> Gateway::make_http(const config::HttpSettings& settings) {
+    return std::make_shared<HttpServer>(executor_, settings, log_, [this](const Route& route) {
+        return render_page(*this, route, boot_time_);
+    });
 }
 
 Result<> Gateway::start() {
     for (const auto& link : config_.links)
         links_.push_back(make_link(link));
     // Comm loss reaches the links running then: a reload replaces links_, not this callback.
-    server_ = std::make_unique<ModbusServer>(executor_, config_.modbus, links_, log_, [this] {
-        for (auto& link : links_)
-            link->enter_safe_state();
-    });
+    server_ =
+        std::make_unique<ModbusServer>(executor_, config_.modbus, links_, log_, events_, [this] {
+            for (auto& link : links_)
+                link->enter_safe_state();
+        });
     for (auto& link : links_)
         link->start();
-    return server_->start();
+    if (auto started = server_->start(); !started) return started;
+    if (!config_.http) return {};
+    http_ = make_http(*config_.http);
+    return http_->start();
 }
 
 void Gateway::shut_down(std::function<void()> done) {
+    if (http_) http_->stop();
     server_->shut_down();
     // Shared by the links' callbacks; `done` runs when the last of them has finished.
     auto remaining = std::make_shared<std::size_t>(links_.size());
@@ -41,6 +55,7 @@ void Gateway::shut_down(std::function<void()> done) {
 }
 
 void Gateway::stop() {
+    if (http_) http_->stop();
     if (server_) server_->stop();
     for (auto& link : links_)
         link->stop();
@@ -48,8 +63,10 @@ void Gateway::stop() {
 
 Result<std::string> Gateway::reload(config::GatewayConfig next) {
     if (auto bound = server_->prepare(next.modbus); !bound) return Unexpected(bound.error());
+    if (auto bound = prepare_http(next.http); !bound) return Unexpected(bound.error());
     const bool same_word_order = next.modbus.word_order == config_.modbus.word_order;
     const bool modbus_changed = !(next.modbus == config_.modbus);
+    const bool http_changed = next.http != config_.http;
     ModbusServer::Units links;
     struct {
         std::vector<std::string> kept, restarted, added, removed;
@@ -87,12 +104,68 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     }
     links_ = std::move(links);
     server_->apply(config_.modbus, links_);
+    apply_http(config_.http);
     const auto list = [](const std::vector<std::string>& of) {
         return of.empty() ? std::string("none") : fmt::format("{}", fmt::join(of, " "));
     };
-    return fmt::format("links kept: {}; restarted: {}; added: {}; removed: {}; Modbus settings {}",
-                       list(names.kept), list(names.restarted), list(names.added),
-                       list(names.removed), modbus_changed ? "changed" : "unchanged");
+    auto summary = fmt::format(
+        "links kept: {}; restarted: {}; added: {}; removed: {}; Modbus settings {}; HTTP {}",
+        list(names.kept), list(names.restarted), list(names.added), list(names.removed),
+        modbus_changed ? "changed" : "unchanged", http_changed ? "changed" : "unchanged");
+    events_.add(EventKind::reload, {}, {}, {}, fmt::format("configuration reloaded: {}", summary));
+    return summary;
+}
+
+Result<> Gateway::prepare_http(const std::optional<config::HttpSettings>& next) {
+    next_http_.reset();
+    if (!next) return {};
+    if (http_ && http_->settings().listen_host == next->listen_host &&
+        http_->settings().listen_port == next->listen_port)
+        return {};
+    auto server = make_http(*next);
+    if (auto started = server->start(); !started) {
+        server->stop();
+        return started;
+    }
+    next_http_ = std::move(server);
+    return {};
+}
+
+void Gateway::apply_http(const std::optional<config::HttpSettings>& next) {
+    if (!next || next_http_) {
+        if (http_) {
+            http_->stop();
+            if (!next) log_.info({}, "HTTP server stopped: no http section any more");
+        }
+        http_ = std::exchange(next_http_, nullptr);
+        return;
+    }
+    http_->set_allow(next->allow);
+}
+
+std::optional<asio::ip::tcp::endpoint> Gateway::http_endpoint() const {
+    if (!http_) return std::nullopt;
+    return http_->local_endpoint();
+}
+
+Health Gateway::health() const {
+    Health health;
+    const auto add = [&](std::string reason) {
+        health.ok = false;
+        if (!health.reason.empty()) health.reason += "; ";
+        health.reason += reason;
+    };
+    for (const auto& link : links_) {
+        const auto& name = link->config().name;
+        if (!link->port_open()) {
+            add(fmt::format("link {}: port {} not open", name, link->config().device));
+            continue;
+        }
+        for (const auto& module : link->modules())
+            if (module.status != gateway::ModuleStatus::online)
+                add(fmt::format("link {}: {} {}", name, module.name, status_text(module.status)));
+    }
+    return health;
 }
 
 std::string Gateway::summary() const {

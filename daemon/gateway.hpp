@@ -1,6 +1,7 @@
-// The running gateway: one LinkScheduler per configured link and the Modbus server in front of
-// them, on one io_context. Started and stopped in a fixed order: links first (so the first
-// clients find ports already being opened), server last; stopped the other way round.
+// The running gateway: one LinkScheduler per configured link, the Modbus server in front of them
+// and the read-only HTTP side, on one io_context. Started and stopped in a fixed order: links
+// first (so the first clients find ports already being opened), then the Modbus server, then
+// HTTP; stopped the other way round.
 // A reload swaps in a new configuration while running, touching only what it changes.
 #pragma once
 
@@ -10,10 +11,18 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
+#include "daemon/events.hpp"
+#include "daemon/http_server.hpp"
 #include "daemon/link_scheduler.hpp"
 #include "daemon/modbus_server.hpp"
 
 namespace ioport::daemon {
+
+// /healthz (gateway.md §5.4): every link's port open and every module online.
+struct Health {
+    bool ok = true;
+    std::string reason;  // "link hub0: port not open; link hub1: dim16 2 no answer"
+};
 
 class Gateway {
   public:
@@ -37,15 +46,34 @@ class Gateway {
     std::string summary() const;
     // Every link's loop is making progress (see LinkScheduler::progressing).
     bool healthy() const;
+    Health health() const;
+
+    // What the HTTP side shows.
+    const ModbusServer::Units& links() const { return links_; }
+    const ModbusServer& modbus() const { return *server_; }
+    EventLog& events() { return events_; }
+    const EventLog& events() const { return events_; }
+    std::chrono::system_clock::time_point started() const { return started_; }
+    // The HTTP server's address; nullopt when it is off.
+    std::optional<asio::ip::tcp::endpoint> http_endpoint() const;
 
   private:
-    std::shared_ptr<LinkScheduler> make_link(const config::LinkConfig& link) const;
+    std::shared_ptr<LinkScheduler> make_link(const config::LinkConfig& link);
+    std::shared_ptr<HttpServer> make_http(const config::HttpSettings& settings);
+    // A reload's first HTTP step: binds the new address, if it moved (into next_http_).
+    Result<> prepare_http(const std::optional<config::HttpSettings>& next);
+    void apply_http(const std::optional<config::HttpSettings>& next);
 
     asio::any_io_executor executor_;
     config::GatewayConfig config_;
     Log& log_;
+    EventLog events_;
+    std::chrono::system_clock::time_point started_ = std::chrono::system_clock::now();
     ModbusServer::Units links_;
     std::unique_ptr<ModbusServer> server_;
+    std::shared_ptr<HttpServer> http_;
+    std::shared_ptr<HttpServer> next_http_;  // bound by prepare_http(), taken by apply_http()
+    double boot_time_ = 0;                   // for process_start_time_seconds
 };
 
 // The lines printed by --check-config: the links, their modules and the Modbus front.

@@ -37,7 +37,66 @@ asio::awaitable<Result<Reading>> failed(Error error) {
 // An ID-2 link's entries: the stop input, then the count.
 constexpr std::size_t id2_count_entry = 1;
 
+bool is_analog(ModuleType type) {
+    return reply_words(type) > 0 && full_scale(type) > 0;
+}
+
+// A failed transaction of a write, as the write's result.
+WriteResult write_failure(const Error& error) {
+    switch (error.code) {
+        case Errc::error_ack:
+            return WriteResult::error_ack;
+        case Errc::timeout:
+        case Errc::malformed:
+        case Errc::line_noisy:
+        case Errc::invalid_argument:
+            return WriteResult::no_answer;
+        case Errc::cancelled:
+        case Errc::port_lost:
+        case Errc::port_closed:
+        case Errc::io_error:
+        case Errc::port_not_found:
+        case Errc::permission_denied:
+        case Errc::port_busy:
+            break;
+    }
+    return WriteResult::link_down;
+}
+
+// Of the commands of one request, the outcome that says most: the port gone, then no answer
+// (both 0B), then an error ack (04).
+WriteResult worse(WriteResult a, WriteResult b) {
+    return static_cast<int>(a) > static_cast<int>(b) ? a : b;
+}
+
 }  // namespace
+
+std::string_view to_string(WriteResult result) {
+    switch (result) {
+        case WriteResult::confirmed:
+            return "confirmed";
+        case WriteResult::error_ack:
+            return "error_ack";
+        case WriteResult::no_answer:
+            return "no_answer";
+        case WriteResult::link_down:
+            return "link_down";
+    }
+    return "unknown";
+}
+
+std::optional<Exception> exception_of(WriteResult result) {
+    switch (result) {
+        case WriteResult::confirmed:
+            return std::nullopt;
+        case WriteResult::error_ack:
+            return Exception::server_device_failure;
+        case WriteResult::no_answer:
+        case WriteResult::link_down:
+            break;
+    }
+    return Exception::gateway_target_failed;
+}
 
 struct LinkScheduler::PendingWrite {
     PendingWrite(const asio::any_io_executor& executor, gateway::WritePlan write_plan)
@@ -46,15 +105,16 @@ struct LinkScheduler::PendingWrite {
     asio::steady_timer done;  // cancelled when the outcome is known
     bool safe_state = false;  // not a client's: the outputs to their safe values
     bool finished = false;
-    std::optional<Exception> outcome = Exception::gateway_target_failed;
+    WriteResult outcome = WriteResult::link_down;
 };
 
 LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
-                             gateway::WordOrder word_order, Log& log)
+                             gateway::WordOrder word_order, Log& log, EventLog& events)
     : config_(link),
       identity_(device_identity(link, IOPORTD_VERSION)),
       word_order_(word_order),
       log_(log),
+      events_(events),
       link_(executor, link_settings(link)),
       wake_(executor),
       plan_(poll_entries(link)) {
@@ -72,6 +132,7 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
                             .desired = module.initial,
                             .initial = module.initial,
                             .safe = module.safe});
+        if (is_analog(module.address.type)) entries_.back().trend = std::make_shared<Trend>();
         state_.status[static_cast<std::size_t>(slot(module.address))] = ModuleStatus::not_polled;
     }
     (void)image(true);
@@ -123,8 +184,11 @@ asio::awaitable<void> LinkScheduler::run(bool open) {
 bool LinkScheduler::try_open() {
     auto opened = link_.open();
     if (opened) {
-        log_.info(fields(), "link {}: {} open at {} baud, unit {}{}", config_.name, config_.device,
-                  config_.baud, config_.unit_id, link_.low_latency() ? ", low latency" : "");
+        auto text =
+            fmt::format("link {}: {} open at {} baud, unit {}{}", config_.name, config_.device,
+                        config_.baud, config_.unit_id, link_.low_latency() ? ", low latency" : "");
+        log_.info(fields(), "{}", text);
+        events_.add(EventKind::port_up, config_.name, {}, {}, std::move(text));
         state_.port_open = true;
         last_open_error_.clear();
         plan_.port_opened(Clock::now());
@@ -187,7 +251,7 @@ asio::awaitable<void> LinkScheduler::set_outputs_to_initial() {
         record(i, result);
         if (result) {
             entries_[i].desired = entries_[i].initial;
-            gateway::store_output(image_.tables(), *module, entries_[i].initial);
+            confirmed(i, entries_[i].initial);
             ++set;
         } else {
             log_.warn(fields(what), "link {}: {} not set to its initial value: {}", config_.name,
@@ -223,12 +287,14 @@ asio::awaitable<Result<Reading>> LinkScheduler::transact(std::size_t entry, std:
 asio::awaitable<void> LinkScheduler::poll(std::size_t entry) {
     const auto result = co_await transact(entry, 0);
     if (result) {
-        const auto& target = entries_[entry].target;
-        if (const auto* command = std::get_if<id2::Command>(&target))
+        auto& polled = entries_[entry];
+        if (const auto* command = std::get_if<id2::Command>(&polled.target))
             gateway::store_id2(image_.tables(), *command, result->raw[0]);
         else
-            gateway::store_reading(image_.tables(), std::get<ModuleAddress>(target), *result,
+            gateway::store_reading(image_.tables(), std::get<ModuleAddress>(polled.target), *result,
                                    word_order_);
+        polled.reading = *result;
+        if (polled.trend) polled.trend->add(std::chrono::system_clock::now(), result->raw);
     }
     record(entry, result);
 }
@@ -236,21 +302,28 @@ asio::awaitable<void> LinkScheduler::poll(std::size_t entry) {
 asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
     const auto value = entries_[entry].desired;
     const auto result = co_await transact(entry, value);
-    if (result)
-        gateway::store_output(image_.tables(), std::get<ModuleAddress>(entries_[entry].target),
-                              value);
+    if (result) confirmed(entry, value);
     record(entry, result);
 }
 
-asio::awaitable<std::optional<Exception>> LinkScheduler::write(gateway::WritePlan plan) {
-    if (plan.changes.empty() && !plan.reset_counter) co_return std::nullopt;
-    if (!state_.port_open || stopping_ || finishing_) co_return Exception::gateway_target_failed;
+void LinkScheduler::confirmed(std::size_t entry, std::uint16_t value) {
+    entries_[entry].confirmed = value;
+    gateway::store_output(image_.tables(), std::get<ModuleAddress>(entries_[entry].target), value);
+}
+
+asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan) {
+    if (plan.changes.empty() && !plan.reset_counter) co_return WriteResult::confirmed;
+    if (!state_.port_open || stopping_ || finishing_) {
+        ++writes_count_[static_cast<std::size_t>(WriteResult::link_down)];
+        co_return WriteResult::link_down;
+    }
     const auto self = shared_from_this();  // a reload may let go of this link meanwhile
     auto pending = std::make_shared<PendingWrite>(wake_.get_executor(), std::move(plan));
     writes_.push_back(pending);
     wake_.cancel();  // the loop may be idle until the next poll is due
     boost::system::error_code ec;
     if (!pending->finished) co_await pending->done.async_wait(redirect_error(use_awaitable, ec));
+    ++writes_count_[static_cast<std::size_t>(pending->outcome)];
     co_return pending->outcome;
 }
 
@@ -282,7 +355,7 @@ asio::awaitable<void> LinkScheduler::send_safe_state() {
         if (module == nullptr || !is_output(module->type)) continue;
         const auto result = co_await transact(i, entries_[i].safe);
         if (result) {
-            gateway::store_output(image_.tables(), *module, entries_[i].safe);
+            confirmed(i, entries_[i].safe);
             ++sent;
         }
         record(i, result);
@@ -296,16 +369,14 @@ asio::awaitable<void> LinkScheduler::execute(PendingWrite& write) {
         co_await send_safe_state();
         co_return;
     }
-    std::optional<Exception> outcome;
+    auto outcome = WriteResult::confirmed;
     for (const auto& change : write.plan.changes) {
         if (!link_.is_open()) {
-            outcome = Exception::gateway_target_failed;
+            outcome = WriteResult::link_down;
             break;
         }
-        // The others stay applied; the request answers the exception, 0B before 04.
-        if (auto failed = co_await apply(change);
-            failed && (!outcome || *failed == Exception::gateway_target_failed))
-            outcome = failed;
+        // The others stay applied; the request answers the worst outcome, 0B before 04.
+        outcome = worse(outcome, co_await apply(change));
     }
     if (write.plan.reset_counter) outcome = co_await reset_counter();
     write.outcome = outcome;
@@ -313,33 +384,29 @@ asio::awaitable<void> LinkScheduler::execute(PendingWrite& write) {
     write.done.cancel();
 }
 
-asio::awaitable<std::optional<Exception>> LinkScheduler::apply(
-    const gateway::OutputChange& change) {
+asio::awaitable<WriteResult> LinkScheduler::apply(const gateway::OutputChange& change) {
     const auto entry = entry_of(change.module);
-    if (!entry) co_return Exception::illegal_data_address;  // the planner rules this out
+    if (!entry) co_return WriteResult::error_ack;  // the planner rules this out
     auto& module = entries_[*entry];
     // Merged now, not when the request arrived: another client's write may have come first.
     const auto value = gateway::merged(module.desired, change);
     const auto result = co_await transact(*entry, value);
     if (result) {
         module.desired = value;
-        gateway::store_output(image_.tables(), change.module, value);
+        confirmed(*entry, value);
     }
     record(*entry, result);
-    if (result) co_return std::nullopt;
-    co_return result.error().code == Errc::error_ack ? Exception::server_device_failure
-                                                     : Exception::gateway_target_failed;
+    co_return result ? WriteResult::confirmed : write_failure(result.error());
 }
 
-asio::awaitable<std::optional<Exception>> LinkScheduler::reset_counter() {
-    if (!link_.is_open()) co_return Exception::gateway_target_failed;
+asio::awaitable<WriteResult> LinkScheduler::reset_counter() {
+    if (!link_.is_open()) co_return WriteResult::link_down;
     const auto result = co_await link_.transact(make_exchange(id2::Command::reset));
     // A confirmed reset shows in the image with the next read of the count. A failed one is a
     // failure of the device like any other, and leaves the count in doubt: stale until read.
-    if (result) co_return std::nullopt;
+    if (result) co_return WriteResult::confirmed;
     record(id2_count_entry, result);
-    co_return result.error().code == Errc::error_ack ? Exception::server_device_failure
-                                                     : Exception::gateway_target_failed;
+    co_return write_failure(result.error());
 }
 
 void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
@@ -401,18 +468,25 @@ void LinkScheduler::set_status(int slot_index, ModuleStatus status, const Error*
     current = status;
     const auto what = state_.kind == gateway::UnitKind::id2 ? std::string("ID-2")
                                                             : to_string(module_at_slot(slot_index));
-    if (status == ModuleStatus::online)
-        log_.info(fields(what), "link {}: {} online", config_.name, what);
-    else if (was_online || error)
-        log_.warn(fields(what), "link {}: {} offline: {}", config_.name, what,
-                  error ? error->message : std::string("port closed"));
+    if (status == ModuleStatus::online) {
+        auto text = fmt::format("link {}: {} online", config_.name, what);
+        log_.info(fields(what), "{}", text);
+        events_.add(EventKind::module_online, config_.name, what, {}, std::move(text));
+    } else if (was_online || error) {
+        auto text = fmt::format("link {}: {} offline: {}", config_.name, what,
+                                error ? error->message : std::string("port closed"));
+        log_.warn(fields(what), "{}", text);
+        events_.add(EventKind::module_offline, config_.name, what, {}, std::move(text));
+    }
 }
 
 void LinkScheduler::port_lost(const Error& error) {
     link_.close();
     if (!state_.port_open) return;
     state_.port_open = false;
-    log_.warn(fields(), "link {}: port down: {}; reopening", config_.name, error.message);
+    auto text = fmt::format("link {}: port down: {}; reopening", config_.name, error.message);
+    log_.warn(fields(), "{}", text);
+    events_.add(EventKind::port_down, config_.name, {}, {}, std::move(text));
     // Polled modules answer 0B (or hold) while the port is away; never-polled ones stay 4.
     for (auto& entry : entries_)
         if (entry.status != ModuleStatus::not_polled) entry.status = ModuleStatus::no_answer;
@@ -425,7 +499,7 @@ void LinkScheduler::port_lost(const Error& error) {
 void LinkScheduler::fail_pending_writes() {
     for (const auto& write : writes_) {
         if (write->safe_state) desire_safe_state();  // restored at reopen
-        write->outcome = Exception::gateway_target_failed;
+        write->outcome = WriteResult::link_down;
         write->finished = true;
         write->done.cancel();
     }
@@ -438,6 +512,34 @@ std::optional<std::size_t> LinkScheduler::entry_of(ModuleAddress module) const {
             address && *address == module)
             return i;
     return std::nullopt;
+}
+
+std::vector<ModuleView> LinkScheduler::modules() const {
+    std::vector<ModuleView> views;
+    if (state_.kind == gateway::UnitKind::id2) {
+        const auto& stop = entries_[0].reading;
+        const auto& count = entries_[id2_count_entry].reading;
+        views.push_back({.name = "ID-2",
+                         .status = state_.status[0],
+                         .last_good = last_good_[0],
+                         .stop = stop ? std::optional(stop->raw[0] != 0) : std::nullopt,
+                         .count = count ? std::optional(count->raw[0]) : std::nullopt});
+        return views;
+    }
+    views.reserve(entries_.size());
+    for (const auto& entry : entries_) {
+        const auto address = std::get<ModuleAddress>(entry.target);
+        const auto slot_index = static_cast<std::size_t>(entry.slot);
+        views.push_back({.name = to_string(address),
+                         .address = address,
+                         .slot = entry.slot,
+                         .status = state_.status[slot_index],
+                         .last_good = last_good_[slot_index],
+                         .reading = entry.reading,
+                         .output = entry.confirmed,
+                         .trend = entry.trend.get()});
+    }
+    return views;
 }
 
 modbus_mapping_t* LinkScheduler::image(bool diagnostics) {
@@ -454,7 +556,7 @@ modbus_mapping_t* LinkScheduler::image(bool diagnostics) {
     d.last_cycle = plan_.last_cycle();
     d.cycles = plan_.cycles();
     d.transactions_ok = link_.counters().transactions_ok;
-    d.transactions_failed = link_.counters().transactions_failed;
+    d.transactions_failed = link_.counters().transactions_failed();
     d.opens = link_.counters().opens;
     d.status = state_.status;
     for (std::size_t i = 0; i < slot_count; ++i) {

@@ -21,9 +21,11 @@
 #include <modbus/modbus.h>
 
 #include "config/gateway_config.hpp"
+#include "daemon/events.hpp"
 #include "daemon/log.hpp"
 #include "daemon/modbus_reply.hpp"
 #include "daemon/poll_plan.hpp"
+#include "daemon/trend.hpp"
 #include "link/asio.hpp"
 #include "link/serial_link.hpp"
 #include "protocol/gateway_map.hpp"
@@ -35,10 +37,31 @@ inline constexpr std::chrono::microseconds max_reopen_delay = 2s;
 // What a loaded machine may add to a wait before the loop runs again.
 inline constexpr std::chrono::microseconds watchdog_slack = 1s;
 
+// How a client's write ended: the result label of ioportd_writes_total and the audit's RESULT.
+enum class WriteResult { confirmed, error_ack, no_answer, link_down };
+inline constexpr std::size_t write_result_count = 4;
+std::string_view to_string(WriteResult result);  // "confirmed", "error_ack", …
+// What a Modbus request answers: nothing (confirmed), 04 (error ack) or 0B.
+std::optional<modbus::Exception> exception_of(WriteResult result);
+
+// A configured module as /metrics, /api/v1/state and the status page show it.
+struct ModuleView {
+    std::string name;                        // "dim16 0", "ID-2"
+    std::optional<ModuleAddress> address{};  // nullopt: the ID-2
+    int slot = 0;
+    gateway::ModuleStatus status = gateway::ModuleStatus::not_polled;
+    std::optional<Clock::time_point> last_good{};
+    std::optional<Reading> reading{};       // input modules: the last good reading
+    std::optional<std::uint16_t> output{};  // output modules: the state the device confirmed
+    std::optional<bool> stop{};             // the ID-2's stop input
+    std::optional<std::uint16_t> count{};   // the ID-2's counter
+    const Trend* trend = nullptr;           // analog modules
+};
+
 class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
   public:
     LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
-                  gateway::WordOrder word_order, Log& log);
+                  gateway::WordOrder word_order, Log& log, EventLog& events);
     LinkScheduler(const LinkScheduler&) = delete;
     LinkScheduler& operator=(const LinkScheduler&) = delete;
 
@@ -59,9 +82,9 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     // The image, with the time-dependent diagnostics brought up to date when `diagnostics`.
     modbus_mapping_t* image(bool diagnostics);
     const gateway::Tables& tables() const { return image_.tables(); }
-    // Sends a validated write and completes when the device acknowledged it (nullopt) or it
-    // failed (04 error ack, 0B no answer or port closed).
-    asio::awaitable<std::optional<modbus::Exception>> write(gateway::WritePlan plan);
+    // Sends a validated write and completes when the device acknowledged it or it failed.
+    // Counted in writes() when it reached the link: an empty plan is confirmed at once.
+    asio::awaitable<WriteResult> write(gateway::WritePlan plan);
     // Communication loss (gateway.md §5.3): every output module's safe value becomes its desired
     // state and is sent, after the writes already queued, which clients asked for before the
     // silence. With the port down it is the state restored at reopen.
@@ -69,6 +92,12 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
 
     bool port_open() const { return state_.port_open; }
     int modules_online() const;
+    std::vector<ModuleView> modules() const;
+    // Client writes by WriteResult.
+    const std::array<std::uint64_t, write_result_count>& writes() const { return writes_count_; }
+    const LinkCounters& counters() const { return link_.counters(); }
+    // The last complete poll cycle; 0 before the first.
+    std::chrono::microseconds last_cycle() const { return plan_.last_cycle(); }
     // The loop is not stuck: it is asleep until a poll or reopen is due, or its serial link
     // acted within the longest wait the link ever makes (one timeout) and a second to spare for
     // a busy machine. A whole step may take far longer on a noisy line, and that is not a stall.
@@ -85,6 +114,9 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
         // the ID-2's slot 0, which its two reads share (slot_status).
         gateway::ModuleStatus status = gateway::ModuleStatus::not_polled;
         std::optional<Clock::time_point> last_good{};
+        std::optional<Reading> reading{};          // inputs and the ID-2's reads
+        std::optional<std::uint16_t> confirmed{};  // outputs
+        std::shared_ptr<Trend> trend{};            // analog modules
     };
     struct PendingWrite;
 
@@ -95,8 +127,9 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     asio::awaitable<void> poll(std::size_t entry);
     asio::awaitable<void> refresh(std::size_t entry);
     asio::awaitable<void> execute(PendingWrite& write);
-    asio::awaitable<std::optional<modbus::Exception>> apply(const gateway::OutputChange& change);
-    asio::awaitable<std::optional<modbus::Exception>> reset_counter();
+    asio::awaitable<WriteResult> apply(const gateway::OutputChange& change);
+    asio::awaitable<WriteResult> reset_counter();
+    void confirmed(std::size_t entry, std::uint16_t value);
     asio::awaitable<void> sleep_until(Clock::time_point when);
     asio::awaitable<void> set_outputs_to_initial();
     asio::awaitable<void> send_safe_state();
@@ -114,11 +147,13 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     modbus::DeviceIdentity identity_;
     gateway::WordOrder word_order_;
     Log& log_;
+    EventLog& events_;
     SerialLink link_;
     asio::steady_timer wake_;
     PollPlan plan_;
     std::vector<Entry> entries_;
     std::deque<std::shared_ptr<PendingWrite>> writes_;
+    std::array<std::uint64_t, write_result_count> writes_count_{};
     UnitImage image_;
     gateway::UnitState state_;
     std::array<std::optional<Clock::time_point>, slot_count> last_good_{};  // by slot

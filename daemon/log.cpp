@@ -11,6 +11,8 @@
 namespace ioport::daemon {
 namespace {
 
+constexpr int notice_priority = 5;
+
 // syslog(3)'s priorities, which the journal uses.
 int priority(LogLevel level) {
     switch (level) {
@@ -35,14 +37,22 @@ int priority(LogLevel level) {
 
 std::vector<std::string> journal_entry(LogLevel level, const LogFields& fields,
                                        std::string_view message) {
-    std::vector<std::string> entry{fmt::format("MESSAGE={}", message),
-                                   fmt::format("PRIORITY={}", priority(level)),
-                                   "SYSLOG_IDENTIFIER=ioportd"};
+    std::vector<std::string> entry{
+        fmt::format("MESSAGE={}", message),
+        fmt::format("PRIORITY={}", fields.audit ? notice_priority : priority(level)),
+        "SYSLOG_IDENTIFIER=ioportd"};
     if (!fields.link.empty()) entry.push_back(fmt::format("LINK={}", fields.link));
     if (fields.unit >= 0) entry.push_back(fmt::format("UNIT={}", fields.unit));
     if (!fields.module.empty()) entry.push_back(fmt::format("MODULE={}", fields.module));
     if (!fields.client.empty()) entry.push_back(fmt::format("CLIENT={}", fields.client));
     if (fields.comm_loss) entry.emplace_back("COMM_LOSS=1");
+    if (const auto* audit = fields.audit) {
+        entry.push_back(fmt::format("FUNCTION={}", audit->function));
+        entry.push_back(fmt::format("ADDRESS={}", audit->address));
+        entry.push_back(fmt::format("VALUE={}", audit->value));
+        entry.push_back(fmt::format("RESULT={}", audit->result));
+        entry.push_back(fmt::format("LATENCY_US={}", audit->latency_us));
+    }
     return entry;
 }
 

@@ -23,6 +23,15 @@ namespace ioport::daemon {
 
 using config::LogLevel;
 
+// A client's write that reached a device: the audit trail (gateway.md §5.4, issue 16).
+struct WriteAudit {
+    int function = 0;           // the Modbus function code, or 0 for a write of another path
+    int address = 0;            // the first register or coil written
+    std::string_view value{};   // what was written: "1", "0x00FF", "1 0 1", "10 20 30"
+    std::string_view result{};  // confirmed, error_ack, no_answer, link_down
+    long long latency_us = 0;   // request received → outcome known
+};
+
 // What a line is about. Empty fields are left out of the journal entry.
 struct LogFields {
     std::string_view link{};    // a link's name
@@ -30,6 +39,8 @@ struct LogFields {
     std::string_view module{};  // "dom16 0", "ID-2"
     std::string_view client{};  // a Modbus client, "10.0.0.5:50123"
     bool comm_loss = false;     // COMM_LOSS=1: outputs put in their safe state (gateway.md §5.3)
+    // FUNCTION, ADDRESS, VALUE, RESULT, LATENCY_US; a line with them is a notice (PRIORITY=5).
+    const WriteAudit* audit = nullptr;
 };
 
 // The journal entry of one line, as KEY=value strings: MESSAGE, PRIORITY (syslog's numbers),
@@ -60,6 +71,11 @@ class Log {
     }
     template <class... Args>
     void info(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {
+        emit(LogLevel::info, fields, format, std::forward<Args>(args)...);
+    }
+    // A write's audit line: info on stderr, "notice" (5) in the journal.
+    template <class... Args>
+    void notice(const LogFields& fields, fmt::format_string<Args...> format, Args&&... args) {
         emit(LogLevel::info, fields, format, std::forward<Args>(args)...);
     }
     template <class... Args>

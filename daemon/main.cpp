@@ -14,6 +14,7 @@
 #include "daemon/log.hpp"
 #include "daemon/options.hpp"
 #include "daemon/service_notifier.hpp"
+#include "daemon/status_pages.hpp"
 
 namespace {
 
@@ -51,21 +52,9 @@ std::optional<ioport::config::GatewayConfig> load(const std::string& path) {
 }
 
 int print_map(const ioport::config::GatewayConfig& config, Options::MapFormat format) {
-    std::vector<ioport::gateway::MapRow> rows;
-    for (const auto& link : config.links) {
-        ioport::gateway::UnitMap unit{link.protocol == ioport::config::Protocol::id2
-                                          ? ioport::gateway::UnitKind::id2
-                                          : ioport::gateway::UnitKind::ioport,
-                                      link.unit_id,
-                                      link.name,
-                                      {}};
-        for (const auto& module : link.modules)
-            unit.modules.push_back(module.address);
-        auto unit_rows = ioport::gateway::map_rows(unit);
-        rows.insert(rows.end(), unit_rows.begin(), unit_rows.end());
-    }
-    std::cout << (format == Options::MapFormat::csv ? ioport::gateway::format_csv(rows)
-                                                    : ioport::gateway::format_markdown(rows));
+    std::cout << ioport::daemon::render_map(config, format == Options::MapFormat::csv
+                                                        ? ioport::daemon::MapFormat::csv
+                                                        : ioport::daemon::MapFormat::markdown);
     return 0;
 }
 
@@ -117,13 +106,18 @@ class Daemon {
         if (!next) {
             for (const auto& error : next.error())
                 log_.error({}, "{}", to_string(error));
-            log_.error({}, "SIGHUP: {} error(s) in {}; the running configuration is kept",
-                       next.error().size(), path);
+            auto text = fmt::format("SIGHUP: {} error(s) in {}; the running configuration is kept",
+                                    next.error().size(), path);
+            log_.error({}, "{}", text);
+            gateway_.events().add(ioport::daemon::EventKind::reload, {}, {}, {}, std::move(text));
         } else {
             const auto level = next->log_level;
             if (auto applied = gateway_.reload(std::move(*next)); !applied) {
-                log_.error({}, "SIGHUP: {}; the running configuration is kept",
-                           applied.error().message);
+                auto text = fmt::format("SIGHUP: {}; the running configuration is kept",
+                                        applied.error().message);
+                log_.error({}, "{}", text);
+                gateway_.events().add(ioport::daemon::EventKind::reload, {}, {}, {},
+                                      std::move(text));
             } else {
                 if (!options_.log_level) log_.set_level(level);
                 log_.info({}, "SIGHUP: reloaded {}: {}", path, *applied);

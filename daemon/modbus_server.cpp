@@ -12,6 +12,7 @@
 
 #include "config/duration.hpp"
 #include "daemon/descriptors.hpp"
+#include "daemon/listener.hpp"
 #include "protocol/device_identification.hpp"
 
 namespace ioport::daemon {
@@ -33,12 +34,6 @@ constexpr int keepalive_probes = 3;
 using KeepaliveIdle = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPIDLE>;
 using KeepaliveInterval = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPINTVL>;
 using KeepaliveProbes = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPCNT>;
-
-std::string describe(const tcp::endpoint& endpoint) {
-    const auto address = endpoint.address();
-    return address.is_v6() ? fmt::format("[{}]:{}", address.to_string(), endpoint.port())
-                           : fmt::format("{}:{}", address.to_string(), endpoint.port());
-}
 
 }  // namespace
 
@@ -105,14 +100,18 @@ struct ModbusServer::Connection {
     bool busy = false;     // a request is being decided (a write waits for the device)
     bool sending = false;  // its response is being written
     bool open = true;
+    std::chrono::system_clock::time_point since = std::chrono::system_clock::now();
+    std::uint64_t requests = 0;
 };
 
 ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                           const Units& units, Log& log, std::function<void()> comm_lost)
+                           const Units& units, Log& log, EventLog& events,
+                           std::function<void()> comm_lost)
     : executor_(executor),
       settings_(std::move(settings)),
       policy_{settings_.read_only, settings_.stale},
       log_(log),
+      events_(events),
       accept_retry_(executor),
       scratch_(scratch_mapping()),
       comm_lost_(std::move(comm_lost)),
@@ -130,31 +129,8 @@ void ModbusServer::set_units(const Units& units) {
 
 ModbusServer::~ModbusServer() = default;
 
-Result<ModbusServer::Acceptor> ModbusServer::listen(const config::ModbusSettings& settings) {
-    boost::system::error_code ec;
-    const auto address = asio::ip::make_address(settings.listen_host, ec);
-    if (ec)
-        return fail(Errc::invalid_argument,
-                    fmt::format("modbus.listen: {} is not an IP address", settings.listen_host));
-    const tcp::endpoint endpoint(address, settings.listen_port);
-    auto acceptor = std::make_shared<tcp::acceptor>(executor_);
-    acceptor->open(endpoint.protocol(), ec);
-    if (!ec) acceptor->set_option(tcp::acceptor::reuse_address(true), ec);
-    // "[::]:502" takes IPv4 clients too, as ::ffff:a.b.c.d.
-    if (!ec && address.is_v6()) acceptor->set_option(asio::ip::v6_only(false), ec);
-    if (!ec) acceptor->bind(endpoint, ec);
-    if (!ec) acceptor->listen(asio::socket_base::max_listen_connections, ec);
-    if (ec) {
-        const auto hint = ec == asio::error::address_in_use
-                              ? "another program listens there (find it with: ss -ltnp)"
-                          : ec == asio::error::access_denied
-                              ? "ports below 1024 need CAP_NET_BIND_SERVICE (the packaged "
-                                "service has it) or use a port such as 1502"
-                              : "check modbus.listen";
-        return fail(Errc::io_error, fmt::format("cannot listen on {}: {}: {}", describe(endpoint),
-                                                ec.message(), hint));
-    }
-    return acceptor;
+Result<Acceptor> ModbusServer::listen(const config::ModbusSettings& settings) {
+    return listen_tcp(executor_, settings.listen_host, settings.listen_port, "modbus.listen");
 }
 
 Result<> ModbusServer::start() {
@@ -199,10 +175,12 @@ void ModbusServer::comm_loss_due(const boost::system::error_code& ec) {
     }
     if (settings_.comm_loss_timeout.count() == 0 || stopping_) return;
     comm_loss_ = true;
-    log_.warn({.comm_loss = true},
-              "no Modbus request from any client for {}: every output module is sent its safe "
-              "value and keeps it until a client writes it",
-              format_duration(settings_.comm_loss_timeout));
+    auto text = fmt::format(
+        "no Modbus request from any client for {}: every output module is sent its safe value "
+        "and keeps it until a client writes it",
+        format_duration(settings_.comm_loss_timeout));
+    log_.warn({.comm_loss = true}, "{}", text);
+    events_.add(EventKind::comm_loss, {}, {}, {}, std::move(text));
     if (comm_lost_) comm_lost_();
 }
 
@@ -295,6 +273,15 @@ tcp::endpoint ModbusServer::local_endpoint() const {
     return acceptor_ ? acceptor_->local_endpoint(ec) : tcp::endpoint();
 }
 
+std::vector<ClientView> ModbusServer::clients() const {
+    std::vector<ClientView> views;
+    views.reserve(connections_.size());
+    for (const auto* connection : connections_)
+        views.push_back({connection->peer, connection->since, connection->requests});
+    std::ranges::sort(views, {}, &ClientView::since);
+    return views;
+}
+
 std::optional<std::string> ModbusServer::refusal(const tcp::endpoint& peer) const {
     if (connections_.size() >= max_clients_)
         return max_clients_ < static_cast<std::size_t>(settings_.max_connections)
@@ -305,10 +292,7 @@ std::optional<std::string> ModbusServer::refusal(const tcp::endpoint& peer) cons
 }
 
 bool ModbusServer::allowed(const asio::ip::address& address) const {
-    if (settings_.allow.empty()) return true;
-    return std::any_of(
-        settings_.allow.begin(), settings_.allow.end(),
-        [&](const config::Network& network) { return config::contains(network, address); });
+    return daemon::allowed(settings_.allow, address);
 }
 
 void ModbusServer::log_refusal(const asio::ip::address& address, const std::string& why) {
@@ -320,6 +304,8 @@ void ModbusServer::log_refusal(const asio::ip::address& address, const std::stri
     refused_logged_[key] = now;
     log_.warn({.client = key}, "refused Modbus client {}: {} (logged once a minute per address)",
               key, why);
+    events_.add(EventKind::client_refused, {}, {}, key,
+                fmt::format("refused Modbus client {}: {}", key, why));
 }
 
 // Keepalive reaps clients that vanished without a FIN: their connection would otherwise hold a
@@ -353,6 +339,8 @@ asio::awaitable<void> ModbusServer::accept_loop(Acceptor acceptor) {
         const auto peer = socket.remote_endpoint(ec);
         if (ec) continue;  // gone already
         if (auto why = refusal(peer)) {
+            ++(connections_.size() >= max_clients_ ? stats_.refused_too_many
+                                                   : stats_.refused_not_allowed);
             log_refusal(peer.address(), *why);
             socket.close(ec);
             continue;
@@ -423,7 +411,9 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             }
             if (!*next) break;  // the rest of the request is still on its way
             const auto adu = **next;
-            note_request(c->last_activity);
+            const auto received = c->last_activity;
+            note_request(received);
+            ++c->requests;
             const int unit_id = counted_unit(adu);
             auto answered = answer(*c, adu);
             answered_request();
@@ -446,10 +436,7 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
                     ec = co_await send_rest(*c, std::span(*response).subspan(written));
                 if (ec && c->open) why = fmt::format("sending a response: {}", ec.message());
                 if (ec) c->close();
-                if (!ec && unit_id >= 0)
-                    gateway::count_response(traffic_[static_cast<std::size_t>(unit_id)],
-                                            adu[modbus::mbap_length],
-                                            std::span(*response).subspan(modbus::mbap_length));
+                if (!ec) count(unit_id, adu, *response, received);
             }
             c->last_activity = Clock::now();
             if (stopping_) {
@@ -514,16 +501,55 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
         if (read->diagnostics) store_front(*unit);
         return built(c, replies_->reply(request, image));
     }
-    return Write{unit, std::get<gateway::WritePlan>(std::move(plan)), request};
+    return Write{unit, std::get<gateway::WritePlan>(std::move(plan)), request, pdu};
+}
+
+void ModbusServer::count(int unit_id, std::span<const std::uint8_t> adu,
+                         std::span<const std::uint8_t> response, Clock::time_point received) {
+    const auto pdu = response.subspan(modbus::mbap_length);
+    const std::uint8_t function = adu[modbus::mbap_length];
+    if (unit_id >= 0)
+        gateway::count_response(traffic_[static_cast<std::size_t>(unit_id)], function, pdu);
+    // An unknown unit is counted under the id the client asked for.
+    const int unit = unit_id >= 0 ? unit_id : adu[modbus::mbap_length - 1];
+    ++stats_.requests[{unit, function}];
+    if (pdu.size() >= 2 && (pdu[0] & 0x80) != 0) ++stats_.exceptions[{unit, pdu[1]}];
+    stats_.request_duration.observe(std::chrono::duration<double>(Clock::now() - received).count());
+}
+
+void ModbusServer::audit(const Connection& c, const Write& write, WriteResult result,
+                         Clock::time_point received) {
+    const auto request = modbus::parse_request(write.pdu);
+    if (!request) return;  // planned as a write, so it parses
+    const auto values = modbus::written_values(*request);
+    const auto& link = write.unit->config();
+    const WriteAudit audit{
+        .function = static_cast<int>(request->function),
+        .address = request->address,
+        .value = values,
+        .result = to_string(result),
+        .latency_us =
+            std::chrono::duration_cast<std::chrono::microseconds>(Clock::now() - received).count()};
+    auto text =
+        fmt::format("write by {} to unit {} ({}): FC {:02d} address {} values {}: {} in {} ms",
+                    c.peer, link.unit_id, link.name, audit.function, audit.address, values,
+                    audit.result, static_cast<double>(audit.latency_us) / 1000);
+    log_.notice({.link = link.name, .unit = link.unit_id, .client = c.peer, .audit = &audit}, "{}",
+                text);
+    events_.add(EventKind::write, link.name, {}, c.peer, std::move(text));
 }
 
 asio::awaitable<ModbusServer::Response> ModbusServer::write(Connection& c, Write write) {
     // FC 23 reads these once its write is done.
     const auto read_address = write.plan.read_address;
     const auto read_quantity = write.plan.read_quantity;
-    const auto failed = co_await write.unit->write(std::move(write.plan));
+    const auto received = c.last_activity;
+    const bool reaches_device = !write.plan.changes.empty() || write.plan.reset_counter;
+    const auto result = co_await write.unit->write(write.plan);
+    if (reaches_device) audit(c, write, result, received);
     if (!c.open) co_return std::nullopt;
-    if (failed) co_return built(c, replies_->exception(write.request, *failed));
+    if (const auto failed = exception_of(result))
+        co_return built(c, replies_->exception(write.request, *failed));
     if (read_quantity == 0) co_return built(c, replies_->reply(write.request, scratch_.get()));
     const auto plan = gateway::read_back(write.unit->state(), policy_, read_address, read_quantity);
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))

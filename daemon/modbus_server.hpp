@@ -14,6 +14,7 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <memory>
 #include <string>
 #include <unordered_map>
@@ -24,7 +25,10 @@
 #include <modbus/modbus.h>
 
 #include "config/gateway_config.hpp"
+#include "daemon/events.hpp"
+#include "daemon/histogram.hpp"
 #include "daemon/link_scheduler.hpp"
+#include "daemon/listener.hpp"
 #include "daemon/modbus_reply.hpp"
 #include "link/asio.hpp"
 
@@ -36,6 +40,28 @@ inline constexpr std::chrono::microseconds frame_timeout = 1s;
 // hold hundreds of responses, so only a client that stopped reading altogether gets here.
 inline constexpr std::chrono::microseconds send_timeout = 5s;
 
+// Upper bounds of ioportd_modbus_request_duration_seconds: reads are answered from memory in
+// tens of microseconds, writes wait for a serial transaction of milliseconds, or its retries.
+inline constexpr std::array<double, 16> request_duration_bounds{
+    0.00005, 0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01,
+    0.025,   0.05,   0.1,     0.25,   0.5,   1,      2.5,   5};
+
+// What the server counted since it started, for /metrics: kept across reloads.
+struct ModbusStats {
+    std::map<std::pair<int, int>, std::uint64_t> requests;    // by (unit id, function code)
+    std::map<std::pair<int, int>, std::uint64_t> exceptions;  // by (unit id, exception code)
+    Histogram request_duration{request_duration_bounds};      // frame received → response sent
+    std::uint64_t refused_not_allowed = 0;
+    std::uint64_t refused_too_many = 0;  // max_connections, or out of file descriptors
+};
+
+// A client connected now.
+struct ClientView {
+    std::string address;  // "10.0.0.5:50123"
+    std::chrono::system_clock::time_point since;
+    std::uint64_t requests = 0;
+};
+
 class ModbusServer {
   public:
     using Units = std::vector<std::shared_ptr<LinkScheduler>>;
@@ -44,7 +70,8 @@ class ModbusServer {
     // there is exactly one). `comm_lost`: called when no request has come from any client for
     // settings.comm_loss_timeout (gateway.md §5.3); not again until a request has come.
     ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                 const Units& units, Log& log, std::function<void()> comm_lost = {});
+                 const Units& units, Log& log, EventLog& events,
+                 std::function<void()> comm_lost = {});
     ModbusServer(const ModbusServer&) = delete;
     ModbusServer& operator=(const ModbusServer&) = delete;
     ~ModbusServer();
@@ -67,11 +94,13 @@ class ModbusServer {
     // A communication loss is in effect: declared, and no request since (register 1020).
     bool comm_lost() const { return comm_loss_; }
     asio::ip::tcp::endpoint local_endpoint() const;
+    const config::ModbusSettings& settings() const { return settings_; }
+    const ModbusStats& stats() const { return stats_; }
+    std::vector<ClientView> clients() const;
 
   private:
     struct Connection;
     using ConnectionPtr = std::shared_ptr<Connection>;
-    using Acceptor = std::shared_ptr<asio::ip::tcp::acceptor>;
 
     Result<Acceptor> listen(const config::ModbusSettings& settings);
     void set_units(const Units& units);
@@ -86,7 +115,8 @@ class ModbusServer {
     struct Write {
         std::shared_ptr<LinkScheduler> unit;  // held: a reload may replace the link meanwhile
         gateway::WritePlan plan;
-        PaddedRequest request;  // what the response is built from
+        PaddedRequest request;              // what the response is built from
+        std::span<const std::uint8_t> pdu;  // in the connection's buffer, for the audit
     };
     // A response, or nullopt when none can be built (libmodbus failed).
     using Response = std::optional<Bytes>;
@@ -106,6 +136,12 @@ class ModbusServer {
     void comm_loss_due(const boost::system::error_code& ec);
     // The unit id whose traffic a request counts in: its link's, or -1 for an unknown unit.
     int counted_unit(std::span<const std::uint8_t> adu) const;
+    // A response sent: §5.1's traffic and the metrics.
+    void count(int unit_id, std::span<const std::uint8_t> adu,
+               std::span<const std::uint8_t> response, Clock::time_point received);
+    // The audit trail of a write that reached a device.
+    void audit(const Connection& connection, const Write& write, WriteResult result,
+               Clock::time_point received);
     // Registers 1010-1020 of `unit`, as of now.
     void store_front(LinkScheduler& unit) const;
     std::optional<std::string> refusal(const asio::ip::tcp::endpoint& peer) const;
@@ -116,6 +152,8 @@ class ModbusServer {
     config::ModbusSettings settings_;
     gateway::Policy policy_;
     Log& log_;
+    EventLog& events_;
+    ModbusStats stats_;
     std::array<std::shared_ptr<LinkScheduler>, 256> units_{};
     Acceptor acceptor_;
     Acceptor next_acceptor_;  // bound by prepare(), taken by apply()

@@ -271,7 +271,7 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
 
     if (needs_silence_) {
         if (auto quiet = co_await wait_for_silence(); !quiet) {
-            ++counters_.transactions_failed;
+            counters_.count_failure(quiet.error().code);
             co_return Unexpected(quiet.error());
         }
     }
@@ -330,7 +330,7 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
     if (reading) {
         ++counters_.transactions_ok;
     } else {
-        ++counters_.transactions_failed;
+        counters_.count_failure(reading.error().code);
         // Whatever else is on its way belongs to this failed request: let it pass first.
         const auto code = reading.error().code;
         needs_silence_ = code == Errc::timeout || code == Errc::malformed;

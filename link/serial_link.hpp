@@ -29,10 +29,37 @@ struct LinkSettings {
     int retries = 1;                            // extra attempts after no answer or a bad answer
 };
 
+// Attempts by outcome (the result label of ioportd_link_transactions_total).
 struct LinkCounters {
     std::uint64_t transactions_ok = 0;
-    std::uint64_t transactions_failed = 0;  // attempts: timeouts, malformed answers, error acks
-    std::uint64_t opens = 0;                // successful opens of the port
+    std::uint64_t no_answer = 0;   // timeouts
+    std::uint64_t bad_answer = 0;  // malformed answers, a line that never went quiet
+    std::uint64_t error_ack = 0;
+    std::uint64_t opens = 0;  // successful opens of the port
+    std::uint64_t transactions_failed() const { return no_answer + bad_answer + error_ack; }
+    void count_failure(Errc code) {
+        switch (code) {
+            case Errc::timeout:
+                ++no_answer;
+                return;
+            case Errc::error_ack:
+                ++error_ack;
+                return;
+            case Errc::malformed:
+            case Errc::line_noisy:
+            case Errc::invalid_argument:
+                ++bad_answer;
+                return;
+            case Errc::cancelled:
+            case Errc::port_lost:
+            case Errc::port_closed:
+            case Errc::io_error:
+            case Errc::port_not_found:
+            case Errc::permission_denied:
+            case Errc::port_busy:
+                return;  // not an answer of the device's: the port's state says it
+        }
+    }
 };
 
 class SerialLink {

@@ -212,3 +212,16 @@ std::uint16_t write_value(const Request& request, std::size_t index) {
 }
 
 }  // namespace ioport::modbus
+
+namespace ioport::modbus {
+
+std::string written_values(const Request& request) {
+    std::string text;
+    for (std::size_t i = 0; i < request.quantity; ++i) {
+        if (i > 0) text += ' ';
+        text += std::to_string(write_value(request, i));
+    }
+    return text;
+}
+
+}  // namespace ioport::modbus

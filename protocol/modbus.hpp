@@ -99,5 +99,8 @@ std::optional<Exception> check_limits(const Request& request);
 // Values of a write request, decoded: FC05 → 0/1, FC06 → the register, FC15 → bit i,
 // FC16 and FC23 → register i. `index` < request.quantity; the request must be well formed.
 std::uint16_t write_value(const Request& request, std::size_t index);
+// The values of a well-formed write request as a person reads them, for the audit trail: bits
+// as "1 0 1", registers in decimal "10 20 30".
+std::string written_values(const Request& request);
 
 }  // namespace ioport::modbus

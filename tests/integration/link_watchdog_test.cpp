@@ -40,12 +40,13 @@ class LinkWatchdog : public ::testing::Test {
     asio::io_context io;
     PtyDevice device{io};
     Log log{Log::Target::standard_error, config::LogLevel::off};
+    EventLog events;
 };
 
 TEST_F(LinkWatchdog, ALoopThatStopsActingIsStuckOneTimeoutAndTheSlackLater) {
     const auto timeout = 200ms;
     auto link = std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout),
-                                                gateway::WordOrder::big, log);
+                                                gateway::WordOrder::big, log, events);
     const auto before = Clock::now();
     link->start();
     ASSERT_TRUE(run_until(io, [&] { return !device.requests().empty(); }));
@@ -62,7 +63,7 @@ TEST_F(LinkWatchdog, ALoopThatStopsActingIsStuckOneTimeoutAndTheSlackLater) {
 TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
     const auto timeout = 50ms;
     auto link = std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout),
-                                                gateway::WordOrder::big, log);
+                                                gateway::WordOrder::big, log, events);
     link->start();
     ASSERT_TRUE(run_until(io, [&] { return !device.requests().empty(); }));
     asio::steady_timer chatter(io);

@@ -81,7 +81,7 @@ TEST_F(SerialLinkTest, TimesOutAfterTheConfiguredTimeout) {
         << reading.error().message;
     EXPECT_GE(elapsed, 50ms);
     EXPECT_LT(elapsed, 2s);
-    EXPECT_EQ(link.counters().transactions_failed, 1u);
+    EXPECT_EQ(link.counters().transactions_failed(), 1u);
 }
 
 TEST_F(SerialLinkTest, ALateAnswerIsNeverTakenForTheNextModule) {
@@ -144,7 +144,7 @@ TEST_F(SerialLinkTest, MalformedAndOverlongAnswersAreErrorsAndTheLinkRecovers) {
     }
     ASSERT_TRUE(outcomes[3].result) << outcomes[3].result.error().message;
     EXPECT_EQ(outcomes[3].result->raw[0], 0xABCD);
-    EXPECT_EQ(link.counters().transactions_failed, 3u);
+    EXPECT_EQ(link.counters().transactions_failed(), 3u);
     EXPECT_EQ(link.counters().transactions_ok, 1u);
 }
 
@@ -165,7 +165,7 @@ TEST_F(SerialLinkTest, RetriesAMissingAnswerButNotAnErrorAck) {
     ASSERT_FALSE(outcomes[1].result);
     EXPECT_EQ(outcomes[1].result.error().code, Errc::error_ack);
     EXPECT_EQ(device.requests(), (std::vector<std::string>{"a0", "a0", "a0", "b000FF"}));
-    EXPECT_EQ(retrying.counters().transactions_failed, 3u);  // two timeouts, one error ack
+    EXPECT_EQ(retrying.counters().transactions_failed(), 3u);  // two timeouts, one error ack
 }
 
 TEST_F(SerialLinkTest, ALineThatNeverFallsSilentIsReportedNotWaitedOnForever) {

@@ -1,0 +1,193 @@
+#include "daemon/exposition.hpp"
+
+#include <cmath>
+
+#include <fmt/format.h>
+
+namespace ioport::daemon {
+
+void append_escaped_label(std::string& out, std::string_view value) {
+    for (const char c : value) {
+        switch (c) {
+            case '\\':
+                out += "\\\\";
+                break;
+            case '"':
+                out += "\\\"";
+                break;
+            case '\n':
+                out += "\\n";
+                break;
+            default:
+                out += c;
+        }
+    }
+}
+
+void Exposition::family(std::string_view name, std::string_view type, std::string_view help) {
+    text_ += "# HELP ";
+    text_ += name;
+    text_ += ' ';
+    // HELP escapes only \ and newline.
+    for (const char c : help) {
+        if (c == '\\')
+            text_ += "\\\\";
+        else if (c == '\n')
+            text_ += "\\n";
+        else
+            text_ += c;
+    }
+    text_ += "\n# TYPE ";
+    text_ += name;
+    text_ += ' ';
+    text_ += type;
+    text_ += '\n';
+}
+
+void Exposition::labels(std::initializer_list<Label> labels) {
+    if (labels.size() == 0) return;
+    text_ += '{';
+    bool first = true;
+    for (const auto& label : labels) {
+        if (!first) text_ += ',';
+        first = false;
+        text_ += label.name;
+        text_ += "=\"";
+        append_escaped_label(text_, label.value);
+        text_ += '"';
+    }
+    text_ += '}';
+}
+
+void Exposition::sample(std::string_view name, std::initializer_list<Label> labels, double value) {
+    text_ += name;
+    this->labels(labels);
+    if (std::isnan(value))
+        text_ += " NaN\n";
+    else if (std::isinf(value))
+        text_ += value > 0 ? " +Inf\n" : " -Inf\n";
+    else
+        fmt::format_to(std::back_inserter(text_), " {}\n", value);
+}
+
+void Exposition::sample(std::string_view name, std::initializer_list<Label> labels,
+                        std::uint64_t value) {
+    text_ += name;
+    this->labels(labels);
+    fmt::format_to(std::back_inserter(text_), " {}\n", value);
+}
+
+void append_json_string(std::string& out, std::string_view text) {
+    out += '"';
+    for (const char c : text) {
+        switch (c) {
+            case '"':
+                out += "\\\"";
+                break;
+            case '\\':
+                out += "\\\\";
+                break;
+            case '\n':
+                out += "\\n";
+                break;
+            case '\r':
+                out += "\\r";
+                break;
+            case '\t':
+                out += "\\t";
+                break;
+            default:
+                if (static_cast<unsigned char>(c) < 0x20)
+                    fmt::format_to(std::back_inserter(out), "\\u{:04x}",
+                                   static_cast<unsigned char>(c));
+                else
+                    out += c;
+        }
+    }
+    out += '"';
+}
+
+void Json::separate() {
+    if (!first_) text_ += ',';
+    first_ = false;
+}
+
+Json& Json::begin_object() {
+    separate();
+    text_ += '{';
+    first_ = true;
+    return *this;
+}
+
+Json& Json::end_object() {
+    text_ += '}';
+    first_ = false;
+    return *this;
+}
+
+Json& Json::begin_array() {
+    separate();
+    text_ += '[';
+    first_ = true;
+    return *this;
+}
+
+Json& Json::end_array() {
+    text_ += ']';
+    first_ = false;
+    return *this;
+}
+
+Json& Json::key(std::string_view name) {
+    separate();
+    append_json_string(text_, name);
+    text_ += ':';
+    first_ = true;  // the value follows without a comma
+    return *this;
+}
+
+Json& Json::value(std::string_view text) {
+    separate();
+    append_json_string(text_, text);
+    return *this;
+}
+
+Json& Json::value(bool flag) {
+    separate();
+    text_ += flag ? "true" : "false";
+    return *this;
+}
+
+Json& Json::value(double number) {
+    if (!std::isfinite(number)) return null();
+    separate();
+    fmt::format_to(std::back_inserter(text_), "{}", number);
+    return *this;
+}
+
+Json& Json::value(float number) {
+    if (!std::isfinite(number)) return null();
+    separate();
+    fmt::format_to(std::back_inserter(text_), "{}", number);
+    return *this;
+}
+
+Json& Json::value(std::uint64_t number) {
+    separate();
+    fmt::format_to(std::back_inserter(text_), "{}", number);
+    return *this;
+}
+
+Json& Json::value(std::int64_t number) {
+    separate();
+    fmt::format_to(std::back_inserter(text_), "{}", number);
+    return *this;
+}
+
+Json& Json::null() {
+    separate();
+    text_ += "null";
+    return *this;
+}
+
+}  // namespace ioport::daemon

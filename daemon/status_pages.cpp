@@ -1,0 +1,526 @@
+#include "daemon/status_pages.hpp"
+
+#include <ctime>
+
+#include <fmt/format.h>
+
+#include "daemon/exposition.hpp"
+
+namespace ioport::daemon {
+namespace {
+
+using gateway::ModuleStatus;
+using SystemClock = std::chrono::system_clock;
+
+constexpr std::string_view text_plain = "text/plain; charset=utf-8";
+
+std::string_view protocol_name(config::Protocol protocol) {
+    switch (protocol) {
+        case config::Protocol::ioport:
+            return "ioport";
+        case config::Protocol::id2:
+            return "id2";
+    }
+    return "ioport";
+}
+
+double seconds(std::chrono::microseconds duration) {
+    return std::chrono::duration<double>(duration).count();
+}
+
+// The age of a module's last good transaction, as of `now`.
+std::optional<double> age(const ModuleView& module, Clock::time_point now) {
+    if (!module.last_good) return std::nullopt;
+    return std::chrono::duration<double>(now - *module.last_good).count();
+}
+
+// "2026-12-02T03:50:00.123Z".
+std::string rfc3339(SystemClock::time_point at) {
+    const auto ms = std::chrono::floor<std::chrono::milliseconds>(at).time_since_epoch().count();
+    const std::time_t seconds = ms / 1000;
+    std::tm utc{};
+    ::gmtime_r(&seconds, &utc);
+    return fmt::format("{:04}-{:02}-{:02}T{:02}:{:02}:{:02}.{:03}Z", utc.tm_year + 1900,
+                       utc.tm_mon + 1, utc.tm_mday, utc.tm_hour, utc.tm_min, utc.tm_sec, ms % 1000);
+}
+
+// One input channel: the name it has in /metrics and its value in engineering units.
+struct Channel {
+    std::string name;
+    double value;
+};
+
+// The input channels of a module that has been read: dim16/lim16 inputs 0..15 as 0/1, analog
+// channels in engineering units, the ID-2's stop input and count.
+std::vector<Channel> input_channels(const ModuleView& module) {
+    std::vector<Channel> channels;
+    if (!module.address) {
+        if (module.stop) channels.push_back({"stop", *module.stop ? 1.0 : 0.0});
+        if (module.count) channels.push_back({"count", static_cast<double>(*module.count)});
+        return channels;
+    }
+    const auto type = module.address->type;
+    if (!module.reading || is_output(type)) return channels;
+    const auto& reading = *module.reading;
+    if (full_scale(type) > 0) {
+        for (int ch = 0; ch < reading.count; ++ch)
+            channels.push_back(
+                {std::to_string(ch),
+                 engineering_value(type, reading.raw[static_cast<std::size_t>(ch)])});
+    } else {
+        for (int bit = 0; bit < 16; ++bit)
+            channels.push_back({std::to_string(bit), (reading.raw[0] >> bit & 1) != 0 ? 1.0 : 0.0});
+    }
+    return channels;
+}
+
+void link_families(Exposition& out, const ModbusServer::Units& links) {
+    out.family("ioportd_link_up", "gauge", "1 while the link's serial port is open");
+    for (const auto& link : links)
+        out.sample("ioportd_link_up", {{"link", link->config().name}}, link->port_open() ? 1 : 0);
+    out.family("ioportd_link_transactions_total", "counter",
+               "Serial transaction attempts by result");
+    for (const auto& link : links) {
+        const auto& name = link->config().name;
+        const auto& c = link->counters();
+        out.sample("ioportd_link_transactions_total", {{"link", name}, {"result", "ok"}},
+                   c.transactions_ok);
+        out.sample("ioportd_link_transactions_total", {{"link", name}, {"result", "no_answer"}},
+                   c.no_answer);
+        out.sample("ioportd_link_transactions_total", {{"link", name}, {"result", "bad_answer"}},
+                   c.bad_answer);
+        out.sample("ioportd_link_transactions_total", {{"link", name}, {"result", "error_ack"}},
+                   c.error_ack);
+    }
+    out.family("ioportd_link_reopens_total", "counter",
+               "Times the serial port was opened again after the first open");
+    for (const auto& link : links) {
+        const auto opens = link->counters().opens;
+        out.sample("ioportd_link_reopens_total", {{"link", link->config().name}},
+                   opens > 0 ? opens - 1 : 0);
+    }
+    out.family("ioportd_link_cycle_seconds", "gauge",
+               "Duration of the last complete poll cycle (0 before the first)");
+    for (const auto& link : links)
+        out.sample("ioportd_link_cycle_seconds", {{"link", link->config().name}},
+                   seconds(link->last_cycle()));
+    out.family("ioportd_writes_total", "counter", "Client writes that reached the link, by result");
+    for (const auto& link : links)
+        for (std::size_t r = 0; r < write_result_count; ++r)
+            out.sample(
+                "ioportd_writes_total",
+                {{"link", link->config().name}, {"result", to_string(static_cast<WriteResult>(r))}},
+                link->writes()[r]);
+}
+
+void module_families(Exposition& out, const ModbusServer::Units& links) {
+    const auto now = Clock::now();
+    std::vector<std::vector<ModuleView>> modules;
+    modules.reserve(links.size());
+    for (const auto& link : links)
+        modules.push_back(link->modules());
+    out.family("ioportd_module_status", "gauge",
+               "Module status (gateway.md 2.3): 1 online, 2 no answer, 3 bad answer or error "
+               "ack, 4 not polled yet");
+    for (std::size_t l = 0; l < links.size(); ++l)
+        for (const auto& module : modules[l])
+            out.sample("ioportd_module_status",
+                       {{"link", links[l]->config().name}, {"module", module.name}},
+                       static_cast<int>(module.status));
+    out.family("ioportd_module_age_seconds", "gauge",
+               "Time since the module's last good transaction (absent before the first)");
+    for (std::size_t l = 0; l < links.size(); ++l)
+        for (const auto& module : modules[l])
+            if (const auto seconds = age(module, now))
+                out.sample("ioportd_module_age_seconds",
+                           {{"link", links[l]->config().name}, {"module", module.name}}, *seconds);
+    out.family("ioportd_input_value", "gauge",
+               "Last good reading of an input channel: 0/1 for digital inputs, engineering "
+               "units for analog channels (%, A, V), the ID-2's stop (0/1) and count");
+    for (std::size_t l = 0; l < links.size(); ++l)
+        for (const auto& module : modules[l])
+            for (const auto& channel : input_channels(module))
+                out.sample("ioportd_input_value",
+                           {{"link", links[l]->config().name},
+                            {"module", module.name},
+                            {"channel", channel.name}},
+                           channel.value);
+    out.family("ioportd_output_value", "gauge",
+               "Output state the device last confirmed: the dom16 word, the rgbdm colour code, "
+               "the mux8m setting (pos << 8 | neg)");
+    for (std::size_t l = 0; l < links.size(); ++l)
+        for (const auto& module : modules[l])
+            if (module.output)
+                out.sample("ioportd_output_value",
+                           {{"link", links[l]->config().name}, {"module", module.name}},
+                           static_cast<int>(*module.output));
+}
+
+void modbus_families(Exposition& out, const ModbusServer& server) {
+    const auto& stats = server.stats();
+    out.family("ioportd_modbus_connections", "gauge", "Modbus client connections open now");
+    out.sample("ioportd_modbus_connections", {}, static_cast<std::uint64_t>(server.connections()));
+    out.family("ioportd_modbus_connections_refused_total", "counter",
+               "Modbus connections refused at accept, by reason");
+    out.sample("ioportd_modbus_connections_refused_total", {{"reason", "not_allowed"}},
+               stats.refused_not_allowed);
+    out.sample("ioportd_modbus_connections_refused_total", {{"reason", "too_many"}},
+               stats.refused_too_many);
+    out.family("ioportd_modbus_requests_total", "counter",
+               "Modbus requests answered, by unit id and function code");
+    for (const auto& [key, count] : stats.requests)
+        out.sample("ioportd_modbus_requests_total",
+                   {{"unit", fmt::format_int(key.first).c_str()},
+                    {"function", fmt::format_int(key.second).c_str()}},
+                   count);
+    out.family("ioportd_modbus_exceptions_total", "counter",
+               "Modbus exception responses, by unit id and exception code");
+    for (const auto& [key, count] : stats.exceptions)
+        out.sample("ioportd_modbus_exceptions_total",
+                   {{"unit", fmt::format_int(key.first).c_str()},
+                    {"code", fmt::format_int(key.second).c_str()}},
+                   count);
+    const auto& histogram = stats.request_duration;
+    out.family("ioportd_modbus_request_duration_seconds", "histogram",
+               "From a request's last byte received to its response sent");
+    for (std::size_t i = 0; i < histogram.bounds().size(); ++i)
+        out.sample("ioportd_modbus_request_duration_seconds_bucket",
+                   {{"le", fmt::format("{}", histogram.bounds()[i])}}, histogram.cumulative(i));
+    out.sample("ioportd_modbus_request_duration_seconds_bucket", {{"le", "+Inf"}},
+               histogram.count());
+    out.sample("ioportd_modbus_request_duration_seconds_sum", {}, histogram.sum());
+    out.sample("ioportd_modbus_request_duration_seconds_count", {}, histogram.count());
+    out.family("ioportd_comm_loss", "gauge",
+               "1 while outputs are in their safe state after a communication loss (5.3)");
+    out.sample("ioportd_comm_loss", {}, server.comm_lost() ? 1 : 0);
+}
+
+void process_families(Exposition& out, const ProcessStats& process) {
+    out.family("process_cpu_seconds_total", "counter", "User and system CPU time spent");
+    out.sample("process_cpu_seconds_total", {}, process.cpu_seconds);
+    out.family("process_resident_memory_bytes", "gauge", "Resident memory size");
+    out.sample("process_resident_memory_bytes", {}, process.resident_bytes);
+    out.family("process_open_fds", "gauge", "Open file descriptors");
+    out.sample("process_open_fds", {}, process.open_fds);
+    out.family("process_start_time_seconds", "gauge", "Start time of the process, Unix seconds");
+    out.sample("process_start_time_seconds", {}, process.start_time_seconds);
+}
+
+void module_values(Json& json, const ModuleView& module) {
+    if (!module.address) {
+        json.key("stop");
+        module.stop ? json.value(*module.stop) : json.null();
+        json.key("count");
+        module.count ? json.value(static_cast<int>(*module.count)) : json.null();
+        return;
+    }
+    const auto type = module.address->type;
+    const auto word = [&](std::optional<std::uint16_t> value) {
+        json.key("word");
+        value ? json.value(static_cast<int>(*value)) : json.null();
+    };
+    switch (type) {
+        case ModuleType::dim16:
+        case ModuleType::lim16:
+            word(module.reading ? std::optional(module.reading->raw[0]) : std::nullopt);
+            return;
+        case ModuleType::dom16:
+            word(module.output);
+            return;
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::dccim:
+        case ModuleType::dcvim: {
+            json.key("channels").begin_array();
+            const auto unit = symbol(engineering_unit(type));
+            for (int ch = 0; ch < reply_words(type); ++ch) {
+                json.begin_object();
+                if (module.reading) {
+                    const auto raw = module.reading->raw[static_cast<std::size_t>(ch)];
+                    json.member("raw", static_cast<int>(raw));
+                    json.member("value", gateway::engineering_float(type, raw));
+                } else {
+                    json.key("raw").null().key("value").null();
+                }
+                json.member("unit", unit).end_object();
+            }
+            json.end_array();
+            return;
+        }
+        case ModuleType::rgbdm:
+            json.key("colour");
+            module.output ? json.value(static_cast<int>(*module.output)) : json.null();
+            json.key("colour_name");
+            module.output&&* module.output < colour_count
+                ? json.value(name(static_cast<Colour>(*module.output)))
+                : json.null();
+            return;
+        case ModuleType::mux8m:
+            json.key("pos");
+            module.output ? json.value(*module.output >> 8) : json.null();
+            json.key("neg");
+            module.output ? json.value(*module.output & 0xFF) : json.null();
+            return;
+    }
+}
+
+void link_json(Json& json, const LinkScheduler& link, Clock::time_point now) {
+    const auto& config = link.config();
+    const auto& c = link.counters();
+    json.begin_object()
+        .member("name", config.name)
+        .member("protocol", protocol_name(config.protocol))
+        .member("device", config.device)
+        .member("baud", config.baud)
+        .member("unit_id", config.unit_id)
+        .member("port_open", link.port_open());
+    json.key("cycle_seconds");
+    link.last_cycle().count() > 0 ? json.value(seconds(link.last_cycle())) : json.null();
+    json.key("transactions")
+        .begin_object()
+        .member("ok", c.transactions_ok)
+        .member("no_answer", c.no_answer)
+        .member("bad_answer", c.bad_answer)
+        .member("error_ack", c.error_ack)
+        .end_object();
+    json.member("reopens", c.opens > 0 ? c.opens - 1 : 0);
+    json.key("writes").begin_object();
+    for (std::size_t r = 0; r < write_result_count; ++r)
+        json.member(to_string(static_cast<WriteResult>(r)), link.writes()[r]);
+    json.end_object();
+    json.key("modules").begin_array();
+    for (const auto& module : link.modules()) {
+        json.begin_object()
+            .member("module", module.name)
+            .member("type", module.address ? name(module.address->type) : "id2")
+            .member("number", module.address ? static_cast<int>(module.address->number) : 0)
+            .member("slot", module.slot)
+            .member("status", static_cast<int>(module.status))
+            .member("status_text", status_text(module.status));
+        json.key("age_seconds");
+        const auto seconds = age(module, now);
+        seconds ? json.value(*seconds) : json.null();
+        module_values(json, module);
+        json.end_object();
+    }
+    json.end_array().end_object();
+}
+
+void modbus_json(Json& json, const ModbusServer& server) {
+    const auto& settings = server.settings();
+    json.key("modbus")
+        .begin_object()
+        .member("listen", describe(server.local_endpoint()))
+        .member("connections", static_cast<std::uint64_t>(server.connections()))
+        .member("max_connections", settings.max_connections)
+        .member("comm_loss", server.comm_lost());
+    json.key("refused")
+        .begin_object()
+        .member("not_allowed", server.stats().refused_not_allowed)
+        .member("too_many", server.stats().refused_too_many)
+        .end_object();
+    json.key("clients").begin_array();
+    for (const auto& client : server.clients())
+        json.begin_object()
+            .member("address", client.address)
+            .member("since", rfc3339(client.since))
+            .member("requests", client.requests)
+            .end_object();
+    json.end_array().end_object();
+}
+
+std::string html_escaped(std::string_view text) {
+    std::string out;
+    out.reserve(text.size());
+    for (const char c : text) {
+        switch (c) {
+            case '&':
+                out += "&amp;";
+                break;
+            case '<':
+                out += "&lt;";
+                break;
+            case '>':
+                out += "&gt;";
+                break;
+            case '"':
+                out += "&quot;";
+                break;
+            default:
+                out += c;
+        }
+    }
+    return out;
+}
+
+std::string map_html(std::span<const gateway::MapRow> rows) {
+    std::string html =
+        "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+        "<title>ioportd register map</title><style>"
+        "body{font:14px system-ui,sans-serif;margin:1rem}table{border-collapse:collapse}"
+        "th,td{border:1px solid #bbb;padding:.2rem .5rem;text-align:left}"
+        "th{background:#eee;position:sticky;top:0}tr:nth-child(even){background:#f7f7f7}"
+        "</style></head><body><h1>Register map</h1><p><a href=\"./\">Status</a> · "
+        "<a href=\"map?format=csv\">CSV</a> · <a href=\"map?format=md\">Markdown</a></p>"
+        "<table><thead><tr><th scope=\"col\">Unit</th><th scope=\"col\">Table</th>"
+        "<th scope=\"col\">Address</th><th scope=\"col\">Modicon</th><th scope=\"col\">Module"
+        "</th><th scope=\"col\">Channel</th><th scope=\"col\">Type</th><th scope=\"col\">Units"
+        "</th><th scope=\"col\">Access</th><th scope=\"col\">Description</th></tr></thead>"
+        "<tbody>\n";
+    for (const auto& row : rows)
+        html += fmt::format(
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>"
+            "<td>{}</td><td>{}</td><td>{}</td></tr>\n",
+            row.unit_id, html_escaped(modbus::to_string(row.table)), row.address,
+            gateway::modicon_number(row.table, row.address), html_escaped(row.module),
+            html_escaped(row.channel), html_escaped(row.data_type), html_escaped(row.units),
+            html_escaped(row.access), html_escaped(row.description));
+    html += "</tbody></table></body></html>\n";
+    return html;
+}
+
+}  // namespace
+
+std::string_view status_text(ModuleStatus status) {
+    switch (status) {
+        case ModuleStatus::not_configured:
+            return "not configured";
+        case ModuleStatus::online:
+            return "online";
+        case ModuleStatus::no_answer:
+            return "no answer";
+        case ModuleStatus::bad_answer:
+            return "bad answer";
+        case ModuleStatus::not_polled:
+            return "not polled yet";
+    }
+    return "unknown";
+}
+
+std::string render_metrics(const Gateway& gateway, const ProcessStats& process) {
+    Exposition out;
+    out.family("ioportd_build_info", "gauge", "Always 1; the version in its label");
+    out.sample("ioportd_build_info", {{"version", IOPORTD_VERSION}}, 1);
+    link_families(out, gateway.links());
+    module_families(out, gateway.links());
+    modbus_families(out, gateway.modbus());
+    process_families(out, process);
+    return out.take();
+}
+
+std::string render_state(const Gateway& gateway) {
+    const auto now = Clock::now();
+    const auto health = gateway.health();
+    Json json;
+    json.begin_object()
+        .member("version", IOPORTD_VERSION)
+        .member("time", rfc3339(SystemClock::now()))
+        .member("started", rfc3339(gateway.started()));
+    json.key("health").begin_object().member("ok", health.ok).member("reason", health.reason);
+    json.end_object();
+    modbus_json(json, gateway.modbus());
+    json.key("links").begin_array();
+    for (const auto& link : gateway.links())
+        link_json(json, *link, now);
+    json.end_array();
+    json.key("events").begin_array();
+    for (const auto& event : gateway.events().events())
+        json.begin_object()
+            .member("seq", event.seq)
+            .member("time", rfc3339(event.time))
+            .member("kind", to_string(event.kind))
+            .member("link", event.link)
+            .member("module", event.module)
+            .member("client", event.client)
+            .member("text", event.text)
+            .end_object();
+    json.end_array().end_object();
+    return json.take();
+}
+
+std::string render_trends(const Gateway& gateway) {
+    Json json;
+    json.begin_object()
+        .member("interval_seconds", static_cast<int>(Trend::interval.count()))
+        .member("span_seconds",
+                static_cast<int>(Trend::interval.count() * static_cast<int>(Trend::capacity)));
+    json.key("series").begin_array();
+    for (const auto& link : gateway.links()) {
+        for (const auto& module : link->modules()) {
+            if (!module.trend || !module.address) continue;
+            const auto type = module.address->type;
+            for (int ch = 0; ch < reply_words(type); ++ch) {
+                json.begin_object()
+                    .member("link", link->config().name)
+                    .member("module", module.name)
+                    .member("channel", ch)
+                    .member("unit", symbol(engineering_unit(type)));
+                json.key("points").begin_array();
+                for (std::size_t i = 0; i < module.trend->size(); ++i) {
+                    const auto& point = (*module.trend)[i];
+                    json.begin_array()
+                        .value(point.time)
+                        .value(gateway::engineering_float(type,
+                                                          point.raw[static_cast<std::size_t>(ch)]))
+                        .end_array();
+                }
+                json.end_array().end_object();
+            }
+        }
+    }
+    json.end_array().end_object();
+    return json.take();
+}
+
+std::string render_map(const config::GatewayConfig& config, MapFormat format) {
+    std::vector<gateway::MapRow> rows;
+    for (const auto& link : config.links) {
+        gateway::UnitMap unit{link.protocol == config::Protocol::id2 ? gateway::UnitKind::id2
+                                                                     : gateway::UnitKind::ioport,
+                              link.unit_id,
+                              link.name,
+                              {}};
+        for (const auto& module : link.modules)
+            unit.modules.push_back(module.address);
+        auto unit_rows = gateway::map_rows(unit);
+        rows.insert(rows.end(), unit_rows.begin(), unit_rows.end());
+    }
+    switch (format) {
+        case MapFormat::csv:
+            return gateway::format_csv(rows);
+        case MapFormat::markdown:
+            return gateway::format_markdown(rows);
+        case MapFormat::html:
+            break;
+    }
+    return map_html(rows);
+}
+
+HttpResponse render_page(const Gateway& gateway, const Route& route, double boot_time) {
+    switch (route.page) {
+        case Page::status:
+            return {200, "text/html; charset=utf-8", std::string(status_page_html)};
+        case Page::state:
+            return {200, "application/json", render_state(gateway)};
+        case Page::trends:
+            return {200, "application/json", render_trends(gateway)};
+        case Page::metrics:
+            return {200, "text/plain; version=0.0.4; charset=utf-8",
+                    render_metrics(gateway, read_process_stats(boot_time))};
+        case Page::health: {
+            const auto health = gateway.health();
+            return {health.ok ? 200u : 503u, std::string(text_plain),
+                    (health.ok ? std::string("ok") : health.reason) + "\n"};
+        }
+        case Page::map:
+            return {200,
+                    route.format == MapFormat::html  ? "text/html; charset=utf-8"
+                    : route.format == MapFormat::csv ? "text/csv; charset=utf-8"
+                                                     : "text/markdown; charset=utf-8",
+                    render_map(gateway.config(), route.format)};
+    }
+    return {404, std::string(text_plain), "no such page\n"};
+}
+
+}  // namespace ioport::daemon
