@@ -300,6 +300,33 @@ links:
     EXPECT_EQ(defaults->modbus.comm_loss_timeout, 0s);
 }
 
+// §5.4: no section, no HTTP server (an upgrade never opens a port); the section alone takes the
+// defaults; listen "" turns it off.
+TEST(GatewayConfig, TheHttpSection) {
+    const std::string links = R"(links:
+  - { name: hub0, protocol: ioport, device: /dev/ttyUSB0, modules: [{ type: dim16, number: 0 }] }
+)";
+    const auto absent = parse(links);
+    ASSERT_TRUE(absent) << describe(absent.error());
+    EXPECT_FALSE(absent->http);
+    const auto defaults = parse("http:\n" + links);
+    ASSERT_TRUE(defaults) << describe(defaults.error());
+    ASSERT_TRUE(defaults->http);
+    EXPECT_EQ(defaults->http->listen_host, "127.0.0.1");
+    EXPECT_EQ(defaults->http->listen_port, 8502);
+    EXPECT_TRUE(defaults->http->allow.empty());
+    const auto set = parse("http:\n  listen: \"[::]:9100\"\n  allow: [10.0.0.0/8]\n" + links);
+    ASSERT_TRUE(set) << describe(set.error());
+    ASSERT_TRUE(set->http);
+    EXPECT_EQ(set->http->listen_host, "::");
+    EXPECT_EQ(set->http->listen_port, 9100);
+    ASSERT_EQ(set->http->allow.size(), 1u);
+    EXPECT_EQ(set->http->allow[0].text, "10.0.0.0/8");
+    const auto off = parse("http:\n  listen: \"\"\n" + links);
+    ASSERT_TRUE(off) << describe(off.error());
+    EXPECT_FALSE(off->http);
+}
+
 // --- Errors ---------------------------------------------------------------------------------
 
 // Lines 1-6: a valid ioport link. Cases append a key of link 0 or a module at line 7.
@@ -376,7 +403,7 @@ TEST(GatewayConfigErrors, TheFileAsAWhole) {
     expect_one_error({"links: []\n", 1, "links", "at least one link, found an empty list"});
     expect_one_error({"links: hub0\n", 1, "links", "at least one link, found a single value"});
     expect_one_error({hub + "---\n" + hub, 8, "", "one YAML document"});
-    expect_one_error({"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, links"});
+    expect_one_error({"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, http, links"});
 }
 
 TEST(GatewayConfigErrors, UnknownAndDuplicateKeys) {
@@ -609,6 +636,16 @@ TEST(GatewayConfigErrors, IdentityObjects) {
              "the ioportd version and cannot be set");
     identity("{ serial_number: 7 }", ".serial_number", "unknown key");
     identity("hub8u", "", "expected a mapping");
+}
+
+TEST(GatewayConfigErrors, TheHttpSection) {
+    expect_one_error({"http:\n  listen: 8502\n" + hub, 2, "http.listen", "has no port"});
+    expect_one_error({"http:\n  listen: \"web:80\"\n" + hub, 2, "http.listen",
+                      "not an IP address"});
+    expect_one_error({"http:\n  allow: [10.0.0.0/33]\n" + hub, 2, "http.allow[0]", "/33"});
+    expect_one_error({"http:\n  port: 80\n" + hub, 2, "http.port",
+                      "allowed here are listen, allow"});
+    expect_one_error({"http: on\n" + hub, 1, "http", "expected a mapping"});
 }
 
 TEST(GatewayConfigErrors, CommLossTimeout) {
