@@ -10,6 +10,7 @@ Control endpoints, for the browser self-test only (the real daemon has none of t
     POST /control/input?link=hub0&module=dim16%200&word=0x0008   set an input word
     POST /control/fault?link=hub0&module=acm3p%200&status=2      2 no answer, 3 bad answer, 1 back
     POST /control/port?link=hub1&open=1                          port open / not open
+    POST /control/comm_loss?on=1                                 the Modbus server's comm loss
     POST /control/outage?seconds=5                               the API drops every request
 Each answers the changed module or link as JSON.
 
@@ -269,6 +270,12 @@ class Fixture:
                        'link %s: %s %s' % (link['name'], link['device'],
                                            'open' if link['port_open'] else 'closed'))
             return {'name': link['name'], 'port_open': link['port_open']}
+        if action == 'comm_loss':
+            self.comm_loss = q.get('on', '1') == '1'
+            self.event('comm_loss', '', '', '', 'modbus: comm loss: %s' % (
+                'no request for 10 s, outputs to their safe state' if self.comm_loss
+                else 'requests again'))
+            return {'comm_loss': self.comm_loss}
         if action == 'outage':
             self.outage_until = time.time() + float(q.get('seconds', '5'))
             return {'outage_until': rfc3339(self.outage_until)}
