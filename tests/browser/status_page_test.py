@@ -282,6 +282,7 @@ def main():
     url = args.url
     server = None
     if not url:
+        sys.dont_write_bytecode = True  # no __pycache__ in the source tree
         sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
         import fixture_server
         server = fixture_server.serve()
