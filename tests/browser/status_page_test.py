@@ -1,0 +1,315 @@
+#!/usr/bin/python3
+"""The status page (issue 16 §3) in a real browser: headless Chromium driven by selenium and
+chromedriver (Debian: chromium, chromium-driver, python3-selenium).
+
+As a library, for the integration test that runs the real daemon and simulator:
+
+    import status_page_test
+    status_page_test.run(url, change_input, expected_word, fault, screenshot_path,
+                         input_link='hub0', input_module='dim16 0',
+                         fault_link='hub0', fault_module='dim16 0')
+
+run() raises PageTestFailed (an AssertionError) listing every check that failed, and returns
+normally when all passed. What it checks:
+  1. the page loads;
+  2. the tile of input_module on input_link shows a word; change_input() is called; within
+     input_timeout (5 s) the tile shows expected_word;
+  3. fault() is called; within fault_timeout (10 s) the tile of fault_module on fault_link has
+     a .status text other than "online";
+  4. the browser console has no error (level SEVERE);
+  5. screenshots: the whole page at 1280 px wide to screenshot_path, and at 360 px wide to
+     narrow_screenshot_path (default: screenshot_path with "-narrow" before the extension).
+Screenshots are taken even when a check failed, to see why.
+
+As a program, it runs itself against tests/browser/fixture_server.py, whose control endpoints
+stand in for the simulator:
+
+    /usr/bin/python3 tests/browser/status_page_test.py [--screenshot /tmp/status-page.png]
+
+Exit code 0 when every check passed, 1 otherwise.
+"""
+import argparse
+import base64
+import json
+import os
+import re
+import sys
+import tempfile
+import time
+import urllib.parse
+import urllib.request
+
+try:
+    from selenium import webdriver
+    from selenium.common.exceptions import WebDriverException
+    from selenium.webdriver.chrome.service import Service
+except ImportError:  # a python3 earlier on PATH (pyenv, a venv) lacks Debian's python3-selenium
+    sys.exit('status_page_test: needs selenium: run it with /usr/bin/python3 and '
+             'python3-selenium installed')
+
+CHROMEDRIVER = '/usr/bin/chromedriver'
+CHROMIUM = '/usr/bin/chromium'
+WIDE = (1280, 1600)
+NARROW = (360, 1600)
+WORD = re.compile(r'^0x[0-9A-Fa-f]{4}$')
+
+
+class PageTestFailed(AssertionError):
+    pass
+
+
+def _selector(link, module):
+    q = lambda s: '"' + s.replace('\\', '\\\\').replace('"', '\\"') + '"'
+    return '[data-link=%s][data-module=%s]' % (q(link), q(module))
+
+
+# Reads by selector on every poll rather than holding element references: the page may rebuild
+# its tiles (after a reload of the daemon's configuration), which would make them stale.
+_TILE_TEXT = """
+const tile = document.querySelector(arguments[0]);
+if (!tile) return null;
+const e = tile.querySelector(arguments[1]);
+return e ? e.textContent.trim() : '';
+"""
+_TILES = """
+return [...document.querySelectorAll('[data-module]')]
+  .map(t => t.dataset.link + ' / ' + t.dataset.module);
+"""
+
+
+def _wait(what, timeout, probe):
+    """Polls probe() until it returns something other than None, or the deadline passes.
+    Returns (value, seconds taken); raises PageTestFailed naming `what` on timeout."""
+    start = time.monotonic()
+    deadline = start + timeout
+    while True:
+        value = probe()
+        if value is not None:
+            return value, time.monotonic() - start
+        if time.monotonic() >= deadline:
+            raise PageTestFailed('%s: not within %.1f s' % (what, timeout))
+        time.sleep(0.1)
+
+
+class _Page:
+    def __init__(self, driver):
+        self.driver = driver
+
+    def text(self, link, module, cls):
+        """The text of the .cls element of a tile; None if there is no such tile, '' if the
+        tile has no such element."""
+        return self.driver.execute_script(_TILE_TEXT, _selector(link, module), '.' + cls)
+
+    def require_tile(self, link, module, timeout):
+        try:
+            _wait('tile %s / %s appears' % (link, module), timeout,
+                  lambda: True if self.text(link, module, 'status') is not None else None)
+        except PageTestFailed as e:
+            tiles = self.driver.execute_script(_TILES)
+            raise PageTestFailed('%s; the page has these tiles: %s'
+                                 % (e, ', '.join(tiles) or 'none')) from None
+
+    def word(self, link, module):
+        t = self.text(link, module, 'word')
+        return int(t, 16) if t and WORD.match(t) else None
+
+    def banner(self):
+        return self.driver.execute_script(
+            "const e = document.getElementById('conn'); return e ? e.textContent.trim() : '';")
+
+    def screenshot(self, path, size):
+        """The whole page, not only the window, at the given window width."""
+        self.driver.set_window_size(*size)
+        _wait('the window is %d px wide' % size[0], 5,
+              lambda: True if self.driver.execute_script('return window.innerWidth') <= size[0]
+              else None)
+        time.sleep(0.3)  # one animation frame or two for the reflow; the poll keeps running
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        try:
+            m = self.driver.execute_cdp_cmd('Page.getLayoutMetrics', {})
+            content = m.get('cssContentSize') or m['contentSize']
+            shot = self.driver.execute_cdp_cmd('Page.captureScreenshot', {
+                'format': 'png', 'captureBeyondViewport': True,
+                'clip': {'x': 0, 'y': 0, 'width': content['width'],
+                         'height': content['height'], 'scale': 1}})
+            with open(path, 'wb') as f:
+                f.write(base64.b64decode(shot['data']))
+        except (WebDriverException, KeyError):
+            self.driver.save_screenshot(path)  # the window only, but something to look at
+
+
+def _driver(profile):
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for a in ('--headless=new', '--no-sandbox', '--disable-gpu', '--disable-dev-shm-usage',
+              '--disable-background-networking', '--disable-component-update', '--disable-sync',
+              '--no-first-run', '--user-data-dir=' + profile,
+              '--window-size=%d,%d' % WIDE):
+        options.add_argument(a)
+    options.set_capability('goog:loggingPrefs', {'browser': 'ALL'})
+    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+
+
+def run(url, change_input, expected_word, fault, screenshot_path, *,
+        input_link='hub0', input_module='dim16 0', fault_link='hub0', fault_module='dim16 0',
+        narrow_screenshot_path=None, load_timeout=15.0, input_timeout=5.0, fault_timeout=10.0):
+    """Checks the status page at `url` in headless Chromium (see the module's docstring).
+
+    change_input(): makes the input word of input_module on input_link become expected_word
+    (an int, 0..0xFFFF) at the device; fault(): makes fault_module on fault_link stop answering
+    (or answer badly). Both are called once, in that order. Raises PageTestFailed listing the
+    failed checks."""
+    if narrow_screenshot_path is None:
+        base, ext = os.path.splitext(screenshot_path)
+        narrow_screenshot_path = base + '-narrow' + (ext or '.png')
+    failures = []
+
+    def check(name, fn):
+        print('status_page_test: %s ...' % name, flush=True)
+        try:
+            fn()
+        except PageTestFailed as e:
+            print('status_page_test: FAIL: %s' % e, flush=True)
+            failures.append(str(e))
+            return False
+        return True
+
+    with tempfile.TemporaryDirectory(prefix='status-page-test-') as profile:
+        driver = _driver(profile)
+        try:
+            page = _Page(driver)
+            driver.set_page_load_timeout(load_timeout)
+
+            def load():
+                try:
+                    driver.get(url)
+                except WebDriverException as e:
+                    raise PageTestFailed('cannot load %s: %s' % (url, e.msg)) from None
+                title = driver.title
+                if 'ioportd' not in title:
+                    raise PageTestFailed('%s has the title %r, not the status page' % (url, title))
+
+            def input_changes():
+                page.require_tile(input_link, input_module, load_timeout)
+                before, took = _wait('tile %s / %s shows a word (.word as 0xHHHH)'
+                                     % (input_link, input_module), load_timeout,
+                                     lambda: page.word(input_link, input_module))
+                print('status_page_test: %s / %s shows 0x%04X after %.1f s'
+                      % (input_link, input_module, before, took), flush=True)
+                banner = page.banner()
+                if banner:
+                    raise PageTestFailed('the page shows data and yet says: %r' % banner)
+                if before == expected_word:
+                    raise PageTestFailed('%s / %s already shows the expected word 0x%04X before '
+                                         'change_input(): the check would prove nothing'
+                                         % (input_link, input_module, expected_word))
+                change_input()
+                last = [before]
+
+                def changed():
+                    last[0] = page.word(input_link, input_module)
+                    return True if last[0] == expected_word else None
+                try:
+                    _, took = _wait('after change_input(), tile %s / %s shows 0x%04X'
+                                    % (input_link, input_module, expected_word),
+                                    input_timeout, changed)
+                except PageTestFailed as e:
+                    shown = 'nothing' if last[0] is None else '0x%04X' % last[0]
+                    raise PageTestFailed('%s (it shows %s)' % (e, shown)) from None
+                print('status_page_test: %s / %s shows 0x%04X %.1f s after change_input()'
+                      % (input_link, input_module, expected_word, took), flush=True)
+
+            def fault_shows():
+                page.require_tile(fault_link, fault_module, load_timeout)
+                fault()
+                last = ['']
+
+                def not_online():
+                    last[0] = page.text(fault_link, fault_module, 'status')
+                    return last[0] if last[0] and last[0] != 'online' else None
+                try:
+                    status, took = _wait('after fault(), tile %s / %s has a .status other than '
+                                         '"online"' % (fault_link, fault_module),
+                                         fault_timeout, not_online)
+                except PageTestFailed as e:
+                    raise PageTestFailed('%s (it says %r)' % (e, last[0])) from None
+                print('status_page_test: %s / %s says %r %.1f s after fault()'
+                      % (fault_link, fault_module, status, took), flush=True)
+
+            def console_clean():
+                errors = [e for e in driver.get_log('browser') if e.get('level') == 'SEVERE']
+                if errors:
+                    raise PageTestFailed('%d error(s) in the browser console:\n  %s' % (
+                        len(errors), '\n  '.join(e.get('message', '') for e in errors)))
+
+            def screenshots():
+                for path, size in ((screenshot_path, WIDE), (narrow_screenshot_path, NARROW)):
+                    page.screenshot(path, size)
+                    print('status_page_test: screenshot %s (%d px wide)' % (path, size[0]),
+                          flush=True)
+
+            if check('load %s' % url, load):
+                check('an input change reaches the page', input_changes)
+                check('a module fault reaches the page', fault_shows)
+            check('no errors in the browser console', console_clean)
+            check('screenshots', screenshots)
+        finally:
+            driver.quit()
+    if failures:
+        raise PageTestFailed('%d check(s) failed:\n- %s' % (len(failures), '\n- '.join(failures)))
+    print('status_page_test: all checks passed', flush=True)
+
+
+# ---- Self-test against the fixture server ------------------------------------------------------
+
+def _post(base, action, **query):
+    url = urllib.parse.urljoin(base, 'control/%s?%s' % (action, urllib.parse.urlencode(query)))
+    with urllib.request.urlopen(urllib.request.Request(url, data=b'', method='POST'),
+                                timeout=5) as r:
+        return json.load(r)
+
+
+def main():
+    ap = argparse.ArgumentParser(description='The status page in headless Chromium, against '
+                                 'tests/browser/fixture_server.py.')
+    ap.add_argument('--url', help='a fixture server already running, e.g. '
+                    'http://127.0.0.1:8080/ioportd/ (default: start one on a free port)')
+    ap.add_argument('--screenshot', default=os.path.join(tempfile.gettempdir(),
+                                                         'status-page.png'))
+    ap.add_argument('--narrow-screenshot', help='default: SCREENSHOT with -narrow')
+    args = ap.parse_args()
+
+    url = args.url
+    server = None
+    if not url:
+        sys.dont_write_bytecode = True  # no __pycache__ in the source tree
+        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+        import fixture_server
+        server = fixture_server.serve()
+        # Under a path, as behind a reverse proxy: the page must use relative URLs only.
+        url = 'http://127.0.0.1:%d%s/' % (server.server_address[1], fixture_server.PREFIX)
+    if not url.endswith('/'):
+        url += '/'
+
+    link, module = 'hub0', 'dim16 0'
+    word = _post(url, 'input', link=link, module=module, word='0x0005')['word']
+    expected = word ^ 0x0008  # input 3 flips
+    try:
+        run(url,
+            change_input=lambda: _post(url, 'input', link=link, module=module,
+                                       word='0x%04X' % expected),
+            expected_word=expected,
+            fault=lambda: _post(url, 'fault', link='hub0', module='acm3p 0', status='2'),
+            screenshot_path=args.screenshot, narrow_screenshot_path=args.narrow_screenshot,
+            input_link=link, input_module=module, fault_link='hub0', fault_module='acm3p 0')
+    except PageTestFailed as e:
+        print('status_page_test: FAILED\n%s' % e, file=sys.stderr)
+        return 1
+    finally:
+        if server:
+            server.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
