@@ -6,13 +6,12 @@
 #include <fmt/ranges.h>
 
 #include "config/duration.hpp"
-#include "daemon/process_stats.hpp"
 #include "daemon/status_pages.hpp"
 
 namespace ioport::daemon {
 
 Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log)
-    : executor_(executor), config_(std::move(config)), log_(log), boot_time_(read_boot_time()) {}
+    : executor_(executor), config_(std::move(config)), log_(log) {}
 
 std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) {
     return std::make_shared<LinkScheduler>(executor_, link, config_.modbus.word_order, log_,
@@ -21,7 +20,7 @@ std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link
 
 std::shared_ptr<HttpServer> Gateway::make_http(const config::HttpSettings& settings) {
     return std::make_shared<HttpServer>(executor_, settings, log_, [this](const Route& route) {
-        return render_page(*this, route, boot_time_);
+        return render_page(*this, route);
     });
 }
 
@@ -203,6 +202,16 @@ std::string describe(const config::GatewayConfig& config) {
         modbus.read_only ? ", read-only" : "",
         modbus.word_order == gateway::WordOrder::big ? "big" : "little",
         modbus.stale == gateway::Stale::exception ? "exception" : "hold");
+    if (const auto& http = config.http)
+        text += fmt::format(
+            "HTTP (status page, /metrics, /healthz) on {}:{}, {}\n",
+            http->listen_host.find(':') != std::string::npos ? "[" + http->listen_host + "]"
+                                                             : http->listen_host,
+            http->listen_port,
+            http->allow.empty() ? "any client"
+                                : fmt::format("{} allowed networks", http->allow.size()));
+    else
+        text += "HTTP off\n";
     text += fmt::format(
         "on shutdown: outputs {}; on communication loss: {}; log level {}\n",
         config.on_shutdown == config::OnShutdown::keep ? "kept as they are" : "set to initial",

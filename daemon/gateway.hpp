@@ -73,7 +73,6 @@ class Gateway {
     std::unique_ptr<ModbusServer> server_;
     std::shared_ptr<HttpServer> http_;
     std::shared_ptr<HttpServer> next_http_;  // bound by prepare_http(), taken by apply_http()
-    double boot_time_ = 0;                   // for process_start_time_seconds
 };
 
 // The lines printed by --check-config: the links, their modules and the Modbus front.

@@ -1,12 +1,12 @@
 #include "daemon/process_stats.hpp"
 
+#include <time.h>
 #include <unistd.h>
 
 #include <charconv>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
-#include <sstream>
 #include <string>
 
 namespace ioport::daemon {
@@ -69,21 +69,15 @@ std::optional<ProcessStats> parse_proc_stat(std::string_view stat, long ticks_pe
                         boot_time + static_cast<double>(*starttime) / ticks};
 }
 
-std::optional<double> parse_boot_time(std::string_view proc_stat) {
-    std::istringstream lines{std::string(proc_stat)};
-    std::string line;
-    while (std::getline(lines, line))
-        if (line.starts_with("btime "))
-            if (const auto seconds = number(std::string_view(line).substr(6)))
-                return static_cast<double>(*seconds);
-    return std::nullopt;
-}
-
-double read_boot_time() {
-    return parse_boot_time(read_file("/proc/stat")).value_or(0);
-}
-
-ProcessStats read_process_stats(double boot_time) {
+ProcessStats read_process_stats() {
+    timespec realtime{};
+    timespec boottime{};
+    ::clock_gettime(CLOCK_REALTIME, &realtime);
+    ::clock_gettime(CLOCK_BOOTTIME, &boottime);
+    const auto seconds = [](const timespec& t) {
+        return static_cast<double>(t.tv_sec) + static_cast<double>(t.tv_nsec) / 1e9;
+    };
+    const double boot_time = seconds(realtime) - seconds(boottime);
     auto stats = parse_proc_stat(read_file("/proc/self/stat"), ::sysconf(_SC_CLK_TCK),
                                  ::sysconf(_SC_PAGESIZE), boot_time)
                      .value_or(ProcessStats{});

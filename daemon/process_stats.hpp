@@ -16,16 +16,14 @@ struct ProcessStats {
 };
 
 // From the text of /proc/self/stat (proc(5)): utime, stime, starttime and rss, given the
-// clock ticks per second, the page size and the boot time (Unix seconds, /proc/stat's btime).
-// nullopt when the text is not what the kernel writes.
+// clock ticks per second, the page size and the boot time (Unix seconds). nullopt when the
+// text is not what the kernel writes.
 std::optional<ProcessStats> parse_proc_stat(std::string_view stat, long ticks_per_second,
                                             long page_size, double boot_time);
-// /proc/stat's "btime" line.
-std::optional<double> parse_boot_time(std::string_view proc_stat);
 
-// The boot time from /proc/stat: read once, as it does not change (the file is kilobytes).
-double read_boot_time();
-// This process, now; what cannot be read stays 0.
-ProcessStats read_process_stats(double boot_time);
+// This process, now; what cannot be read stays 0. Only /proc/self is read: the packaged unit's
+// ProcSubset=pid hides /proc/stat, so the boot time is the difference of the realtime and boot
+// clocks instead.
+ProcessStats read_process_stats();
 
 }  // namespace ioport::daemon

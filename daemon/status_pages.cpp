@@ -497,7 +497,7 @@ std::string render_map(const config::GatewayConfig& config, MapFormat format) {
     return map_html(rows);
 }
 
-HttpResponse render_page(const Gateway& gateway, const Route& route, double boot_time) {
+HttpResponse render_page(const Gateway& gateway, const Route& route) {
     switch (route.page) {
         case Page::status:
             return {200, "text/html; charset=utf-8", std::string(status_page_html)};
@@ -507,7 +507,7 @@ HttpResponse render_page(const Gateway& gateway, const Route& route, double boot
             return {200, "application/json", render_trends(gateway)};
         case Page::metrics:
             return {200, "text/plain; version=0.0.4; charset=utf-8",
-                    render_metrics(gateway, read_process_stats(boot_time))};
+                    render_metrics(gateway, read_process_stats())};
         case Page::health: {
             const auto health = gateway.health();
             return {health.ok ? 200u : 503u, std::string(text_plain),

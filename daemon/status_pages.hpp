@@ -14,8 +14,7 @@ namespace ioport::daemon {
 // The status page: daemon/status_page/index.html, embedded at build time.
 extern const std::string_view status_page_html;
 
-// `boot_time`: for process_start_time_seconds (read_boot_time()).
-HttpResponse render_page(const Gateway& gateway, const Route& route, double boot_time);
+HttpResponse render_page(const Gateway& gateway, const Route& route);
 
 std::string render_metrics(const Gateway& gateway, const ProcessStats& process);
 std::string render_state(const Gateway& gateway);
