@@ -23,6 +23,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.request
 from pathlib import Path
 
 from unit_file import unit_settings
@@ -124,6 +125,8 @@ def main() -> int:
             config = Path(scratch, "ioportd.yaml")
             config.write_text(f"""modbus:
   listen: "127.0.0.1:0"
+http:
+  listen: "127.0.0.1:0"
 links:
   - name: hub0
     protocol: ioport
@@ -165,6 +168,12 @@ links:
             ]
             for answer in answers:
                 check(answer[0] < 0x80, f"Modbus exception {answer.hex()}")
+            # The HTTP side's pages read /proc/self: what the unit lets it see.
+            http_port = int(re.search(r"HTTP on http://127\.0\.0\.1:(\d+)/",
+                                      Path(log).read_text()).group(1))
+            for page in ("/", "/metrics", "/api/v1/state", "/api/v1/trends", "/healthz", "/map"):
+                with urllib.request.urlopen(f"http://127.0.0.1:{http_port}{page}", timeout=10) as r:
+                    check(r.status == 200, f"GET {page}: {r.status}")
 
             unplug = subprocess.run([IOPORT_SIM, "ctl", f"{scratch}/hub.ctl", "unplug", "500ms"],
                                     capture_output=True, text=True)
