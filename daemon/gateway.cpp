@@ -149,7 +149,7 @@ std::optional<asio::ip::tcp::endpoint> Gateway::http_endpoint() const {
 
 Health Gateway::health() const {
     Health health;
-    const auto add = [&](std::string reason) {
+    const auto add = [&](const std::string& reason) {
         health.ok = false;
         if (!health.reason.empty()) health.reason += "; ";
         health.reason += reason;

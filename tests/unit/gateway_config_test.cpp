@@ -403,7 +403,8 @@ TEST(GatewayConfigErrors, TheFileAsAWhole) {
     expect_one_error({"links: []\n", 1, "links", "at least one link, found an empty list"});
     expect_one_error({"links: hub0\n", 1, "links", "at least one link, found a single value"});
     expect_one_error({hub + "---\n" + hub, 8, "", "one YAML document"});
-    expect_one_error({"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, http, links"});
+    expect_one_error(
+        {"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, http, links"});
 }
 
 TEST(GatewayConfigErrors, UnknownAndDuplicateKeys) {
@@ -640,11 +641,11 @@ TEST(GatewayConfigErrors, IdentityObjects) {
 
 TEST(GatewayConfigErrors, TheHttpSection) {
     expect_one_error({"http:\n  listen: 8502\n" + hub, 2, "http.listen", "has no port"});
-    expect_one_error({"http:\n  listen: \"web:80\"\n" + hub, 2, "http.listen",
-                      "not an IP address"});
+    expect_one_error(
+        {"http:\n  listen: \"web:80\"\n" + hub, 2, "http.listen", "not an IP address"});
     expect_one_error({"http:\n  allow: [10.0.0.0/33]\n" + hub, 2, "http.allow[0]", "/33"});
-    expect_one_error({"http:\n  port: 80\n" + hub, 2, "http.port",
-                      "allowed here are listen, allow"});
+    expect_one_error(
+        {"http:\n  port: 80\n" + hub, 2, "http.port", "allowed here are listen, allow"});
     expect_one_error({"http: on\n" + hub, 1, "http", "expected a mapping"});
 }
 
