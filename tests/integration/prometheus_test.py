@@ -8,6 +8,7 @@ Every wait has a deadline; Prometheus, ioportd and the simulator are killed at t
 
 Usage: prometheus_test.py IOPORTD IOPORT_SIM [PROMETHEUS]
 """
+import ctypes
 import json
 import os
 import re
@@ -35,6 +36,13 @@ def eventually(condition, deadline=5.0, interval=0.005):
         if time.monotonic() >= until:
             return False
         time.sleep(interval)
+
+
+def die_with_parent():
+    """In the child before exec: SIGKILL when the test process dies, even by SIGKILL (a CTest
+    timeout), so that no Prometheus outlives the test."""
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 def free_port():
@@ -74,7 +82,8 @@ class Rig:
         self.control = os.path.join(self.dir, "hub.ctl")
         self.sim = subprocess.Popen([IOPORT_SIM, "--link", self.link, "--control", self.control,
                                      "--no-line-timing", "--hub", "dim16:0,dom16:0"],
-                                    stdout=subprocess.PIPE, text=True)
+                                    stdout=subprocess.PIPE, text=True,
+                                    preexec_fn=die_with_parent)
         banner = self.sim.stdout.readline()
         assert banner.startswith("ioport-sim: "), banner
 
@@ -95,7 +104,8 @@ links:
 """)
         self.daemon_log = os.path.join(self.dir, "ioportd.log")
         with open(self.daemon_log, "w") as log:
-            self.daemon = subprocess.Popen([IOPORTD, "--config", config], stdout=log, stderr=log)
+            self.daemon = subprocess.Popen([IOPORTD, "--config", config], stdout=log, stderr=log,
+                                           preexec_fn=die_with_parent)
         match = None
 
         def announced():
@@ -126,7 +136,7 @@ scrape_configs:
                  f"--storage.tsdb.path={os.path.join(self.dir, 'tsdb')}",
                  f"--web.listen-address=127.0.0.1:{self.prometheus_port}",
                  "--log.level=warn"],
-                stdout=log, stderr=log, start_new_session=True)
+                stdout=log, stderr=log, preexec_fn=die_with_parent)
 
     def query(self, expression):
         """The instant vector of a PromQL query: [(labels, value)], or None if Prometheus is
@@ -141,6 +151,17 @@ scrape_configs:
         if reply.get("status") != "success":
             return None
         return [(r["metric"], float(r["value"][1])) for r in reply["data"]["result"]]
+
+    def scrape_errors(self):
+        """Prometheus' last scrape error of each target, for a failure's message."""
+        try:
+            with urllib.request.urlopen(
+                    f"http://127.0.0.1:{self.prometheus_port}/api/v1/targets", timeout=2) as r:
+                targets = json.load(r)["data"]["activeTargets"]
+        except (urllib.error.URLError, ConnectionError, TimeoutError, KeyError) as e:
+            return f"targets: {e}"
+        return "; ".join(f"{t['scrapeUrl']}: health {t['health']}, last error "
+                         f"'{t['lastError']}'" for t in targets)
 
     def ctl(self, command):
         out = subprocess.run([IOPORT_SIM, "ctl", self.control, *command.split()],
@@ -184,9 +205,10 @@ class ScrapedByPrometheus(unittest.TestCase):
     def test_prometheus_scrapes_ioportd_and_sees_an_input_change(self):
         rig = self.rig
         rig.ctl("set dim16:0 0x0000")
+        # up is 1 only when every sample line parsed (Prometheus' scrape parser is lenient
+        # about HELP and TYPE lines: http_test's promtool check covers those).
         self.assertTrue(eventually(lambda: self.value('up{job="ioportd"}') == 1, 15, 0.2),
-                        rig.log())
-        # up is 1 only when the whole exposition parsed; and it has samples.
+                        rig.scrape_errors() + "\n" + rig.log())
         self.assertGreater(self.value('scrape_samples_scraped{job="ioportd"}') or 0, 50)
         channel = 'ioportd_input_value{module="dim16 0",channel="3"}'
         self.assertTrue(eventually(lambda: self.value(channel) == 0, 10, 0.2),
