@@ -27,7 +27,7 @@ namespace ioport::daemon {
 using namespace std::chrono_literals;
 
 inline constexpr std::size_t max_http_connections = 64;
-inline constexpr std::size_t http_header_limit = 8 * 1024;
+inline constexpr std::size_t http_header_limit = std::size_t{8} * 1024;
 inline constexpr std::chrono::seconds http_request_timeout{10};
 inline constexpr std::chrono::seconds http_idle_timeout{30};
 
