@@ -376,7 +376,8 @@ TEST(GatewayConfigErrors, TheFileAsAWhole) {
     expect_one_error({"links: []\n", 1, "links", "at least one link, found an empty list"});
     expect_one_error({"links: hub0\n", 1, "links", "at least one link, found a single value"});
     expect_one_error({hub + "---\n" + hub, 8, "", "one YAML document"});
-    expect_one_error({"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, links"});
+    expect_one_error(
+        {"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, http, links"});
 }
 
 TEST(GatewayConfigErrors, UnknownAndDuplicateKeys) {
