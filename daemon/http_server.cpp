@@ -156,6 +156,19 @@ asio::awaitable<void> HttpServer::serve(std::shared_ptr<Connection> c) {
                     : ec == http::error::body_limit ? 413u
                                                     : 400u,
                     "text/plain; charset=utf-8", fmt::format("bad request: {}\n", ec.message())};
+            // A request with a body (a form's POST, a PUT) is refused for its method or path,
+            // as one without: 405 or 404 (gateway.md §5.4); 413 is left for a GET with a body.
+            if (ec == http::error::body_limit && !parser.get().method_string().empty()) {
+                const auto& request = parser.get();
+                version = request.version();
+                const auto routed =
+                    route(std::string_view(request.method_string().data(),
+                                           request.method_string().size()),
+                          std::string_view(request.target().data(), request.target().size()));
+                if (!routed)
+                    page = {routed.error().status, "text/plain; charset=utf-8",
+                            routed.error().message + "\n"};
+            }
         } else {
             const auto& request = parser.get();
             version = request.version();

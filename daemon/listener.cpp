@@ -43,8 +43,10 @@ Result<Acceptor> listen_tcp(const asio::any_io_executor& executor, const std::st
                       "ports below 1024 need CAP_NET_BIND_SERVICE (the packaged "
                       "service has it) or use a port such as 1502")
                 : fmt::format("check {}", key);
-        return fail(Errc::io_error, fmt::format("cannot listen on {}: {}: {}", describe(endpoint),
-                                                ec.message(), hint));
+        // The key first: with a Modbus and an HTTP listener, the address alone does not say
+        // which line of the configuration to change.
+        return fail(Errc::io_error, fmt::format("{}: cannot listen on {}: {}: {}", key,
+                                                describe(endpoint), ec.message(), hint));
     }
     return acceptor;
 }

@@ -1,16 +1,21 @@
 // ioportd logging to the systemd journal, received by the test itself: the daemon runs in a
 // private mount namespace in which the test's datagram socket is /run/systemd/journal/socket,
 // so the entries are read exactly as sd_journal_sendv() sent them (the native protocol).
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cstring>
 #include <fstream>
 #include <functional>
 #include <map>
+#include <regex>
 
 #include <fmt/format.h>
 
@@ -174,6 +179,76 @@ links:
     EXPECT_EQ(lost["COMM_LOSS"], "1");
     EXPECT_TRUE(wait_for_entry(socket, "no Modbus request from any client", 600ms).empty())
         << "logged more than once while nobody asked";
+}
+
+// gateway.md §5.4, issue 16: every client write that reaches a device is one notice with the
+// audit fields, whatever its outcome.
+TEST(Journal, EveryClientWriteIsOneNoticeWithTheAuditFields) {
+    if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
+    SimProcess hub("--hub", "dom16:0", {"--no-line-timing"});
+    TempDir journal;
+    DatagramSocket socket(journal / "socket");
+    JournaledGateway gateway(journal.path(),
+                             fmt::format(R"(modbus: {{ listen: "127.0.0.1:0" }}
+links:
+  - {{ name: hub0, protocol: ioport, device: {}, unit_id: 7, timeout: 30ms,
+      modules: [{{ type: dom16, number: 0, initial: 0 }}] }}
+)",
+                                         hub.link()),
+                             {"--log", "journal"}, no_environment);
+    // The port is in the journal, not on stderr.
+    const auto listening = wait_for_entry(socket, "Modbus TCP on");
+    std::smatch port;
+    ASSERT_TRUE(std::regex_search(listening.at("MESSAGE"), port, std::regex(R"(:(\d+),)")))
+        << gateway.stderr_text();
+    ASSERT_FALSE(wait_for_entry(socket, "dom16 0 online").empty());
+    ModbusClient client(static_cast<std::uint16_t>(std::stoi(port[1])), 7);
+    ASSERT_TRUE(client.connected());
+    sockaddr_in self{};
+    socklen_t length = sizeof self;
+    ::getsockname(modbus_get_socket(client.context()), reinterpret_cast<sockaddr*>(&self), &length);
+    const auto me = fmt::format("127.0.0.1:{}", ntohs(self.sin_port));
+
+    ASSERT_TRUE(client.write_register(0, 255));     // FC 06
+    ASSERT_TRUE(client.write_coils(0, {1, 0, 1}));  // FC 15
+    EXPECT_EQ(hub.ctl("get dom16:0"), "253\n");     // 0x00FF with output 1 off
+    hub.ctl("fault dom16:0 silent");
+    EXPECT_EQ(client.write_register(0, 0x0F0F).error(), 0x0B);  // no answer after the retries
+
+    // Every entry that comes, until a while after the third audit entry: a duplicate would show.
+    std::vector<Entry> audits;
+    auto deadline = Clock::now() + 5s;
+    while (Clock::now() < deadline) {
+        const auto datagram = socket.receive(deadline);
+        if (datagram.empty()) break;
+        auto entry = parse_entry(datagram);
+        if (entry.count("FUNCTION") == 0) continue;
+        audits.push_back(std::move(entry));
+        if (audits.size() == 3) deadline = std::min(deadline, Clock::now() + 500ms);
+    }
+    ASSERT_EQ(audits.size(), 3U);
+    const std::vector<std::array<std::string, 4>> expected{{"6", "0", "255", "confirmed"},
+                                                           {"15", "0", "1 0 1", "confirmed"},
+                                                           {"6", "0", "3855", "no_answer"}};
+    for (std::size_t i = 0; i < 3; ++i) {
+        auto& entry = audits[i];
+        SCOPED_TRACE(entry["MESSAGE"]);
+        EXPECT_EQ(entry["PRIORITY"], "5");
+        EXPECT_EQ(entry["CLIENT"], me);
+        EXPECT_EQ(entry["UNIT"], "7");
+        EXPECT_EQ(entry["LINK"], "hub0");
+        EXPECT_EQ(entry["FUNCTION"], expected[i][0]);
+        EXPECT_EQ(entry["ADDRESS"], expected[i][1]);
+        EXPECT_EQ(entry["VALUE"], expected[i][2]);
+        EXPECT_EQ(entry["RESULT"], expected[i][3]);
+        EXPECT_TRUE(std::regex_match(entry["LATENCY_US"], std::regex("[0-9]+")))
+            << entry["LATENCY_US"];
+        EXPECT_TRUE(entry["MESSAGE"].starts_with(fmt::format(
+            "write by {} to unit 7 (hub0): FC {:02} address {} values {}: {} in ", me,
+            std::stoi(expected[i][0]), expected[i][1], expected[i][2], expected[i][3])));
+    }
+    // No answer comes after two tries of 30 ms each at least.
+    EXPECT_GE(std::stoll(audits[2]["LATENCY_US"]), 60'000);
 }
 
 TEST(Journal, UnderSystemdStderrIsRecognisedAsTheJournalStream) {

@@ -56,6 +56,25 @@ GatewayProcess::GatewayProcess(const std::string& yaml, std::vector<std::string>
         return;
     }
     port_ = static_cast<std::uint16_t>(std::stoi(match[1]));
+    // The HTTP server starts after the Modbus one, before "ioportd 0.1.0 started: ..." (or the
+    // daemon exits if it cannot).
+    const std::regex started(R"(ioportd \S+ started: )");
+    if (!eventually([&] { return std::regex_search(log(), started) || !running(); }, 10s))
+        ADD_FAILURE() << "ioportd did not finish starting; its log:\n" << log();
+    http_port_ = announced_http_port();
+}
+
+std::uint16_t GatewayProcess::announced_http_port(std::size_t from) const {
+    static const std::regex announced(R"(HTTP on http://\[?[0-9a-f.:]+\]?:(\d+)/)");
+    const auto text = log();
+    if (from > text.size()) return 0;
+    std::uint16_t port = 0;
+    for (std::sregex_iterator
+             it(text.begin() + static_cast<std::ptrdiff_t>(from), text.end(), announced),
+         end;
+         it != end; ++it)
+        port = static_cast<std::uint16_t>(std::stoi((*it)[1]));
+    return port;
 }
 
 GatewayProcess::~GatewayProcess() {

@@ -30,6 +30,11 @@ class GatewayProcess {
     GatewayProcess& operator=(const GatewayProcess&) = delete;
 
     std::uint16_t port() const { return port_; }
+    // The HTTP port the daemon announced at start-up ("HTTP on http://127.0.0.1:PORT/ ..."); 0
+    // when it has none (no http section, or `listen: ""`).
+    std::uint16_t http_port() const { return http_port_; }
+    // The HTTP port of the last such line in the log from `from` on (after a SIGHUP), or 0.
+    std::uint16_t announced_http_port(std::size_t from = 0) const;
     pid_t pid() const { return pid_; }
     // The configuration file the daemon was started with; rewrite it before a SIGHUP.
     std::string config_path() const { return dir_ / "ioportd.yaml"; }
@@ -49,6 +54,7 @@ class GatewayProcess {
     std::string log_path_;
     pid_t pid_ = -1;
     std::uint16_t port_ = 0;
+    std::uint16_t http_port_ = 0;
 };
 
 // A libmodbus TCP client; every call returns the values or the Modbus exception code (1..11) /
