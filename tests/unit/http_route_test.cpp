@@ -2,7 +2,9 @@
 // writers, the request-duration histogram, the trend ring and the /proc parsers of the process
 // metrics (the boot time is no longer parsed: since 8bb9b30 it is the realtime clock less the
 // boot clock, /proc/stat being hidden by the unit's ProcSubset=pid).
+#include <array>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 #include <string>
 
@@ -285,6 +287,36 @@ TEST(Json, NumbersInTheirShortestForm) {
     // parsing it as a double gets the float's value back.
     EXPECT_EQ(json.take(),
               "[0.1,0.33333334,100,16777216,-1.5,0.1,0.3333333333333333,2,1e+21,1e-07]");
+}
+
+// Found by fuzz/http_route.cpp: fmt 9.1's "{}", as clang 14 compiles its header code, wrote a
+// subnormal double to one digit ("8e-309" for 7.6485216289552275e-309), which does not read back.
+// g++ builds were right; the writers now use std::to_chars, exact whatever the compiler.
+TEST(Json, SubnormalNumbersReadBackExactly) {
+    const std::array<double, 4> doubles{7.6485216289552275e-309, 5e-324, -2.225073858507201e-308,
+                                        std::numeric_limits<double>::denorm_min() * 3};
+    Json json;
+    json.begin_array();
+    for (const double d : doubles)
+        json.value(d);
+    json.value(1e-40f).value(std::numeric_limits<float>::denorm_min()).end_array();
+    const auto text = json.take();
+    EXPECT_EQ(text, "[7.64852162895523e-309,5e-324,-2.225073858507201e-308,1.5e-323,1e-40,1e-45]");
+    // And each reads back as itself.
+    const char* at = text.c_str() + 1;
+    for (const double d : doubles) {
+        char* end = nullptr;
+        EXPECT_EQ(std::strtod(at, &end), d);
+        at = end + 1;
+    }
+    char* end = nullptr;
+    EXPECT_EQ(std::strtof(at, &end), 1e-40f);
+}
+
+TEST(Exposition, SubnormalValuesReadBackExactly) {
+    Exposition e;
+    e.sample("m", {}, 7.6485216289552275e-309);
+    EXPECT_EQ(e.take(), "m 7.64852162895523e-309\n");
 }
 
 // --- Histogram -------------------------------------------------------------------------------
