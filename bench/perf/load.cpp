@@ -98,6 +98,12 @@ LoadResult run_load(const LoadSpec& spec) {
     from = Clock::now() + spec.warmup;
     to = from + spec.window;
     go.count_down();
+    std::thread beside;
+    if (spec.beside)
+        beside = std::thread([&] {
+            std::this_thread::sleep_until(from);
+            spec.beside(to);
+        });
     std::this_thread::sleep_until(from);
     const auto cpu_before = cpu_time(spec.server);
     if (spec.midway) {
@@ -108,6 +114,7 @@ LoadResult run_load(const LoadSpec& spec) {
     const auto cpu_after = cpu_time(spec.server);
     for (auto& thread : threads)
         thread.join();
+    if (beside.joinable()) beside.join();
     result.seconds = seconds(to - from);
     result.server_cpu = cpu_after - cpu_before;
     for (auto& mine : results) {

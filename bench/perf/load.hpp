@@ -28,6 +28,9 @@ struct LoadSpec {
     std::chrono::milliseconds window = 3s;
     // Called once in the middle of the window (to sample a server's memory, say).
     std::function<void()> midway;
+    // Run on a thread of its own from the window's start; it should return by `to`, the window's
+    // end (the HTTP scrapers of benchmark 6, beside the Modbus load).
+    std::function<void(Clock::time_point to)> beside;
 };
 
 struct LoadResult {
