@@ -18,9 +18,11 @@
 #include <fstream>
 #include <memory>
 #include <random>
+#include <ranges>
 #include <sstream>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "bench/perf/benchmarks.hpp"
 #include "bench/perf/load.hpp"
@@ -249,7 +251,7 @@ struct Side {
 
 std::vector<Verdict> beside_modbus(const Environment& env) {
     constexpr int connections = 64;
-    const int rounds = env.quick ? 1 : 6;
+    const int rounds = env.quick ? 1 : 7;  // odd: the median of the rounds' ratios is one of them
     const auto window = env.window(3s);
     fmt::print(
         "\n### 6a. Modbus at {} connections, with and without scrapers ({} rounds of {} ms each, "
@@ -274,7 +276,15 @@ std::vector<Verdict> beside_modbus(const Environment& env) {
     ScrapeLog scrapes;
     Side quiet, scraped;
     std::vector<bool> order{false, true};  // scraped?
+    // Each round on its own too: on this shared guest a disturbance from outside shows as one
+    // round out of line, which the totals alone would hide. The verdicts take the median of
+    // the rounds' ratios (scraped ÷ not, the two run back to back), which one such round cannot
+    // move, besides the ratio of the totals that benchmark 4 uses.
+    std::vector<double> cpu_ratios, p99_ratios;
+    const Table rounds_table({"round", "scrapers", "req/s", "p99 µs", "server CPU µs/req",
+                              "errors (of which exceptions)", "scrapes"});
     for (int round = 0; round < rounds; ++round) {
+        std::array<double, 2> cpu_us{}, p99_us{};  // [scraped?]
         for (const bool with_scrapers : order) {
             LoadSpec spec{gateway.port(),
                           gateway.pid(),
@@ -285,15 +295,31 @@ std::vector<Verdict> beside_modbus(const Environment& env) {
                           window,
                           {},
                           {}};
+            const int scrapes_before = scrapes.metrics + scrapes.state + scrapes.trends;
             if (with_scrapers)
                 spec.beside = [&](Clock::time_point to) { scrapers.run(to, scrapes); };
-            (with_scrapers ? scraped : quiet).add(run_load(spec));
+            auto result = run_load(spec);
+            const auto latency =
+                summarize(std::vector<double>(result.latency_us.begin(), result.latency_us.end()));
+            rounds_table.row({fmt::format("{}", round + 1), with_scrapers ? "yes" : "no",
+                              fmt::format("{:.0f}", result.per_second()),
+                              fmt::format("{:.0f}", latency.p99),
+                              fmt::format("{:.2f}", result.cpu_us_per_request()),
+                              fmt::format("{} ({})", result.errors, result.exceptions),
+                              fmt::format("{}", scrapes.metrics + scrapes.state + scrapes.trends -
+                                                    scrapes_before)});
+            cpu_us[with_scrapers] = result.cpu_us_per_request();
+            p99_us[with_scrapers] = latency.p99;
+            (with_scrapers ? scraped : quiet).add(std::move(result));
         }
+        cpu_ratios.push_back(cpu_us[1] / cpu_us[0]);
+        p99_ratios.push_back(p99_us[1] / p99_us[0]);
         std::rotate(order.begin(), order.begin() + 1, order.end());
     }
     quiet.summarize_latency();
     scraped.summarize_latency();
 
+    fmt::print("\nAll rounds together:\n");
     Table table({"rounds", "req/s", "p50 µs", "p99 µs", "p99.9 µs", "server CPU µs/req",
                  "server CPU", "errors"});
     const auto print = [&](std::string_view name, const Side& side) {
@@ -314,6 +340,19 @@ std::vector<Verdict> beside_modbus(const Environment& env) {
                fmt::format("**{:.3f}**", p99),
                fmt::format("{:.2f}", scraped.latency.p999 / quiet.latency.p999),
                fmt::format("**{:.3f}**", cpu), "", ""});
+    const double cpu_median = summarize(cpu_ratios).p50;
+    const double p99_median = summarize(p99_ratios).p50;
+    fmt::print(
+        "\nRounds' ratios, scraped ÷ not: CPU per request {}, median **{:.3f}**; p99 {}, median "
+        "**{:.3f}**.\n",
+        fmt::join(
+            cpu_ratios | std::views::transform([](double r) { return fmt::format("{:.3f}", r); }),
+            " "),
+        cpu_median,
+        fmt::join(
+            p99_ratios | std::views::transform([](double r) { return fmt::format("{:.3f}", r); }),
+            " "),
+        p99_median);
     const auto http = summarize(scrapes.latency_us);
     fmt::print(
         "\nIn the scraped rounds: {} × /metrics ({}), {} × /api/v1/state ({}), {} × "
@@ -326,19 +365,20 @@ std::vector<Verdict> beside_modbus(const Environment& env) {
                     scraped.load->errors == 0 && scrapes.failed == 0 && scrapes.metrics > 0 &&
                     scrapes.state > 0 && scrapes.trends > 0;
     machine_line(fmt::format(
-        R"({{"bench":"http_beside_modbus","connections":{},"quiet_rps":{:.0f},"scraped_rps":{:.0f},"quiet_cpu_us":{:.3f},"scraped_cpu_us":{:.3f},"cpu_ratio":{:.3f},"quiet_p99_us":{:.0f},"scraped_p99_us":{:.0f},"p99_ratio":{:.3f},"metrics":{},"state":{},"trends":{},"http_failed":{},"modbus_errors":{}}})",
+        R"({{"bench":"http_beside_modbus","connections":{},"quiet_rps":{:.0f},"scraped_rps":{:.0f},"quiet_cpu_us":{:.3f},"scraped_cpu_us":{:.3f},"cpu_ratio":{:.3f},"quiet_p99_us":{:.0f},"scraped_p99_us":{:.0f},"p99_ratio":{:.3f},"cpu_ratio_median":{:.3f},"p99_ratio_median":{:.3f},"metrics":{},"state":{},"trends":{},"http_failed":{},"modbus_errors":{}}})",
         connections, quiet.load->per_second(), scraped.load->per_second(),
         quiet.load->cpu_us_per_request(), scraped.load->cpu_us_per_request(), cpu,
-        quiet.latency.p99, scraped.latency.p99, p99, scrapes.metrics, scrapes.state, scrapes.trends,
-        scrapes.failed, quiet.load->errors + scraped.load->errors));
-    return {
-        {"6a. CPU/request, 64 conn., scraped ÷ not",
-         fmt::format("{:.2f} vs {:.2f} µs = {:.3f}×", scraped.load->cpu_us_per_request(),
-                     quiet.load->cpu_us_per_request(), cpu),
-         "<= 1.05×", ok && cpu <= 1.05},
-        {"6a. p99 latency, 64 conn., scraped ÷ not",
-         fmt::format("{:.0f} vs {:.0f} µs = {:.3f}×", scraped.latency.p99, quiet.latency.p99, p99),
-         "<= 1.05×", ok && p99 <= 1.05}};
+        quiet.latency.p99, scraped.latency.p99, p99, cpu_median, p99_median, scrapes.metrics,
+        scrapes.state, scrapes.trends, scrapes.failed, quiet.load->errors + scraped.load->errors));
+    return {{"6a. CPU/request, 64 conn., scraped ÷ not",
+             fmt::format("median of {} rounds {:.3f}× (all rounds: {:.2f} vs {:.2f} µs = {:.3f}×)",
+                         rounds, cpu_median, scraped.load->cpu_us_per_request(),
+                         quiet.load->cpu_us_per_request(), cpu),
+             "<= 1.05×", ok && cpu_median <= 1.05},
+            {"6a. p99 latency, 64 conn., scraped ÷ not",
+             fmt::format("median of {} rounds {:.3f}× (all rounds: {:.0f} vs {:.0f} µs = {:.3f}×)",
+                         rounds, p99_median, scraped.latency.p99, quiet.latency.p99, p99),
+             "<= 1.05×", ok && p99_median <= 1.05}};
 }
 
 // --- b and c. Eight links of 72 modules -----------------------------------------------------

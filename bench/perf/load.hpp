@@ -35,8 +35,9 @@ struct LoadSpec {
 
 struct LoadResult {
     bool connected = false;
-    std::uint64_t requests = 0;  // answered normally within the window
-    std::uint64_t errors = 0;    // exceptions and transport failures within the window
+    std::uint64_t requests = 0;    // answered normally within the window
+    std::uint64_t errors = 0;      // exceptions and transport failures within the window
+    std::uint64_t exceptions = 0;  // of which Modbus exception responses
     double seconds = 0;
     std::chrono::nanoseconds server_cpu{};
     std::vector<float> latency_us;
