@@ -18,11 +18,9 @@
 #include <fstream>
 #include <memory>
 #include <random>
-#include <ranges>
 #include <sstream>
 
 #include <fmt/format.h>
-#include <fmt/ranges.h>
 
 #include "bench/perf/benchmarks.hpp"
 #include "bench/perf/load.hpp"
@@ -131,7 +129,7 @@ class HttpClient {
     }
 
     bool receive(std::string& into) {
-        std::array<char, 64 * 1024> buffer;
+        std::array<char, std::size_t{64} * 1024> buffer;
         const auto n = ::recv(fd_, buffer.data(), buffer.size(), 0);
         if (n <= 0) return false;
         into.append(buffer.data(), static_cast<std::size_t>(n));
@@ -342,17 +340,16 @@ std::vector<Verdict> beside_modbus(const Environment& env) {
                fmt::format("**{:.3f}**", cpu), "", ""});
     const double cpu_median = summarize(cpu_ratios).p50;
     const double p99_median = summarize(p99_ratios).p50;
+    const auto listed = [](const std::vector<double>& ratios) {
+        std::string text;
+        for (const double r : ratios)
+            text += fmt::format("{}{:.3f}", text.empty() ? "" : " ", r);
+        return text;
+    };
     fmt::print(
         "\nRounds' ratios, scraped ÷ not: CPU per request {}, median **{:.3f}**; p99 {}, median "
         "**{:.3f}**.\n",
-        fmt::join(
-            cpu_ratios | std::views::transform([](double r) { return fmt::format("{:.3f}", r); }),
-            " "),
-        cpu_median,
-        fmt::join(
-            p99_ratios | std::views::transform([](double r) { return fmt::format("{:.3f}", r); }),
-            " "),
-        p99_median);
+        listed(cpu_ratios), cpu_median, listed(p99_ratios), p99_median);
     const auto http = summarize(scrapes.latency_us);
     fmt::print(
         "\nIn the scraped rounds: {} × /metrics ({}), {} × /api/v1/state ({}), {} × "
@@ -393,7 +390,7 @@ class ValueChanger {
   public:
     ValueChanger(const std::vector<std::string>& control_sockets,
                  const std::vector<ModuleAddress>& modules)
-        : thread_([this, control_sockets, modules](std::stop_token stop) {
+        : thread_([this, control_sockets, modules](const std::stop_token& stop) {
               std::vector<std::unique_ptr<sim::ControlClient>> clients;
               for (const auto& socket : control_sockets) {
                   clients.push_back(std::make_unique<sim::ControlClient>());

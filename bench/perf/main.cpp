@@ -114,7 +114,7 @@ int main(int argc, char** argv) {
     {
         std::optional<WakeupLatencyHold> latency;
         if (hold && !env.quick) latency.emplace();
-        fmt::print("\nBenchmarks 1-4 and 6a {}.\n",
+        fmt::print("\nBenchmarks 1-4 and 6 {}.\n",
                    !latency ? "with idle CPUs free to halt"
                    : latency->failure().empty()
                        ? "with idle CPUs polling (/dev/cpu_dma_latency held at 0)"

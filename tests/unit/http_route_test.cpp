@@ -368,24 +368,25 @@ TEST(Trend, ReadingsOfOneIntervalShareItsPointTheLastOneWins) {
 TEST(Trend, AfterWrappingKeepsTheNewest120InOrder) {
     Trend trend;
     const std::int64_t t0 = 1'700'000'000;
+    constexpr std::int64_t step = 5;  // Trend::interval, in seconds
     constexpr int added = 2 * static_cast<int>(Trend::capacity) + 7;
     for (int i = 0; i < added; ++i) {
         const auto word = static_cast<std::uint16_t>(i);
-        trend.add(unix_seconds(t0 + 5 * i), {word, 0, 0});
-        trend.add(unix_seconds(t0 + 5 * i + 3), {word, 1, 0});  // same interval: overwrites
+        trend.add(unix_seconds(t0 + step * i), {word, 0, 0});
+        trend.add(unix_seconds(t0 + step * i + 3), {word, 1, 0});  // same interval: overwrites
     }
     ASSERT_EQ(trend.size(), Trend::capacity);
     for (std::size_t i = 0; i < Trend::capacity; ++i) {
         const auto n = static_cast<int>(added - Trend::capacity + i);
-        ASSERT_EQ(trend[i].time, t0 + 5 * n) << i;
+        ASSERT_EQ(trend[i].time, t0 + step * n) << i;
         ASSERT_EQ(trend[i].raw, (std::array<std::uint16_t, 3>{static_cast<std::uint16_t>(n), 1, 0}))
             << i;
     }
     // The newest point still takes its interval's later readings after the wrap.
-    trend.add(unix_seconds(t0 + 5 * (added - 1) + 4), {9, 9, 9});
+    trend.add(unix_seconds(t0 + step * (added - 1) + 4), {9, 9, 9});
     EXPECT_EQ(trend.size(), Trend::capacity);
     EXPECT_EQ(trend[Trend::capacity - 1].raw, (std::array<std::uint16_t, 3>{9, 9, 9}));
-    EXPECT_EQ(trend[0].time, t0 + 5 * (added - static_cast<int>(Trend::capacity)));
+    EXPECT_EQ(trend[0].time, t0 + step * (added - static_cast<int>(Trend::capacity)));
 }
 
 // --- process_stats ---------------------------------------------------------------------------
