@@ -3,8 +3,9 @@
 
 The seeds are the wire examples of the shared spec (protocol.md §1 and §2, the seed documents'
 known typos included), the YAML example of gateway.md §1 and the repository's example
-configurations, and Modbus requests against the map of gateway.md §2 (the README's mbpoll
-examples among them). Run it again after changing it; the files it writes are committed.
+configurations, Modbus requests against the map of gateway.md §2 (the README's mbpoll
+examples among them), and request lines of the HTTP side's pages (gateway.md §5.4) with the
+label values and strings its writers escape. Run it again after changing it; the files it writes are committed.
 Everything else in the corpus directories was found by libFuzzer (fuzz/run merges it in).
 """
 
@@ -275,3 +276,37 @@ modbus("identification-read-only-comm-loss", [
     adu(122, 1, read_write(0, 1, 0, [1])),  # 01: read_only
     adu(123, 1, read(0x04, 1010, 11)),      # 1020 reads 0
 ], scenario=bytes([0b1101001, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0, 0, 0, 0, 0]))
+
+# --- http_route: a request line "METHOD TARGET", a LF, then the bytes the writers escape and the
+# JSON document's operations (fuzz/http_route.cpp) -----------------------------------------------
+
+def http(name, method, target, rest=b""):
+    write("http_route", name, method + b" " + target + b"\n" + rest)
+
+
+for page in [b"/", b"/api/v1/state", b"/api/v1/trends", b"/metrics", b"/healthz", b"/map"]:
+    label = page.strip(b"/").replace(b"/", b"-") or b"status"
+    http(f"get-{label.decode()}", b"GET", page)
+    http(f"head-{label.decode()}", b"HEAD", page)
+http("post-metrics", b"POST", b"/metrics")
+http("put-map", b"PUT", b"/map?format=csv")
+http("unknown-trailing-slash", b"GET", b"/metrics/")
+http("absolute-form", b"GET", b"http://127.0.0.1:8502/metrics")
+http("asterisk", b"OPTIONS", b"*")
+http("empty-target", b"GET", b"")
+http("map-csv", b"GET", b"/map?format=csv")
+http("map-md-escaped", b"GET", b"/map?form%61t=m%64&format=html")
+http("map-html-plus", b"HEAD", b"/map?x=a+b&format=html")
+http("map-bad", b"GET", b"/map?format=pdf")
+http("map-malformed-escape", b"GET", b"/map?format=%zz")
+http("map-truncated-escape", b"GET", b"/map?format=csv%2")
+# The status page's own requests, with a name to look up and a label with every escape.
+http("state-query-name", b"GET", b"/api/v1/state?link=hub%200&link=hub1",
+     b"link\nhub0 \"dim16 0\" \\ \x00\x01\x1f\x7f caf\xc3\xa9 \xff")
+# Every JSON operation once (low 3 bits): object, array, close, string, double, float, integer,
+# bool; then NaN and infinity as a double and a float.
+http("json-operations", b"GET", b"/metrics",
+     b"x\n" + bytes([0, 0x41, 0x42, 1, 3 | (3 << 3)]) + b"a\"\\" + bytes([4]) + b"\x9a\x99\x99\x99\x99\x99\xb9\x3f"
+     + bytes([5]) + b"\xcd\xcc\xcc\x3d" + bytes([6 | 8]) + b"\xff" * 8 + bytes([6]) + b"\xff" * 8
+     + bytes([7, 7 | 8, 7 | 16, 2, 2])
+     + bytes([4]) + b"\x00\x00\x00\x00\x00\x00\xf8\x7f" + bytes([5]) + b"\x00\x00\x80\x7f")

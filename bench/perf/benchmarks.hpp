@@ -1,5 +1,5 @@
-// The five benchmarks of issue 6 (bench/README.md). Each prints its tables and one
-// machine-readable line per figure, and returns its figures against their targets.
+// The benchmarks of issue 6, and of issue 16's HTTP side (bench/README.md). Each prints its tables
+// and one machine-readable line per figure, and returns its figures against their targets.
 #pragma once
 
 #include <vector>
@@ -18,5 +18,8 @@ std::vector<Verdict> write_latency(const Environment& env);
 std::vector<Verdict> modbus_throughput(const Environment& env);
 // 5. Peak memory with 8 links and 256 clients; CPU while polling with no clients.
 std::vector<Verdict> footprint(const Environment& env);
+// 6. The HTTP side: its cost to Modbus while scraped, one scrape's CPU with 8 links, the memory
+// of the trend rings.
+std::vector<Verdict> http_cost(const Environment& env);
 
 }  // namespace ioport::bench

@@ -124,9 +124,15 @@ std::vector<Verdict> footprint(const Environment& env) {
                fmt::format("{:.1f}", polling.cpu_us_per_tx),
                fmt::format("{:.0f}", polling.tx_per_second)});
     Memory during;
-    const auto load =
-        run_load({gateway.port(), gateway.pid(), 256, Mix::mixed, 8, env.quick ? 100ms : 500ms,
-                  env.window(4s), [&] { during = memory(gateway.pid()); }});
+    const auto load = run_load({gateway.port(),
+                                gateway.pid(),
+                                256,
+                                Mix::mixed,
+                                8,
+                                env.quick ? 100ms : 500ms,
+                                env.window(4s),
+                                [&] { during = memory(gateway.pid()); },
+                                {}});
     const auto after = memory(gateway.pid());
     table.row({fmt::format("8 links × 72 modules, 256 clients ({:.0f} req/s, 1 in 16 writing)",
                            load.per_second()),

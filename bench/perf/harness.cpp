@@ -242,9 +242,11 @@ std::chrono::nanoseconds wire_time(std::size_t bytes, int baud) {
     return std::chrono::nanoseconds(static_cast<std::int64_t>(bytes) * 10 * 1'000'000'000LL / baud);
 }
 
-std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections) {
-    std::string yaml = fmt::format(
-        "modbus:\n  listen: \"127.0.0.1:0\"\n  max_connections: {}\nlinks:\n", max_connections);
+std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections, bool http) {
+    std::string yaml =
+        fmt::format("modbus:\n  listen: \"127.0.0.1:0\"\n  max_connections: {}\n", max_connections);
+    if (http) yaml += "http:\n  listen: \"127.0.0.1:0\"\n";
+    yaml += "links:\n";
     for (std::size_t i = 0; i < links.size(); ++i) {
         yaml += fmt::format(
             "  - name: hub{}\n    protocol: ioport\n    device: {}\n    baud: {}\n"
@@ -307,6 +309,17 @@ Gateway::Gateway(const Environment& env, const TempDir& dir, const std::string& 
         },
         10s);
     if (port_ == 0) fmt::print(stderr, "ioportd did not start; its log:\n{}\n", process_.output());
+}
+
+std::uint16_t Gateway::http_port() const {
+    std::uint16_t port = 0;
+    wait_for(
+        [&] {
+            port = port_after(process_.output(), "HTTP on http://127.0.0.1:").value_or(0);
+            return port != 0 || !process_.running();
+        },
+        5s);
+    return port;
 }
 
 bool Gateway::wait_until_polling(int units, std::chrono::milliseconds deadline) const {

@@ -50,6 +50,9 @@ struct Environment {
     bool quick = false;  // a smoke run: every phase a fraction of a second, figures meaningless
     // Scales the measured windows of a full run.
     double scale = 1.0;
+    // Benchmark 6 waits the ten minutes it takes every trend ring to fill, and measures the
+    // memory then, rather than only computing it.
+    bool fill_trends = false;
     std::chrono::milliseconds window(std::chrono::milliseconds full) const;
 };
 
@@ -136,7 +139,9 @@ struct LinkSpec {
     int baud = 115200;
     std::vector<ModuleAddress> modules;
 };
-std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections = 32);
+// `http`: the HTTP side on as well (gateway.md §5.4), on a port of its own choosing.
+std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections = 32,
+                         bool http = false);
 
 // --- Modbus ---------------------------------------------------------------------------------
 
@@ -177,6 +182,8 @@ class Gateway {
   public:
     Gateway(const Environment& env, const TempDir& dir, const std::string& yaml);
     std::uint16_t port() const { return port_; }
+    // The HTTP side's port, from the log (0: not started, or no http: section).
+    std::uint16_t http_port() const;
     pid_t pid() const { return process_.pid(); }
     bool started() const { return port_ != 0; }
     std::string log() const { return process_.output(); }

@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <array>
+#include <cerrno>
 #include <latch>
 #include <memory>
 
@@ -15,6 +16,7 @@ namespace {
 struct ThreadResult {
     std::uint64_t requests = 0;
     std::uint64_t errors = 0;
+    std::uint64_t exceptions = 0;
     std::vector<float> latency_us;
 };
 
@@ -47,6 +49,7 @@ void LoadResult::add(LoadResult other) {
     connected = connected && other.connected;
     requests += other.requests;
     errors += other.errors;
+    exceptions += other.exceptions;
     seconds += other.seconds;
     server_cpu += other.server_cpu;
     latency_us.insert(latency_us.end(), other.latency_us.begin(), other.latency_us.end());
@@ -88,6 +91,7 @@ LoadResult run_load(const LoadSpec& spec) {
                 if (answered < from) continue;
                 if (!ok) {
                     ++mine.errors;
+                    if (errno > MODBUS_ENOBASE) ++mine.exceptions;
                     continue;
                 }
                 ++mine.requests;
@@ -98,6 +102,12 @@ LoadResult run_load(const LoadSpec& spec) {
     from = Clock::now() + spec.warmup;
     to = from + spec.window;
     go.count_down();
+    std::thread beside;
+    if (spec.beside)
+        beside = std::thread([&] {
+            std::this_thread::sleep_until(from);
+            spec.beside(to);
+        });
     std::this_thread::sleep_until(from);
     const auto cpu_before = cpu_time(spec.server);
     if (spec.midway) {
@@ -108,11 +118,13 @@ LoadResult run_load(const LoadSpec& spec) {
     const auto cpu_after = cpu_time(spec.server);
     for (auto& thread : threads)
         thread.join();
+    if (beside.joinable()) beside.join();
     result.seconds = seconds(to - from);
     result.server_cpu = cpu_after - cpu_before;
     for (auto& mine : results) {
         result.requests += mine.requests;
         result.errors += mine.errors;
+        result.exceptions += mine.exceptions;
         result.latency_us.insert(result.latency_us.end(), mine.latency_us.begin(),
                                  mine.latency_us.end());
     }

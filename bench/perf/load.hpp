@@ -28,12 +28,16 @@ struct LoadSpec {
     std::chrono::milliseconds window = 3s;
     // Called once in the middle of the window (to sample a server's memory, say).
     std::function<void()> midway;
+    // Run on a thread of its own from the window's start; it should return by `to`, the window's
+    // end (the HTTP scrapers of benchmark 6, beside the Modbus load).
+    std::function<void(Clock::time_point to)> beside;
 };
 
 struct LoadResult {
     bool connected = false;
-    std::uint64_t requests = 0;  // answered normally within the window
-    std::uint64_t errors = 0;    // exceptions and transport failures within the window
+    std::uint64_t requests = 0;    // answered normally within the window
+    std::uint64_t errors = 0;      // exceptions and transport failures within the window
+    std::uint64_t exceptions = 0;  // of which Modbus exception responses
     double seconds = 0;
     std::chrono::nanoseconds server_cpu{};
     std::vector<float> latency_us;

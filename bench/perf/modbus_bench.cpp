@@ -82,7 +82,7 @@ std::vector<Verdict> modbus_throughput(const Environment& env) {
                          : server == on_ioportd_server ? gateway.pid()
                                                        : baseline->pid();
         return run_load(
-            {port, pid, connections, mix, 1, env.quick ? 100ms : 500ms, env.window(3s), {}});
+            {port, pid, connections, mix, 1, env.quick ? 100ms : 500ms, env.window(3s), {}, {}});
     };
     const auto run = [&](int connections, Mix mix, bool ioportd) {
         return run_on(connections, mix, ioportd ? on_ioportd_server : on_plain_server);

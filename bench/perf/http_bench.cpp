@@ -1,0 +1,652 @@
+// Benchmark 6, the HTTP side's cost (issue 16, gateway.md §5.4):
+// a. the Modbus load of benchmark 4 at 64 connections, in alternating rounds with and without a
+//    Prometheus scrape of /metrics every second, a browser's GET /api/v1/state every second and
+//    /api/v1/trends every 5 s, on the same ioportd with its HTTP side on in both;
+// b. ioportd's CPU time per scrape of /metrics, /api/v1/state and /api/v1/trends with 8 links of
+//    72 modules, and the responses' sizes;
+// c. its memory there with every analog module's trend ring, measured after start-up and, as the
+//    rings take 10 minutes to fill, computed for full rings (or measured, with --fill-trends).
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cstring>
+#include <fstream>
+#include <memory>
+#include <random>
+#include <sstream>
+
+#include <fmt/format.h>
+
+#include "bench/perf/benchmarks.hpp"
+#include "bench/perf/load.hpp"
+#include "daemon/trend.hpp"
+#include "sim/control_client.hpp"
+
+namespace ioport::bench {
+namespace {
+
+// What a Prometheus server and a browser send (Prometheus 2.x; Firefox fetching the JSON the
+// status page polls).
+constexpr std::string_view prometheus_headers =
+    "User-Agent: Prometheus/2.45.0\r\n"
+    "Accept: application/openmetrics-text;version=1.0.0;q=0.75,text/plain;version=0.0.4;q=0.5,"
+    "*/*;q=0.1\r\n"
+    "Accept-Encoding: gzip\r\n"
+    "X-Prometheus-Scrape-Timeout-Seconds: 10\r\n";
+constexpr std::string_view browser_headers =
+    "User-Agent: Mozilla/5.0 (X11; Linux x86_64; rv:128.0) Gecko/20100101 Firefox/128.0\r\n"
+    "Accept: */*\r\n"
+    "Accept-Language: en-GB,en;q=0.5\r\n"
+    "Accept-Encoding: gzip, deflate, br, zstd\r\n"
+    "Referer: http://127.0.0.1:8502/\r\n"
+    "Connection: keep-alive\r\n"
+    "Sec-Fetch-Dest: empty\r\n"
+    "Sec-Fetch-Mode: cors\r\n"
+    "Sec-Fetch-Site: same-origin\r\n"
+    "Priority: u=4\r\n";
+
+struct HttpReply {
+    unsigned status = 0;
+    std::string body;
+    Clock::duration took{};
+};
+
+// A blocking HTTP/1.1 client on one kept-alive connection, as a scraper or a page uses it; it
+// reconnects once when the server closed the connection in between.
+class HttpClient {
+  public:
+    HttpClient(std::uint16_t port, std::string_view headers) : port_(port), headers_(headers) {}
+    ~HttpClient() { close(); }
+    HttpClient(const HttpClient&) = delete;
+    HttpClient& operator=(const HttpClient&) = delete;
+
+    std::optional<HttpReply> get(std::string_view path) {
+        const auto start = Clock::now();
+        for (int attempt = 0; attempt < 2; ++attempt) {
+            if (fd_ < 0 && !connect()) return std::nullopt;
+            if (auto reply = exchange(path)) {
+                reply->took = Clock::now() - start;
+                return reply;
+            }
+            close();
+        }
+        return std::nullopt;
+    }
+
+  private:
+    bool connect() {
+        fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+        if (fd_ < 0) return false;
+        sockaddr_in address{};
+        address.sin_family = AF_INET;
+        address.sin_port = htons(port_);
+        address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+        const int one = 1;
+        ::setsockopt(fd_, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+        const timeval timeout{5, 0};
+        ::setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &timeout, sizeof timeout);
+        if (::connect(fd_, reinterpret_cast<const sockaddr*>(&address), sizeof address) != 0) {
+            close();
+            return false;
+        }
+        return true;
+    }
+    void close() {
+        if (fd_ >= 0) ::close(fd_);
+        fd_ = -1;
+    }
+
+    std::optional<HttpReply> exchange(std::string_view path) {
+        const auto request =
+            fmt::format("GET {} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\n{}\r\n", path, port_, headers_);
+        if (::send(fd_, request.data(), request.size(), MSG_NOSIGNAL) !=
+            static_cast<ssize_t>(request.size()))
+            return std::nullopt;
+        std::string received;
+        std::size_t header_end = std::string::npos;
+        while ((header_end = received.find("\r\n\r\n")) == std::string::npos)
+            if (!receive(received)) return std::nullopt;
+        HttpReply reply;
+        if (received.size() < 12 || !received.starts_with("HTTP/1.1 ")) return std::nullopt;
+        reply.status = static_cast<unsigned>(std::atoi(received.c_str() + 9));
+        std::string header = received.substr(0, header_end);
+        std::transform(header.begin(), header.end(), header.begin(),
+                       [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+        const auto length_at = header.find("\r\ncontent-length:");
+        if (length_at == std::string::npos) return std::nullopt;
+        const auto length = static_cast<std::size_t>(std::atoll(header.c_str() + length_at + 17));
+        const auto body_start = header_end + 4;
+        while (received.size() < body_start + length)
+            if (!receive(received)) return std::nullopt;
+        reply.body = received.substr(body_start, length);
+        if (header.find("\r\nconnection: close") != std::string::npos) close();
+        return reply;
+    }
+
+    bool receive(std::string& into) {
+        std::array<char, std::size_t{64} * 1024> buffer;
+        const auto n = ::recv(fd_, buffer.data(), buffer.size(), 0);
+        if (n <= 0) return false;
+        into.append(buffer.data(), static_cast<std::size_t>(n));
+        return true;
+    }
+
+    std::uint16_t port_;
+    std::string headers_;
+    int fd_ = -1;
+};
+
+// utime + stime of a process from /proc/PID/stat, in clock ticks (10 ms here): the coarse
+// figure `top` and process_cpu_seconds_total use, as a check on the schedstat figures.
+std::chrono::nanoseconds stat_cpu_time(pid_t pid) {
+    std::ifstream in(fmt::format("/proc/{}/stat", pid));
+    std::stringstream text;
+    text << in.rdbuf();
+    const auto stat = text.str();
+    const auto close = stat.rfind(')');
+    if (close == std::string::npos) return {};
+    std::istringstream fields(stat.substr(close + 2));
+    std::string field;
+    long long ticks = 0;
+    for (int i = 3; i <= 15 && fields >> field; ++i)
+        if (i >= 14) ticks += std::stoll(field);
+    return std::chrono::nanoseconds(ticks * 1'000'000'000LL / ::sysconf(_SC_CLK_TCK));
+}
+
+double mib(std::size_t kib) {
+    return static_cast<double>(kib) / 1024.0;
+}
+
+std::string kib_text(std::size_t bytes) {
+    return fmt::format("{:.1f} KiB", static_cast<double>(bytes) / 1024.0);
+}
+
+// --- a. Modbus beside the scrapers ------------------------------------------------------------
+
+struct ScrapeLog {
+    int metrics = 0, state = 0, trends = 0;
+    int failed = 0;  // no answer, or not 200
+    std::size_t metrics_bytes = 0, state_bytes = 0, trends_bytes = 0;
+    std::vector<double> latency_us;
+};
+
+// The scrapers of a: /metrics every second, /api/v1/state every second (half a second later) and
+// /api/v1/trends every 5 s, on the clock of the scraped rounds alone, so that over the rounds
+// each comes as often as in a steady deployment even though the rounds are 3 s long.
+class Scrapers {
+  public:
+    Scrapers(std::uint16_t port, bool quick)
+        : prometheus_(port, prometheus_headers),
+          browser_(port, browser_headers),
+          // A smoke run's rounds are too short for the phases: all three at once.
+          state_phase_(quick ? 0.0 : 0.5),
+          trends_phase_(quick ? 0.0 : 0.25) {}
+
+    void run(Clock::time_point to, ScrapeLog& log) {
+        const auto start = Clock::now();
+        const auto at = [&](double t) {
+            return start + std::chrono::duration_cast<Clock::duration>(
+                               std::chrono::duration<double>(t - elapsed_));
+        };
+        for (;;) {
+            const double next = std::min({metrics_next_, state_next_, trends_next_});
+            if (at(next) >= to) break;
+            std::this_thread::sleep_until(at(next));
+            if (next == metrics_next_) {
+                fetch(prometheus_, "/metrics", log, log.metrics, log.metrics_bytes);
+                metrics_next_ += 1.0;
+            } else if (next == state_next_) {
+                fetch(browser_, "/api/v1/state", log, log.state, log.state_bytes);
+                state_next_ += 1.0;
+            } else {
+                fetch(browser_, "/api/v1/trends", log, log.trends, log.trends_bytes);
+                trends_next_ += 5.0;
+            }
+        }
+        elapsed_ += seconds(to - start);
+    }
+
+  private:
+    static void fetch(HttpClient& client, std::string_view path, ScrapeLog& log, int& count,
+                      std::size_t& bytes) {
+        const auto reply = client.get(path);
+        if (!reply || reply->status != 200) {
+            ++log.failed;
+            return;
+        }
+        ++count;
+        bytes = reply->body.size();
+        log.latency_us.push_back(microseconds(reply->took));
+    }
+
+    HttpClient prometheus_;
+    HttpClient browser_;
+    double state_phase_, trends_phase_;
+    double elapsed_ = 0;  // seconds of scraped rounds so far
+    double metrics_next_ = 0, state_next_ = state_phase_, trends_next_ = trends_phase_;
+};
+
+struct Side {
+    std::optional<LoadResult> load;
+    Summary latency;
+    void add(LoadResult result) {
+        if (load)
+            load->add(std::move(result));
+        else
+            load = std::move(result);
+    }
+    void summarize_latency() {
+        std::vector<double> values(load->latency_us.begin(), load->latency_us.end());
+        load->latency_us.clear();
+        latency = summarize(std::move(values));
+    }
+};
+
+std::vector<Verdict> beside_modbus(const Environment& env) {
+    constexpr int connections = 64;
+    const int rounds = env.quick ? 1 : 7;  // odd: the median of the rounds' ratios is one of them
+    const auto window = env.window(3s);
+    fmt::print(
+        "\n### 6a. Modbus at {} connections, with and without scrapers ({} rounds of {} ms each, "
+        "alternating)\n\nThe reads of benchmark 4 against ioportd polling a full bus and dom16 "
+        "0–7 at 115200 baud, its HTTP side on in both. Scraped rounds: GET /metrics every "
+        "second (Prometheus' headers), GET /api/v1/state every second and /api/v1/trends every "
+        "5 s (a browser's headers), each on a kept-alive connection; the 5 s counts scraped "
+        "rounds' time only. Server CPU per request counts everything ioportd did in the window, "
+        "the scrapes included.\n",
+        connections, rounds, window.count());
+    TempDir dir;
+    auto modules = full_bus();
+    const auto outputs = modules_of(ModuleType::dom16);
+    modules.insert(modules.end(), outputs.begin(), outputs.end());
+    SimProcess sim(env, dir / "tty", modules, {"--baud", "115200", "--turnaround", "0"});
+    Gateway gateway(env, dir, gateway_yaml({{dir / "tty", 115200, modules}}, 300, true));
+    const std::uint16_t http_port = gateway.started() ? gateway.http_port() : std::uint16_t{0};
+    if (!sim.ready() || !gateway.started() || http_port == 0 || !gateway.wait_until_polling())
+        return {{"6a. HTTP beside Modbus", "ioportd did not start", "", false}};
+
+    Scrapers scrapers(http_port, env.quick);
+    ScrapeLog scrapes;
+    Side quiet, scraped;
+    std::vector<bool> order{false, true};  // scraped?
+    // Each round on its own too: on this shared guest a disturbance from outside shows as one
+    // round out of line, which the totals alone would hide. The verdicts take the median of
+    // the rounds' ratios (scraped ÷ not, the two run back to back), which one such round cannot
+    // move, besides the ratio of the totals that benchmark 4 uses.
+    std::vector<double> cpu_ratios, p99_ratios;
+    const Table rounds_table({"round", "scrapers", "req/s", "p99 µs", "server CPU µs/req",
+                              "errors (of which exceptions)", "scrapes"});
+    for (int round = 0; round < rounds; ++round) {
+        std::array<double, 2> cpu_us{}, p99_us{};  // [scraped?]
+        for (const bool with_scrapers : order) {
+            LoadSpec spec{gateway.port(),
+                          gateway.pid(),
+                          connections,
+                          Mix::reads,
+                          1,
+                          env.quick ? 100ms : 500ms,
+                          window,
+                          {},
+                          {}};
+            const int scrapes_before = scrapes.metrics + scrapes.state + scrapes.trends;
+            if (with_scrapers)
+                spec.beside = [&](Clock::time_point to) { scrapers.run(to, scrapes); };
+            auto result = run_load(spec);
+            const auto latency =
+                summarize(std::vector<double>(result.latency_us.begin(), result.latency_us.end()));
+            rounds_table.row({fmt::format("{}", round + 1), with_scrapers ? "yes" : "no",
+                              fmt::format("{:.0f}", result.per_second()),
+                              fmt::format("{:.0f}", latency.p99),
+                              fmt::format("{:.2f}", result.cpu_us_per_request()),
+                              fmt::format("{} ({})", result.errors, result.exceptions),
+                              fmt::format("{}", scrapes.metrics + scrapes.state + scrapes.trends -
+                                                    scrapes_before)});
+            cpu_us[with_scrapers] = result.cpu_us_per_request();
+            p99_us[with_scrapers] = latency.p99;
+            (with_scrapers ? scraped : quiet).add(std::move(result));
+        }
+        cpu_ratios.push_back(cpu_us[1] / cpu_us[0]);
+        p99_ratios.push_back(p99_us[1] / p99_us[0]);
+        std::rotate(order.begin(), order.begin() + 1, order.end());
+    }
+    quiet.summarize_latency();
+    scraped.summarize_latency();
+
+    fmt::print("\nAll rounds together:\n");
+    Table table({"rounds", "req/s", "p50 µs", "p99 µs", "p99.9 µs", "server CPU µs/req",
+                 "server CPU", "errors"});
+    const auto print = [&](std::string_view name, const Side& side) {
+        table.row({std::string(name), fmt::format("{:.0f}", side.load->per_second()),
+                   fmt::format("{:.0f}", side.latency.p50), fmt::format("{:.0f}", side.latency.p99),
+                   fmt::format("{:.0f}", side.latency.p999),
+                   fmt::format("{:.2f}", side.load->cpu_us_per_request()),
+                   fmt::format("{:.0f} %", side.load->cpu_percent()),
+                   fmt::format("{}", side.load->errors)});
+    };
+    print("no scrapers", quiet);
+    print("scraped", scraped);
+    const double cpu = scraped.load->cpu_us_per_request() / quiet.load->cpu_us_per_request();
+    const double p99 = scraped.latency.p99 / quiet.latency.p99;
+    const double rate = scraped.load->per_second() / quiet.load->per_second();
+    table.row({"**scraped / none**", fmt::format("{:.3f}", rate),
+               fmt::format("{:.2f}", scraped.latency.p50 / quiet.latency.p50),
+               fmt::format("**{:.3f}**", p99),
+               fmt::format("{:.2f}", scraped.latency.p999 / quiet.latency.p999),
+               fmt::format("**{:.3f}**", cpu), "", ""});
+    const double cpu_median = summarize(cpu_ratios).p50;
+    const double p99_median = summarize(p99_ratios).p50;
+    const auto listed = [](const std::vector<double>& ratios) {
+        std::string text;
+        for (const double r : ratios)
+            text += fmt::format("{}{:.3f}", text.empty() ? "" : " ", r);
+        return text;
+    };
+    fmt::print(
+        "\nRounds' ratios, scraped ÷ not: CPU per request {}, median **{:.3f}**; p99 {}, median "
+        "**{:.3f}**.\n",
+        listed(cpu_ratios), cpu_median, listed(p99_ratios), p99_median);
+    const auto http = summarize(scrapes.latency_us);
+    fmt::print(
+        "\nIn the scraped rounds: {} × /metrics ({}), {} × /api/v1/state ({}), {} × "
+        "/api/v1/trends ({}), {} failed; their latency at the client p50 {:.0f} µs, max "
+        "{:.0f} µs.\n",
+        scrapes.metrics, kib_text(scrapes.metrics_bytes), scrapes.state,
+        kib_text(scrapes.state_bytes), scrapes.trends, kib_text(scrapes.trends_bytes),
+        scrapes.failed, http.p50, http.max);
+    const bool ok = quiet.load->connected && scraped.load->connected && quiet.load->errors == 0 &&
+                    scraped.load->errors == 0 && scrapes.failed == 0 && scrapes.metrics > 0 &&
+                    scrapes.state > 0 && scrapes.trends > 0;
+    machine_line(fmt::format(
+        R"({{"bench":"http_beside_modbus","connections":{},"quiet_rps":{:.0f},"scraped_rps":{:.0f},"quiet_cpu_us":{:.3f},"scraped_cpu_us":{:.3f},"cpu_ratio":{:.3f},"quiet_p99_us":{:.0f},"scraped_p99_us":{:.0f},"p99_ratio":{:.3f},"cpu_ratio_median":{:.3f},"p99_ratio_median":{:.3f},"metrics":{},"state":{},"trends":{},"http_failed":{},"modbus_errors":{}}})",
+        connections, quiet.load->per_second(), scraped.load->per_second(),
+        quiet.load->cpu_us_per_request(), scraped.load->cpu_us_per_request(), cpu,
+        quiet.latency.p99, scraped.latency.p99, p99, cpu_median, p99_median, scrapes.metrics,
+        scrapes.state, scrapes.trends, scrapes.failed, quiet.load->errors + scraped.load->errors));
+    return {{"6a. CPU/request, 64 conn., scraped ÷ not",
+             fmt::format("median of {} rounds {:.3f}× (all rounds: {:.2f} vs {:.2f} µs = {:.3f}×)",
+                         rounds, cpu_median, scraped.load->cpu_us_per_request(),
+                         quiet.load->cpu_us_per_request(), cpu),
+             "<= 1.05×", ok && cpu_median <= 1.05},
+            {"6a. p99 latency, 64 conn., scraped ÷ not",
+             fmt::format("median of {} rounds {:.3f}× (all rounds: {:.0f} vs {:.0f} µs = {:.3f}×)",
+                         rounds, p99_median, scraped.latency.p99, quiet.latency.p99, p99),
+             "<= 1.05×", ok && p99_median <= 1.05}};
+}
+
+// --- b and c. Eight links of 72 modules -----------------------------------------------------
+
+bool is_analog(ModuleType type) {  // as the daemon decides which modules keep a trend
+    return reply_words(type) > 0 && full_scale(type) > 0;
+}
+
+// Sets every analog module of every simulator to new values once a second, so that the trends
+// and values the pages carry change as a plant's would.
+class ValueChanger {
+  public:
+    ValueChanger(const std::vector<std::string>& control_sockets,
+                 const std::vector<ModuleAddress>& modules)
+        : thread_([this, control_sockets, modules](const std::stop_token& stop) {
+              std::vector<std::unique_ptr<sim::ControlClient>> clients;
+              for (const auto& socket : control_sockets) {
+                  clients.push_back(std::make_unique<sim::ControlClient>());
+                  if (!clients.back()->connect(socket)) ++failed_;
+              }
+              std::mt19937 random(16);
+              std::uniform_int_distribution<int> raw(0, 4095);
+              while (!stop.stop_requested()) {
+                  for (auto& client : clients)
+                      for (const auto module : modules) {
+                          if (!is_analog(module.type)) continue;
+                          std::string command =
+                              fmt::format("set {}:{}", name(module.type), module.number);
+                          for (int w = 0; w < reply_words(module.type); ++w)
+                              command += fmt::format(" {}", raw(random));
+                          if (!client->command(command)) ++failed_;
+                      }
+                  ++ticks_;
+                  for (int i = 0; i < 10 && !stop.stop_requested(); ++i)
+                      std::this_thread::sleep_for(100ms);
+              }
+          }) {}
+    int failed() const { return failed_; }
+    int ticks() const { return ticks_; }
+
+  private:
+    std::atomic<int> failed_{0};
+    std::atomic<int> ticks_{0};
+    std::jthread thread_;  // last: stops and joins first
+};
+
+struct ScrapeCost {
+    double gross_ms = 0;  // ioportd's CPU over the scrapes ÷ their number (schedstat)
+    double net_ms = 0;    // less what polling cost meanwhile, at the rate measured idle
+    double stat_ms = 0;   // the same as gross, from /proc/PID/stat's ticks
+    std::size_t bytes = 0;
+    Summary latency;  // at the client, µs
+    int count = 0;
+    int failed = 0;
+    std::string last_body;
+};
+
+ScrapeCost scrape_cost(const Gateway& gateway, HttpClient& client, std::string_view path, int count,
+                       double idle_cpu_fraction) {
+    ScrapeCost cost;
+    for (int i = 0; i < 3; ++i)  // warm: the connection, the allocator
+        (void)client.get(path);
+    std::vector<double> latency;
+    const auto cpu_before = cpu_time(gateway.pid());
+    const auto stat_before = stat_cpu_time(gateway.pid());
+    const auto start = Clock::now();
+    for (int i = 0; i < count; ++i) {
+        auto reply = client.get(path);
+        if (!reply || reply->status != 200) {
+            ++cost.failed;
+            continue;
+        }
+        ++cost.count;
+        cost.bytes = reply->body.size();
+        latency.push_back(microseconds(reply->took));
+        if (i + 1 == count) cost.last_body = std::move(reply->body);
+    }
+    const auto elapsed = Clock::now() - start;
+    const auto cpu = cpu_time(gateway.pid()) - cpu_before;
+    const auto stat = stat_cpu_time(gateway.pid()) - stat_before;
+    const double n = std::max(cost.count, 1);
+    cost.gross_ms = microseconds(cpu) / 1000.0 / n;
+    cost.net_ms = (microseconds(cpu) / 1000.0 - idle_cpu_fraction * seconds(elapsed) * 1000.0) / n;
+    cost.stat_ms = microseconds(stat) / 1000.0 / n;
+    cost.latency = summarize(std::move(latency));
+    return cost;
+}
+
+// The trends document's series and points, and the bytes its points take, to tell its size
+// with every ring full.
+struct TrendsShape {
+    std::size_t series = 0;
+    std::size_t points = 0;
+    std::size_t point_bytes = 0;  // "[t,v]," each
+};
+
+TrendsShape trends_shape(const std::string& json) {
+    TrendsShape shape;
+    for (std::size_t at = 0; (at = json.find("\"points\":", at)) != std::string::npos; ++at)
+        ++shape.series;
+    for (std::size_t i = 0; i + 1 < json.size(); ++i) {
+        if (json[i] != '[' || std::isdigit(static_cast<unsigned char>(json[i + 1])) == 0) continue;
+        const auto end = json.find(']', i);
+        if (end == std::string::npos) break;
+        ++shape.points;
+        shape.point_bytes += end - i + 2;  // the brackets and a comma
+    }
+    return shape;
+}
+
+std::vector<Verdict> eight_links(const Environment& env) {
+    fmt::print(
+        "\n### 6b. One scrape's CPU with 8 links × 72 modules\n\nEight simulators (every type, "
+        "8 of each, 115200 baud, turnaround 0) on the client CPU, ioportd with its HTTP side on "
+        "the server CPU; the analog modules' values change once a second. Each page is fetched "
+        "back to back on one kept-alive connection; ioportd's CPU time over them (schedstat, "
+        "and /proc/PID/stat's 10 ms ticks as a check) ÷ their number. \"Net\" takes off what "
+        "polling the 8 links cost meanwhile, at the rate measured with no client just before.\n");
+    std::vector<Verdict> verdicts;
+    TempDir dir;
+    const auto modules = every_module();
+    std::vector<std::unique_ptr<SimProcess>> sims;
+    std::vector<LinkSpec> links;
+    std::vector<std::string> controls;
+    bool ready = true;
+    for (int i = 0; i < 8; ++i) {
+        const auto link = dir / fmt::format("tty{}", i);
+        controls.push_back(dir / fmt::format("ctl{}", i));
+        sims.push_back(std::make_unique<SimProcess>(
+            env, link, modules,
+            std::vector<std::string>{"--baud", "115200", "--turnaround", "0", "--control",
+                                     controls.back()}));
+        ready = ready && sims.back()->ready();
+        links.push_back({link, 115200, modules});
+    }
+    const auto started = Clock::now();
+    Gateway gateway(env, dir, gateway_yaml(links, 300, true));
+    const std::uint16_t http_port = gateway.started() ? gateway.http_port() : std::uint16_t{0};
+    if (!ready || !gateway.started() || http_port == 0 || !gateway.wait_until_polling(8, 60s))
+        return {{"6b. scrape CPU", "did not start", "< 5 ms", false}};
+    ValueChanger changer(controls, modules);
+    std::this_thread::sleep_for(env.quick ? 100ms : 1s);
+    const auto at_start = memory(gateway.pid());
+
+    // What polling costs with no client, to take off.
+    const auto idle_window = env.window(3s);
+    const auto idle_before = cpu_time(gateway.pid());
+    const auto idle_start = Clock::now();
+    std::this_thread::sleep_for(idle_window);
+    const double idle_fraction = microseconds(cpu_time(gateway.pid()) - idle_before) / 1e6 /
+                                 seconds(Clock::now() - idle_start);
+
+    HttpClient prometheus(http_port, prometheus_headers);
+    HttpClient browser(http_port, browser_headers);
+    const int n = env.quick ? 3 : static_cast<int>(200 * env.scale);
+    const auto metrics = scrape_cost(gateway, prometheus, "/metrics", n, idle_fraction);
+    const auto state = scrape_cost(gateway, browser, "/api/v1/state", n, idle_fraction);
+    const auto trends =
+        scrape_cost(gateway, browser, "/api/v1/trends", std::max(n / 4, 3), idle_fraction);
+    const auto after_scrapes = memory(gateway.pid());
+
+    Table table({"page", "scrapes", "response", "ioportd CPU ms/scrape", "net of polling",
+                 "from /proc/PID/stat", "latency p50 / max µs"});
+    const auto row = [&](std::string_view page, const ScrapeCost& c) {
+        table.row({std::string(page),
+                   fmt::format("{}{}", c.count,
+                               c.failed ? fmt::format(" ({} failed)", c.failed) : std::string()),
+                   kib_text(c.bytes), fmt::format("**{:.3f}**", c.gross_ms),
+                   fmt::format("{:.3f}", c.net_ms), fmt::format("{:.2f}", c.stat_ms),
+                   fmt::format("{:.0f} / {:.0f}", c.latency.p50, c.latency.max)});
+        machine_line(fmt::format(
+            R"({{"bench":"http_scrape","page":"{}","links":8,"modules_per_link":72,"scrapes":{},"failed":{},"bytes":{},"cpu_ms":{:.4f},"cpu_ms_net":{:.4f},"cpu_ms_stat":{:.3f},"latency_p50_us":{:.0f}}})",
+            page, c.count, c.failed, c.bytes, c.gross_ms, c.net_ms, c.stat_ms, c.latency.p50));
+    };
+    row("/metrics", metrics);
+    row("/api/v1/state", state);
+    row("/api/v1/trends", trends);
+    fmt::print("\nPolling the 8 links with no client: {:.2f} % of a core.\n", idle_fraction * 100);
+    for (const auto& [page, c] :
+         {std::pair{"/metrics", &metrics}, std::pair{"/api/v1/state", &state}})
+        verdicts.push_back({fmt::format("6b. CPU per scrape of {}, 8 × 72 modules", page),
+                            fmt::format("{:.3f} ms ({:.3f} net of polling; {})", c->gross_ms,
+                                        c->net_ms, kib_text(c->bytes)),
+                            "< 5 ms", c->failed == 0 && c->count > 0 && c->gross_ms < 5.0});
+
+    // --- c. memory -----------------------------------------------------------------------------
+    std::size_t analog = 0;
+    for (const auto module : modules)
+        if (is_analog(module.type)) ++analog;
+    analog *= links.size();
+    const auto shape = trends_shape(trends.last_body);
+    const double bytes_per_point =
+        shape.points ? static_cast<double>(shape.point_bytes) / static_cast<double>(shape.points)
+                     : 24.0;
+    const auto full_trends = static_cast<std::size_t>(
+        static_cast<double>(trends.bytes - shape.point_bytes) +
+        static_cast<double>(shape.series * daemon::Trend::capacity) * bytes_per_point);
+    const std::size_t rings = sizeof(daemon::Trend) * analog;
+    // Building a response may hold it up to three times over: the JSON string as it doubles
+    // (old and new buffer while it grows) and the copy that the response takes of the page.
+    const std::size_t full_peak_kib = after_scrapes.peak_kib + 3 * full_trends / 1024;
+    fmt::print(
+        "\n### 6c. Memory with 8 links × 72 modules and the trend rings\n\n{} analog modules "
+        "keep a ring of {} points each: sizeof(Trend) = {} B, {} in all (computed). The rings "
+        "are allocated and zeroed when the links start, so that much is resident from start-up "
+        "on and a ring filling up adds nothing; what grows is /api/v1/trends, measured here with "
+        "{} points in {} series ({:.1f} B a point), {} with every ring full (computed).\n",
+        analog, daemon::Trend::capacity, sizeof(daemon::Trend), kib_text(rings), shape.points,
+        shape.series, bytes_per_point, kib_text(full_trends));
+    Table memory_table({"when", "RSS MiB", "peak RSS (VmHWM) MiB", "measured or computed"});
+    memory_table.row({"after start-up, polling, values changing",
+                      fmt::format("{:.1f}", mib(at_start.rss_kib)),
+                      fmt::format("{:.1f}", mib(at_start.peak_kib)), "measured"});
+    memory_table.row({"after the scrapes of 6b", fmt::format("{:.1f}", mib(after_scrapes.rss_kib)),
+                      fmt::format("{:.1f}", mib(after_scrapes.peak_kib)), "measured"});
+    memory_table.row({"every ring full, a /api/v1/trends scrape", "",
+                      fmt::format("{:.1f}", mib(full_peak_kib)),
+                      "computed: the peak above + 3 × the full response"});
+    verdicts.push_back({"6c. peak RSS, 8 × 72 modules, after scrapes (measured)",
+                        fmt::format("{:.1f} MiB", mib(after_scrapes.peak_kib)), "<= 16 MiB",
+                        after_scrapes.peak_kib <= std::size_t{16} * 1024});
+    verdicts.push_back({"6c. peak RSS with every trend ring full (computed)",
+                        fmt::format("{:.1f} MiB", mib(full_peak_kib)), "<= 16 MiB",
+                        full_peak_kib <= std::size_t{16} * 1024});
+    std::optional<Memory> full;
+    std::size_t full_bytes = 0;
+    if (env.fill_trends) {
+        const auto until =
+            started + std::chrono::seconds(daemon::Trend::interval.count() *
+                                           static_cast<std::int64_t>(daemon::Trend::capacity + 2));
+        fmt::print("\n--fill-trends: waiting {:.0f} s for every ring to fill.\n",
+                   seconds(until - Clock::now()));
+        while (Clock::now() < until) {
+            std::this_thread::sleep_for(std::min<Clock::duration>(30s, until - Clock::now()));
+            (void)prometheus.get("/metrics");  // a scraper keeps coming meanwhile
+        }
+        const auto filled = scrape_cost(gateway, browser, "/api/v1/trends", 5, idle_fraction);
+        full = memory(gateway.pid());
+        full_bytes = filled.bytes;
+        const auto filled_shape = trends_shape(filled.last_body);
+        memory_table.row(
+            {fmt::format("every ring full ({} points in {} series), 8 scrapes of "
+                         "/api/v1/trends ({})",
+                         filled_shape.points, filled_shape.series, kib_text(filled.bytes)),
+             fmt::format("{:.1f}", mib(full->rss_kib)), fmt::format("{:.1f}", mib(full->peak_kib)),
+             "measured"});
+        verdicts.push_back({"6c. peak RSS with every trend ring full (measured)",
+                            fmt::format("{:.1f} MiB", mib(full->peak_kib)), "<= 16 MiB",
+                            full->peak_kib <= std::size_t{16} * 1024});
+    }
+    if (changer.failed() > 0)
+        fmt::print("\nThe simulators refused {} value changes.\n", changer.failed());
+    machine_line(fmt::format(
+        R"({{"bench":"http_memory","links":8,"modules_per_link":72,"analog_modules":{},"trend_bytes":{},"rings_bytes":{},"rss_start_mib":{:.2f},"peak_after_scrapes_mib":{:.2f},"trends_bytes_now":{},"trends_points_now":{},"trends_bytes_full_computed":{},"peak_full_computed_mib":{:.2f},"peak_full_measured_mib":{},"trends_bytes_full_measured":{},"value_ticks":{}}})",
+        analog, sizeof(daemon::Trend), rings, mib(at_start.rss_kib), mib(after_scrapes.peak_kib),
+        trends.bytes, shape.points, full_trends, mib(full_peak_kib),
+        full ? fmt::format("{:.2f}", mib(full->peak_kib)) : "null", full_bytes, changer.ticks()));
+    return verdicts;
+}
+
+}  // namespace
+
+std::vector<Verdict> http_cost(const Environment& env) {
+    fmt::print(
+        "\n## 6. HTTP side\n\nWhat the HTTP side (issue 16) costs the Modbus side while it is "
+        "scraped, what one scrape costs with a large configuration, and the memory of the trend "
+        "rings.\n");
+    auto verdicts = beside_modbus(env);
+    const auto more = eight_links(env);
+    verdicts.insert(verdicts.end(), more.begin(), more.end());
+    return verdicts;
+}
+
+}  // namespace ioport::bench

@@ -1,0 +1,557 @@
+// Fuzz target: the HTTP side's routes and query parsing (daemon/http_route.hpp), and the writers
+// of its two text formats (daemon/exposition.hpp) on arbitrary bytes.
+//
+// Input: a request line, "METHOD TARGET" up to the first LF (split at its first space; with no
+// space, the whole line is the method and the target is empty), then arbitrary bytes. The method
+// and target are routed; the target's query is asked for `format` and for the name the bytes'
+// first line gives. The bytes are written as a label value, a HELP text and a JSON string, and
+// drive the building of a JSON document (one operation a byte, see build_json).
+//
+// Invariants, from gateway.md §5.4, the Prometheus text format 0.0.4 and RFC 8259 rather than
+// from the code under test:
+// - only GET and HEAD are ever routed, and `head` says which; a route's target is a path
+//   (origin form) whose part before '?' is one of the six pages, and the page is that path's;
+// - a refusal is 400 (not a path, or the map's format bad), 404 (a path that is no page) or 405
+//   (a page, another method), with a message; only the map reads its query, and its format is
+//   the first `format` parameter's value, decoded, or html when there is none;
+// - query_value agrees with a decoder written here from the URL standard's form rules;
+//   percent-encoding every byte of a value and asking again gives the value back;
+// - an escaped label value and HELP text hold no raw newline; a label value no unescaped quote;
+//   unescaping gives the bytes back; a sample is one line;
+// - a JSON string literal has no raw control character and parses back to the bytes; a document
+//   built with well-formed calls parses as JSON, numbers read back to the double or float
+//   written, and non-finite ones are null.
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "daemon/exposition.hpp"
+#include "daemon/http_route.hpp"
+#include "fuzz/fuzz.hpp"
+
+namespace ioport::fuzz {
+namespace {
+
+using daemon::MapFormat;
+using daemon::Page;
+
+constexpr std::array<std::pair<std::string_view, Page>, 6> pages{{{"/", Page::status},
+                                                                  {"/api/v1/state", Page::state},
+                                                                  {"/api/v1/trends", Page::trends},
+                                                                  {"/metrics", Page::metrics},
+                                                                  {"/healthz", Page::health},
+                                                                  {"/map", Page::map}}};
+
+std::optional<Page> page_at(std::string_view path) {
+    for (const auto& [p, page] : pages)
+        if (p == path) return page;
+    return std::nullopt;
+}
+
+// --- Queries: application/x-www-form-urlencoded as the URL standard parses it, except that a
+// malformed escape is an error rather than kept as it is (gateway.md: 400). -------------------
+
+int hex(char c) {
+    const auto* digits = "0123456789abcdef0123456789ABCDEF";
+    const auto* at = std::strchr(digits, c);
+    return c == '\0' || at == nullptr ? -1 : static_cast<int>((at - digits) % 16);
+}
+
+std::optional<std::string> form_decode(std::string_view text) {
+    std::string out;
+    std::size_t i = 0;
+    while (i < text.size()) {
+        if (text[i] == '%') {
+            if (text.size() - i < 3 || hex(text[i + 1]) < 0 || hex(text[i + 2]) < 0)
+                return std::nullopt;
+            out.push_back(static_cast<char>(hex(text[i + 1]) * 16 + hex(text[i + 2])));
+            i += 3;
+        } else {
+            out.push_back(text[i] == '+' ? ' ' : text[i]);
+            ++i;
+        }
+    }
+    return out;
+}
+
+// nullopt: absent; an empty optional inside: a malformed escape in the value. Pairs are
+// separated by '&', the empty ones skipped; the name ends at the first '='.
+std::optional<std::optional<std::string>> reference_value(std::string_view query,
+                                                          std::string_view name) {
+    std::size_t start = 0;
+    for (;;) {
+        const auto end = std::min(query.find('&', start), query.size());
+        const auto pair = query.substr(start, end - start);
+        if (!pair.empty()) {
+            const auto equals = pair.find('=');
+            const auto key = form_decode(pair.substr(0, equals));
+            if (key && *key == name)
+                return form_decode(equals == std::string_view::npos ? "" : pair.substr(equals + 1));
+        }
+        if (end == query.size()) return std::nullopt;
+        start = end + 1;
+    }
+}
+
+std::string percent_encoded(std::string_view bytes) {
+    static constexpr std::string_view digits = "0123456789ABCDEF";
+    std::string out;
+    for (const char c : bytes) {
+        const auto b = static_cast<unsigned char>(c);
+        out += '%';
+        out += digits[b >> 4];
+        out += digits[b & 15];
+    }
+    return out;
+}
+
+void check_query(std::string_view query, std::string_view name) {
+    if (name.empty()) return;  // the daemon asks for names only ("format")
+    const auto value = daemon::query_value(query, name);
+    const auto expected = reference_value(query, name);
+    if (!expected) {
+        check(value && !*value, "a name not in the query has no value");
+        return;
+    }
+    if (!*expected) {
+        check(!value && !value.error().empty(), "a malformed escape in the value is an error");
+        return;
+    }
+    check(value && *value && **value == **expected, "the value is the first one, decoded");
+    const auto encoded = percent_encoded(name) + "=" + percent_encoded(**expected);
+    const auto again =
+        daemon::query_value(percent_encoded(name) + "x=1&" + encoded + "&" + encoded + "1", name);
+    check(again && *again && **again == **expected, "percent-encoding a value gives it back");
+}
+
+// --- Routes ------------------------------------------------------------------------------
+
+void check_route(std::string_view method, std::string_view target) {
+    const auto routed = daemon::route(method, target);
+    const bool get_or_head = method == "GET" || method == "HEAD";
+    const bool origin_form = target.starts_with('/');
+    const auto question = target.find('?');
+    const auto path = target.substr(0, question);
+    const auto query =
+        question == std::string_view::npos ? std::string_view() : target.substr(question + 1);
+    const auto page = origin_form ? page_at(path) : std::nullopt;
+    const auto again = daemon::route(method, target);
+    check(again.has_value() == routed.has_value() &&
+              (routed ? *again == *routed : again.error() == routed.error()),
+          "the same request line routes the same way");
+    if (routed) {
+        check(get_or_head, "only GET and HEAD are routed");
+        check(routed->head == (method == "HEAD"), "head says whether it was HEAD");
+        check(origin_form && page && *page == routed->page,
+              "a route's path is one of the six pages, and the page is that path's");
+        if (routed->page != Page::map) {
+            check(routed->format == MapFormat::html, "only the map has a format");
+            return;
+        }
+        const auto format = reference_value(query, "format");
+        check(!format || (*format && (**format == "html" || **format == "csv" || **format == "md")),
+              "a routed map's format is absent, html, csv or md");
+        const auto expected = !format             ? MapFormat::html
+                              : **format == "csv" ? MapFormat::csv
+                              : **format == "md"  ? MapFormat::markdown
+                                                  : MapFormat::html;
+        check(routed->format == expected, "the map's format is the first format parameter's");
+        return;
+    }
+    const auto& refusal = routed.error();
+    check(!refusal.message.empty(), "a refusal says why");
+    if (!origin_form) {
+        check(refusal.status == 400, "a target that is not a path is 400");
+    } else if (!page) {
+        check(refusal.status == 404, "a path that is no page is 404");
+    } else if (!get_or_head) {
+        check(refusal.status == 405, "another method on a page is 405");
+    } else {
+        const auto format = reference_value(query, "format");
+        check(refusal.status == 400 && *page == Page::map && format &&
+                  (!*format || (**format != "html" && **format != "csv" && **format != "md")),
+              "GET or HEAD of a page is refused only for the map's bad format");
+    }
+}
+
+// --- Prometheus text ------------------------------------------------------------------------
+
+// The bytes an escaped text stands for, or nullopt when it has an escape that 0.0.4 lacks.
+// `quote`: label values escape '"' as well.
+std::optional<std::string> unescaped(std::string_view text, bool quote) {
+    std::string out;
+    for (std::size_t i = 0; i < text.size(); ++i) {
+        if (text[i] != '\\') {
+            out += text[i];
+            continue;
+        }
+        if (++i == text.size()) return std::nullopt;
+        if (text[i] == '\\')
+            out += '\\';
+        else if (text[i] == 'n')
+            out += '\n';
+        else if (quote && text[i] == '"')
+            out += '"';
+        else
+            return std::nullopt;
+    }
+    return out;
+}
+
+bool has_unescaped_quote(std::string_view text) {
+    for (std::size_t i = 0; i < text.size(); ++i) {
+        if (text[i] == '\\')
+            ++i;
+        else if (text[i] == '"')
+            return true;
+    }
+    return false;
+}
+
+void check_exposition(std::string_view bytes) {
+    std::string label;
+    daemon::append_escaped_label(label, bytes);
+    check(label.find('\n') == std::string::npos, "an escaped label holds no raw newline");
+    check(!has_unescaped_quote(label), "an escaped label holds no unescaped quote");
+    check(unescaped(label, true) == std::string(bytes), "an escaped label unescapes to its bytes");
+
+    daemon::Exposition e;
+    e.family("ioportd_fuzz", "gauge", bytes);
+    e.sample("ioportd_fuzz", {{"link", bytes}, {"module", "dim16 0"}}, std::uint64_t{7});
+    const auto text = e.take();
+    const std::string help_prefix = "# HELP ioportd_fuzz ";
+    const auto help_end = text.find('\n');
+    check(text.starts_with(help_prefix) && help_end != std::string::npos,
+          "a family starts with its HELP line");
+    const auto help =
+        std::string_view(text).substr(help_prefix.size(), help_end - help_prefix.size());
+    check(unescaped(help, false) == std::string(bytes), "HELP unescapes to its text");
+    const auto rest = std::string_view(text).substr(help_end + 1);
+    const std::string sample = "ioportd_fuzz{link=\"" + label + "\",module=\"dim16 0\"} 7\n";
+    check(rest == "# TYPE ioportd_fuzz gauge\n" + sample,
+          "TYPE, then the sample on one line with its labels in order");
+}
+
+// --- JSON -------------------------------------------------------------------------------------
+
+// A strict RFC 8259 reader; the strings' bytes decoded (\u00XX as byte XX; others kept as
+// escapes, which the writer never produces).
+class JsonReader {
+  public:
+    explicit JsonReader(std::string_view text) : text_(text) {}
+    bool document() { return value(0) && at_ == text_.size(); }
+    std::optional<std::string> string() {
+        if (!eat('"')) return std::nullopt;
+        std::string out;
+        while (at_ < text_.size()) {
+            const char c = text_[at_++];
+            if (c == '"') return out;
+            if (static_cast<unsigned char>(c) < 0x20) return std::nullopt;
+            if (c != '\\') {
+                out += c;
+                continue;
+            }
+            if (at_ == text_.size()) return std::nullopt;
+            const char e = text_[at_++];
+            switch (e) {
+                case '"':
+                case '\\':
+                case '/':
+                    out += e;
+                    break;
+                case 'b':
+                    out += '\b';
+                    break;
+                case 'f':
+                    out += '\f';
+                    break;
+                case 'n':
+                    out += '\n';
+                    break;
+                case 'r':
+                    out += '\r';
+                    break;
+                case 't':
+                    out += '\t';
+                    break;
+                case 'u': {
+                    if (text_.size() - at_ < 4) return std::nullopt;
+                    int code = 0;
+                    for (int k = 0; k < 4; ++k) {
+                        const int d = hex(text_[at_++]);
+                        if (d < 0) return std::nullopt;
+                        code = code * 16 + d;
+                    }
+                    if (code > 0xFF) return std::nullopt;
+                    out += static_cast<char>(code);
+                    break;
+                }
+                default:
+                    return std::nullopt;
+            }
+        }
+        return std::nullopt;
+    }
+    // The numbers read, in order, as their text.
+    std::vector<std::string> numbers;
+
+  private:
+    bool eat(char c) {
+        if (at_ < text_.size() && text_[at_] == c) {
+            ++at_;
+            return true;
+        }
+        return false;
+    }
+    bool literal(std::string_view word) {
+        if (text_.substr(at_, word.size()) != word) return false;
+        at_ += word.size();
+        return true;
+    }
+    bool number() {
+        const auto start = at_;
+        eat('-');
+        if (eat('0')) {
+        } else if (digits() == 0) {
+            return false;
+        }
+        if (eat('.') && digits() == 0) return false;
+        if (eat('e') || eat('E')) {
+            if (!eat('+')) eat('-');
+            if (digits() == 0) return false;
+        }
+        numbers.emplace_back(text_.substr(start, at_ - start));
+        return true;
+    }
+    std::size_t digits() {
+        const auto start = at_;
+        while (at_ < text_.size() && text_[at_] >= '0' && text_[at_] <= '9')
+            ++at_;
+        return at_ - start;
+    }
+    bool value(int depth) {
+        if (depth > 200 || at_ >= text_.size()) return false;
+        const char c = text_[at_];
+        if (c == '{') {
+            ++at_;
+            if (eat('}')) return true;
+            do {
+                if (!string() || !eat(':') || !value(depth + 1)) return false;
+            } while (eat(','));
+            return eat('}');
+        }
+        if (c == '[') {
+            ++at_;
+            if (eat(']')) return true;
+            do {
+                if (!value(depth + 1)) return false;
+            } while (eat(','));
+            return eat(']');
+        }
+        if (c == '"') return string().has_value();
+        if (c == 't') return literal("true");
+        if (c == 'f') return literal("false");
+        if (c == 'n') return literal("null");
+        return number();
+    }
+
+    std::string_view text_;
+    std::size_t at_ = 0;
+};
+
+void check_json_string(std::string_view bytes) {
+    std::string literal;
+    daemon::append_json_string(literal, bytes);
+    for (const char c : literal)
+        check(static_cast<unsigned char>(c) >= 0x20, "a JSON string holds no raw control byte");
+    JsonReader reader(literal);
+    const auto back = reader.string();
+    check(back && *back == bytes, "a JSON string literal reads back to its bytes");
+}
+
+// A number written, which it must read back as.
+struct Written {
+    enum Kind { f64, f32, i64, u64, null } kind = null;
+    double f64_value = 0;
+    float f32_value = 0;
+    std::int64_t i64_value = 0;
+    std::uint64_t u64_value = 0;
+};
+
+// Builds a document from the bytes, one operation a byte (the low 3 bits), keeping the calls
+// well formed as the daemon's renderers do: keys only in objects, and before every value there;
+// the containers still open are closed at the end.
+std::string build_json(std::string_view bytes, std::vector<Written>& numbers) {
+    daemon::Json json;
+    std::vector<char> open{'{'};  // a document is an object, as every page's is
+    json.begin_object();
+    std::size_t i = 0;
+    const auto take = [&](std::size_t n) {
+        const auto piece = bytes.substr(std::min(i, bytes.size()), n);
+        i += n;
+        return piece;
+    };
+    // In an object, every value comes after its key.
+    const auto before_value = [&] {
+        if (open.back() == '{') json.key(take(2));
+    };
+    while (i < bytes.size() && open.size() < 64) {
+        const auto op = static_cast<unsigned char>(bytes[i++]);
+        switch (op & 7) {
+            case 0:
+                before_value();
+                json.begin_object();
+                open.push_back('{');
+                break;
+            case 1:
+                before_value();
+                json.begin_array();
+                open.push_back('[');
+                break;
+            case 2:
+                if (open.size() > 1) {
+                    if (open.back() == '{')
+                        json.end_object();
+                    else
+                        json.end_array();
+                    open.pop_back();
+                }
+                break;
+            case 3:
+                before_value();
+                json.value(take(op >> 3));
+                break;
+            case 4: {
+                before_value();
+                double d = 0;
+                const auto piece = take(sizeof d);
+                std::memcpy(&d, piece.data(), piece.size());
+                json.value(d);
+                Written w{};
+                if (std::isfinite(d)) {
+                    w.kind = Written::f64;
+                    w.f64_value = d;
+                }
+                numbers.push_back(w);
+                break;
+            }
+            case 5: {
+                before_value();
+                float f = 0;
+                const auto piece = take(sizeof f);
+                std::memcpy(&f, piece.data(), piece.size());
+                json.value(f);
+                Written w{};
+                if (std::isfinite(f)) {
+                    w.kind = Written::f32;
+                    w.f32_value = f;
+                }
+                numbers.push_back(w);
+                break;
+            }
+            case 6: {
+                before_value();
+                std::int64_t n = 0;
+                const auto piece = take(sizeof n);
+                std::memcpy(&n, piece.data(), piece.size());
+                Written w{};
+                if (op & 8) {
+                    json.value(n);
+                    w.kind = Written::i64;
+                    w.i64_value = n;
+                } else {
+                    w.kind = Written::u64;
+                    w.u64_value = static_cast<std::uint64_t>(n);
+                    json.value(w.u64_value);
+                }
+                numbers.push_back(w);
+                break;
+            }
+            default:
+                before_value();
+                if (op & 8)
+                    json.null();
+                else
+                    json.value((op & 16) != 0);
+                break;
+        }
+    }
+    while (!open.empty()) {
+        if (open.back() == '{')
+            json.end_object();
+        else
+            json.end_array();
+        open.pop_back();
+    }
+    return json.take();
+}
+
+void check_json(std::string_view bytes) {
+    check_json_string(bytes);
+    std::vector<Written> written;
+    const auto text = build_json(bytes, written);
+    JsonReader reader(text);
+    check(reader.document(), "a document built with well-formed calls is JSON");
+    // Every number the reader met, in order, is one written (the keys and strings hold none).
+    std::size_t n = 0;
+    for (const auto& w : written) {
+        if (w.kind == Written::null) continue;
+        check(n < reader.numbers.size(), "every finite number is written as a number");
+        const auto& t = reader.numbers[n++];
+        switch (w.kind) {
+            case Written::f64:
+                check(std::strtod(t.c_str(), nullptr) == w.f64_value,
+                      "a double reads back as itself");
+                break;
+            case Written::f32:
+                check(std::strtof(t.c_str(), nullptr) == w.f32_value,
+                      "a float reads back as itself");
+                check(t.size() <= 16, "a float is written in its shortest form");
+                break;
+            case Written::i64:
+                check(std::strtoll(t.c_str(), nullptr, 10) == w.i64_value && t.find('.') == t.npos,
+                      "an integer is written as itself");
+                break;
+            case Written::u64:
+                check(std::strtoull(t.c_str(), nullptr, 10) == w.u64_value &&
+                          t.find_first_not_of("0123456789") == t.npos,
+                      "an unsigned integer is written as itself");
+                break;
+            case Written::null:
+                break;
+        }
+    }
+    check(n == reader.numbers.size(), "no number but those written");
+}
+
+}  // namespace
+}  // namespace ioport::fuzz
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+    using namespace ioport;
+    const std::string_view input(reinterpret_cast<const char*>(data), size);
+    const auto newline = input.find('\n');
+    const auto line = input.substr(0, newline);
+    const auto bytes =
+        newline == std::string_view::npos ? std::string_view() : input.substr(newline + 1);
+    const auto space = line.find(' ');
+    const auto method = line.substr(0, space);
+    const auto target =
+        space == std::string_view::npos ? std::string_view() : line.substr(space + 1);
+
+    fuzz::check_route(method, target);
+    const auto question = target.find('?');
+    const auto query =
+        question == std::string_view::npos ? std::string_view() : target.substr(question + 1);
+    fuzz::check_query(query, "format");
+    fuzz::check_query(query, bytes.substr(0, bytes.find('\n')));
+    fuzz::check_exposition(bytes);
+    fuzz::check_json(bytes);
+    return 0;
+}
