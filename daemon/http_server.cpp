@@ -16,7 +16,7 @@ constexpr auto refusal_log_interval = 60s;
 constexpr auto accept_error_pause = 100ms;
 
 http::response<http::string_body> make_response(unsigned version, bool keep_alive,
-                                                const HttpResponse& page) {
+                                                HttpResponse page) {
     http::response<http::string_body> response{static_cast<http::status>(page.status), version};
     response.set(http::field::server, "ioportd/" IOPORTD_VERSION);
     response.set(http::field::content_type, page.content_type);
@@ -25,7 +25,7 @@ http::response<http::string_body> make_response(unsigned version, bool keep_aliv
     response.set("X-Content-Type-Options", "nosniff");
     if (page.status == 405) response.set(http::field::allow, "GET, HEAD");
     response.keep_alive(keep_alive);
-    response.body() = page.body;
+    response.body() = std::move(page.body);  // a full /api/v1/trends is over a megabyte
     response.prepare_payload();
     return response;
 }
@@ -184,7 +184,7 @@ asio::awaitable<void> HttpServer::serve(std::shared_ptr<Connection> c) {
                         routed.error().message + "\n"};
             }
         }
-        auto response = make_response(version, keep_alive, page);
+        auto response = make_response(version, keep_alive, std::move(page));
         c->stream.expires_after(http_request_timeout);
         if (head) {
             http::response_serializer<http::string_body> serializer(response);
