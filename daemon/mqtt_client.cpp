@@ -269,12 +269,17 @@ void MqttClient::stop(std::chrono::milliseconds deadline, std::function<void()> 
         finish_stop();
         return;
     }
-    // DISCONNECT after what is queued; the broker then discards the will (a clean end).
-    mosquitto_disconnect(client_);
+    // The deadline is set before DISCONNECT: libmosquitto writes it at once when the socket
+    // takes it and then reports the end (on_disconnect, finish_stop) from within
+    // mosquitto_disconnect(). A timer armed after that would outlive the client and keep the
+    // daemon's loop, and so its exit, waiting for the whole deadline.
     stop_deadline_.expires_after(deadline);
     stop_deadline_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
         if (!ec) self->finish_stop();
     });
+    // DISCONNECT after what is queued; the broker then discards the will (a clean end).
+    mosquitto_disconnect(client_);
+    if (!stopped_) return;  // finished already
     watch();
 }
 
