@@ -43,9 +43,9 @@ Result<> Gateway::start() {
     return start_sparkplug();
 }
 
-Result<> Gateway::start_sparkplug() {
+Result<> Gateway::start_sparkplug(std::uint64_t next_bdseq) {
     if (!config_.mqtt) return {};
-    auto node = SparkplugNode::create(executor_, *config_.mqtt, log_, events_);
+    auto node = SparkplugNode::create(executor_, *config_.mqtt, log_, events_, next_bdseq);
     if (!node) return Unexpected(node.error());
     sparkplug_ = std::move(*node);
     sparkplug_->start(links_);
@@ -120,9 +120,10 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     apply_http(config_.http);
     if (mqtt_changed) {
         // Another broker or node: this session ends cleanly (NDEATH), a new one begins.
+        const auto next_bdseq = sparkplug_ ? sparkplug_->next_bdseq() : 0;
         if (sparkplug_) sparkplug_->stop(sparkplug_stop_deadline, [] {});
         sparkplug_.reset();
-        if (auto started = start_sparkplug(); !started)
+        if (auto started = start_sparkplug(next_bdseq); !started)
             log_.error({}, "SIGHUP: Sparkplug not started: {}", started.error().message);
     } else if (sparkplug_) {
         sparkplug_->set_links(links_);

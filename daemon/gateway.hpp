@@ -66,7 +66,7 @@ class Gateway {
     // A reload's first HTTP step: binds the new address, if it moved (into next_http_).
     Result<> prepare_http(const std::optional<config::HttpSettings>& next);
     void apply_http(const std::optional<config::HttpSettings>& next);
-    Result<> start_sparkplug();
+    Result<> start_sparkplug(std::uint64_t next_bdseq = 0);
 
     asio::any_io_executor executor_;
     config::GatewayConfig config_;

@@ -261,7 +261,8 @@ void MqttClient::subscribe(std::string_view pattern, int qos) {
 void MqttClient::stop(std::chrono::milliseconds deadline, std::function<void()> done) {
     stopping_ = true;
     started_ = false;
-    stopped_ = std::move(done);
+    // Non-empty while the stop is under way: the watchers go on flushing until it is called.
+    stopped_ = done ? std::move(done) : [] {};
     misc_.cancel();
     reconnect_.cancel();
     resolver_.cancel();

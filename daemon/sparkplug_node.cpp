@@ -69,8 +69,10 @@ std::string value_text(const std::optional<Value>& value) {
 
 Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_executor& executor,
                                                              const config::MqttSettings& settings,
-                                                             Log& log, EventLog& events) {
+                                                             Log& log, EventLog& events,
+                                                             std::uint64_t next_bdseq) {
     std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, events));
+    node->next_bdseq_ = next_bdseq % 256;
     std::weak_ptr<SparkplugNode> weak = node;
     auto client = MqttClient::create(
         executor, settings, log,
@@ -484,7 +486,7 @@ void SparkplugNode::device_command(Device& device, const Metric& metric) {
     const auto address = fmt::format("{}/{}", device.id, name.empty() ? "?" : name);
     const LogFields fields{
         device.link->config().name, device.link->config().unit_id, {}, "sparkplug"};
-    auto plan = sparkplug::plan_command(device.module, name, metric.value);
+    auto plan = sparkplug::plan_command(device.module, name, metric.datatype, metric.value);
     if (!plan) {
         ++stats_.commands_refused;
         auto text =

@@ -55,9 +55,12 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
   public:
     using Links = std::vector<std::shared_ptr<LinkScheduler>>;
 
+    // `next_bdseq`: of the first CONNECT; a node that replaces another (a reload that changed
+    // the MQTT settings) goes on from the old one's, as bdSeq counts every CONNECT of the process.
     static Result<std::shared_ptr<SparkplugNode>> create(const asio::any_io_executor& executor,
                                                          const config::MqttSettings& settings,
-                                                         Log& log, EventLog& events);
+                                                         Log& log, EventLog& events,
+                                                         std::uint64_t next_bdseq = 0);
     ~SparkplugNode();
     SparkplugNode(const SparkplugNode&) = delete;
     SparkplugNode& operator=(const SparkplugNode&) = delete;
@@ -71,6 +74,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
 
     const config::MqttSettings& settings() const { return settings_; }
     SparkplugStats stats() const;
+    std::uint64_t next_bdseq() const { return next_bdseq_; }
 
   private:
     struct Device {

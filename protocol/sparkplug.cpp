@@ -247,12 +247,16 @@ std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
 }
 
 Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std::string_view name,
-                                        const std::optional<Value>& value) {
+                                        std::uint32_t datatype, const std::optional<Value>& value) {
     const auto metrics = module_metrics(module ? std::optional(module->type) : std::nullopt);
     const auto spec = std::find_if(metrics.begin(), metrics.end(),
                                    [&](const MetricSpec& m) { return m.name == name; });
     if (spec == metrics.end()) return refused(name, "no such metric on this device");
     if (!spec->writable) return refused(name, "read-only: an input of the device");
+    // A host writes what the DBIRTH announced; another type is a host's mistake, not a value.
+    if (datatype != 0 && datatype != static_cast<std::uint32_t>(spec->type))
+        return refused(name, fmt::format("declared datatype {}, but the metric is {}", datatype,
+                                         to_string(spec->type)));
     gateway::WritePlan plan;
     if (!module) {  // the ID-2's reset
         auto reset = command_value(name, spec->type, value, 1);

@@ -121,10 +121,11 @@ std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
 // A DCMD metric as a write the gateway plans like any other: output changes (dom16 bits or
 // word, rgbdm colour, mux8m pos or neg, merged into the desired state when sent) or an ID-2
 // counter reset. `reset_counter` with no changes: reset. Neither: nothing to do (reset false).
-// Fails (invalid_argument, with a message naming the metric) for a metric the module does not
-// have, one that is not writable, a value of another type or outside the metric's range:
+// `datatype`: what the command declares (0: none). Fails (invalid_argument, with a message
+// naming the metric) for a metric the module does not have, one that is not writable, a declared
+// datatype other than the metric's, a value of another kind or outside the metric's range:
 // never truncated.
 Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std::string_view name,
-                                        const std::optional<Value>& value);
+                                        std::uint32_t datatype, const std::optional<Value>& value);
 
 }  // namespace ioport::sparkplug

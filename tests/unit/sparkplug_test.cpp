@@ -169,7 +169,7 @@ TEST(SparkplugModule, ValuesFollowTheMetrics) {
 
 gateway::WritePlan planned(std::optional<ModuleAddress> module, std::string_view name,
                            std::optional<Value> value) {
-    auto plan = plan_command(module, name, value);
+    auto plan = plan_command(module, name, 0, value);
     EXPECT_TRUE(plan) << (plan ? "" : plan.error().message);
     return plan ? *plan : gateway::WritePlan{};
 }
@@ -196,6 +196,16 @@ TEST(SparkplugCommand, WritesBecomeTheGatewaysOutputChanges) {
     EXPECT_FALSE(planned(std::nullopt, "reset", Value(false)).reset_counter);
 }
 
+TEST(SparkplugCommand, TheDeclaredDatatypeMustBeTheMetrics) {
+    const ModuleAddress rgb{ModuleType::rgbdm, 0};
+    EXPECT_TRUE(plan_command(rgb, "colour", 5, Value(std::uint64_t{3})));        // UInt8, as born
+    const auto wider = plan_command(rgb, "colour", 8, Value(std::uint64_t{3}));  // UInt64
+    ASSERT_FALSE(wider);
+    EXPECT_NE(wider.error().message.find("declared datatype 8, but the metric is UInt8"),
+              std::string::npos)
+        << wider.error().message;
+}
+
 TEST(SparkplugCommand, RefusedNeverTruncated) {
     const ModuleAddress dom{ModuleType::dom16, 1};
     const ModuleAddress rgb{ModuleType::rgbdm, 0};
@@ -217,7 +227,7 @@ TEST(SparkplugCommand, RefusedNeverTruncated) {
              {dom, "out/16", Value(true), "no such metric"},
              {std::nullopt, "count", Value(std::uint64_t{0}), "read-only"},
              {std::nullopt, "reset", Value(std::string("yes")), "expected Boolean"}}) {
-        const auto plan = plan_command(c.module, c.name, c.value);
+        const auto plan = plan_command(c.module, c.name, 0, c.value);
         ASSERT_FALSE(plan) << c.name;
         EXPECT_EQ(plan.error().code, Errc::invalid_argument);
         EXPECT_NE(plan.error().message.find(c.fragment), std::string::npos)
