@@ -4,8 +4,9 @@
 The seeds are the wire examples of the shared spec (protocol.md §1 and §2, the seed documents'
 known typos included), the YAML example of gateway.md §1 and the repository's example
 configurations, Modbus requests against the map of gateway.md §2 (the README's mbpoll
-examples among them), and request lines of the HTTP side's pages (gateway.md §5.4) with the
-label values and strings its writers escape. Run it again after changing it; the files it writes are committed.
+examples among them), request lines of the HTTP side's pages (gateway.md §5.4) with the
+label values and strings its writers escape, and Sparkplug B commands, topics and STATE messages
+(gateway.md §5.5) as a host or any other client of the broker could send them. Run it again after changing it; the files it writes are committed.
 Everything else in the corpus directories was found by libFuzzer (fuzz/run merges it in).
 """
 
@@ -310,3 +311,85 @@ http("json-operations", b"GET", b"/metrics",
      + bytes([5]) + b"\xcd\xcc\xcc\x3d" + bytes([6 | 8]) + b"\xff" * 8 + bytes([6]) + b"\xff" * 8
      + bytes([7, 7 | 8, 7 | 16, 2, 2])
      + bytes([4]) + b"\x00\x00\x00\x00\x00\x00\xf8\x7f" + bytes([5]) + b"\x00\x00\x80\x7f")
+
+
+# --- sparkplug: byte 0 the DCMD's device (module type 0..8, 9 the ID-2), then a Sparkplug B
+# payload (protobuf, sparkplug_b.proto), also read as a topic and as a STATE message -----------
+
+def varint(n):
+    out = bytearray()
+    while True:
+        byte = n & 0x7F
+        n >>= 7
+        out.append(byte | (0x80 if n else 0))
+        if not n:
+            return bytes(out)
+
+
+def field(number, wire_type, payload):
+    tag = varint(number << 3 | wire_type)
+    if wire_type == 0:
+        return tag + varint(payload)
+    if wire_type == 5:
+        return tag + payload
+    return tag + varint(len(payload)) + payload
+
+
+def metric(name=None, alias=None, datatype=None, **value):
+    out = b""
+    if name is not None:
+        out += field(1, 2, name.encode())
+    if alias is not None:
+        out += field(2, 0, alias)
+    if datatype is not None:
+        out += field(4, 0, datatype)
+    for kind, v in value.items():
+        if kind == "int":
+            out += field(10, 0, v)
+        elif kind == "long":
+            out += field(11, 0, v)
+        elif kind == "float":
+            out += field(12, 5, struct.pack("<f", v))
+        elif kind == "bool":
+            out += field(14, 0, int(v))
+        elif kind == "string":
+            out += field(15, 2, v.encode())
+        elif kind == "null":
+            out += field(7, 0, 1)
+    return out
+
+
+def payload(*metrics, seq=None):
+    out = field(1, 0, 1796183655123)
+    for m in metrics:
+        out += field(2, 2, m)
+    if seq is not None:
+        out += field(3, 0, seq)
+    return out
+
+
+def sparkplug(name, device, data):
+    write("sparkplug", name, bytes([device]) + data)
+
+
+DOM16, RGBDM, MUX8M, ID2 = 1, 5, 8, 9
+sparkplug("dcmd-out3", DOM16, payload(metric("out/3", datatype=11, bool=True)))
+sparkplug("dcmd-word", DOM16, payload(metric("word", datatype=6, int=0x1234)))
+sparkplug("dcmd-alias", DOM16, payload(metric(alias=40, datatype=11, bool=False)))
+sparkplug("dcmd-colour", RGBDM, payload(metric("colour", datatype=5, int=3)))
+sparkplug("dcmd-colour-8", RGBDM, payload(metric("colour", datatype=5, int=8)))
+sparkplug("dcmd-colour-uint64", RGBDM, payload(metric("colour", datatype=8, long=3)))
+sparkplug("dcmd-pos-neg", MUX8M, payload(metric("pos", datatype=5, int=2),
+                                           metric("neg", datatype=5, int=6)))
+sparkplug("dcmd-reset", ID2, payload(metric("reset", datatype=11, bool=True)))
+sparkplug("dcmd-null", DOM16, payload(metric("word", datatype=6, null=True)))
+sparkplug("dcmd-float", DOM16, payload(metric("word", datatype=9, float=1.5)))
+sparkplug("dcmd-string", ID2, payload(metric("reset", datatype=12, string="yes")))
+sparkplug("ncmd-rebirth", 0, payload(metric("Node Control/Rebirth", datatype=11, bool=True)))
+sparkplug("nbirth", 0, payload(metric("bdSeq", datatype=4, long=3),
+                               metric("Node Control/Rebirth", alias=0, datatype=11, bool=False),
+                               seq=0))
+sparkplug("topic-dcmd", DOM16, b"spBv1.0/plant1/DCMD/box7/hub0.dom16.0")
+sparkplug("topic-state", 0, b"spBv1.0/STATE/scada")
+sparkplug("state-online", 0, b'{"online":true,"timestamp":1796183655123}')
+sparkplug("state-offline", 0, b'{ "timestamp": 1, "online" : false }')

@@ -938,6 +938,7 @@ TEST(GatewayConfig, TheProductionExampleServesEveryoneOnPort502) {
     EXPECT_TRUE(config->modbus.allow.empty());
     EXPECT_TRUE(config->links.at(0).device.starts_with("/dev/serial/by-id/"));
     EXPECT_EQ(config->links.at(1).protocol, Protocol::id2);
+    EXPECT_FALSE(config->mqtt);  // an upgrade never talks to a broker by itself
 }
 
 TEST(GatewayConfig, TheSimulatorExampleIsWhatTheDemoExpects) {
@@ -956,6 +957,11 @@ TEST(GatewayConfig, TheSimulatorExampleIsWhatTheDemoExpects) {
     EXPECT_EQ(id2.protocol, Protocol::id2);
     EXPECT_EQ(id2.device, "/tmp/ioportd-sim/ttyID2");
     EXPECT_EQ(id2.unit_id, 2);
+    ASSERT_TRUE(config->http);  // the demo prints this page's address
+    EXPECT_EQ(config->http->listen_port, 8502);
+    ASSERT_TRUE(config->mqtt);  // the demo starts a broker here
+    EXPECT_EQ(config->mqtt->host, "127.0.0.1");
+    EXPECT_EQ(config->mqtt->port, 1883);
 }
 
 }  // namespace

@@ -1,0 +1,77 @@
+// Fuzz target: what the Sparkplug edge node takes from the broker (protocol/sparkplug.hpp):
+// NCMD/DCMD payloads, topics and STATE messages, all of which any client of the broker can send.
+//
+// Input: byte 0 picks the device a DCMD goes to (module type 0..8 as ModuleType, 9 and above the
+// ID-2); the rest is the payload, and also read as a topic and as a STATE message.
+//
+// Invariants, from gateway.md §5.5 and Sparkplug 3.0 rather than from the code under test:
+// - decode either fails with `malformed` or gives a payload that encodes and decodes again;
+// - a parsed topic is the topic that topic()/state_topic() builds from its parts;
+// - a planned DCMD is a write the gateway could send: each change's bits lie within its mask,
+//   merged into any state it gives a value the module accepts (validate_output_value), and the
+//   change is to the device the command was for; a reset only for the ID-2;
+// - a refusal names the metric.
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "fuzz/fuzz.hpp"
+#include "protocol/sparkplug.hpp"
+
+namespace ioport::fuzz {
+namespace {
+
+void check_topic(std::string_view text) {
+    const auto topic = sparkplug::parse_topic(text);
+    if (!topic) return;
+    const auto built =
+        topic->type == sparkplug::MessageType::state
+            ? sparkplug::state_topic(topic->node)
+            : sparkplug::topic(topic->group, topic->type, topic->node, topic->device);
+    check(built == text, "a parsed topic is the one its parts build");
+}
+
+void check_command(std::optional<ModuleAddress> module, const sparkplug::Metric& metric) {
+    const auto plan = sparkplug::plan_command(module, metric.name, metric.datatype, metric.value);
+    if (!plan) {
+        check(plan.error().code == Errc::invalid_argument, "a refused command is invalid_argument");
+        check(plan.error().message.find(metric.name) != std::string::npos,
+              "a refusal names the metric");
+        return;
+    }
+    check(!plan->reset_counter || !module, "only the ID-2 resets a counter");
+    for (const auto& change : plan->changes) {
+        check(module && change.module == *module, "a change is to the commanded module");
+        check((change.value & ~change.mask) == 0, "a change's bits lie within its mask");
+        for (const std::uint16_t desired : {std::uint16_t{0}, std::uint16_t{0x0707}})
+            check(validate_output_value(change.module.type, gateway::merged(desired, change))
+                      .has_value(),
+                  "a planned command merges into a value the module accepts");
+    }
+}
+
+}  // namespace
+}  // namespace ioport::fuzz
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+    using namespace ioport;
+    if (size == 0) return 0;
+    const std::span<const std::uint8_t> bytes(data + 1, size - 1);
+    const std::string_view text(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+    fuzz::check_topic(text);
+    (void)sparkplug::parse_state(text);
+
+    const auto payload = sparkplug::decode(bytes);
+    if (!payload) {
+        fuzz::check(payload.error().code == Errc::malformed, "a payload that fails is malformed");
+        return 0;
+    }
+    fuzz::check(sparkplug::decode(sparkplug::encode(*payload)).has_value(),
+                "a decoded payload encodes to one that decodes");
+    std::optional<ModuleAddress> module;
+    if (data[0] < module_type_count) module = ModuleAddress{static_cast<ModuleType>(data[0]), 0};
+    for (const auto& metric : payload->metrics)
+        fuzz::check_command(module, metric);
+    return 0;
+}
