@@ -105,7 +105,6 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     bool started_ = false;
     bool connected_ = false;
     bool stopping_ = false;
-    bool ever_connected_ = false;
     std::chrono::seconds reconnect_delay_ = first_reconnect_delay;
     std::function<void()> stopped_;
     std::unordered_map<int, std::size_t> queued_;  // by message id: bytes not yet written

@@ -249,7 +249,8 @@ std::uint64_t SparkplugNode::next_seq() {
     return seq_;
 }
 
-bool SparkplugNode::publish(MessageType type, std::string_view device, Payload payload, int qos) {
+bool SparkplugNode::publish(MessageType type, std::string_view device, const Payload& payload,
+                            int qos) {
     const auto bytes = sparkplug::encode(payload);
     const bool sent =
         client_->publish(sparkplug::topic(settings_.group_id, type, settings_.edge_node_id, device),
@@ -296,7 +297,7 @@ void SparkplugNode::birth() {
         links_published_[l] = current;
     }
     counters_sent_ = std::chrono::steady_clock::now();
-    if (!publish(MessageType::nbirth, {}, std::move(nbirth))) return;
+    if (!publish(MessageType::nbirth, {}, nbirth)) return;
     ++stats_.births;
     born_ = true;
     int devices = 0;
@@ -320,7 +321,7 @@ void SparkplugNode::device_birth(Device& device, const ModuleView& view) {
     for (std::size_t i = 0; i < device.metrics.size(); ++i)
         payload.metrics.push_back(Metric{device.metrics[i].name, device.first_alias + i, now,
                                          wire(device.metrics[i].type), values[i]});
-    if (!publish(MessageType::dbirth, device.id, std::move(payload))) return;
+    if (!publish(MessageType::dbirth, device.id, payload)) return;
     device.published = std::move(values);
     device.born = true;
 }
@@ -355,9 +356,8 @@ void SparkplugNode::update(Device& device) {
                 Metric{{}, device.first_alias + i, now, wire(device.metrics[i].type), values[i]});
     if (payload.metrics.empty()) return;
     payload.seq = next_seq();
-    const auto changed = payload.metrics;
-    if (!publish(MessageType::ddata, device.id, std::move(payload))) return;
-    for (const auto& metric : changed)
+    if (!publish(MessageType::ddata, device.id, payload)) return;
+    for (const auto& metric : payload.metrics)
         device.published[*metric.alias - device.first_alias] = metric.value;
 }
 
@@ -394,7 +394,7 @@ void SparkplugNode::link_data(bool counters) {
     }
     if (payload.metrics.empty()) return;
     payload.seq = next_seq();
-    publish(MessageType::ndata, {}, std::move(payload));
+    publish(MessageType::ndata, {}, payload);
 }
 
 void SparkplugNode::tick() {

@@ -111,8 +111,8 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void update(Device& device);
     void link_data(bool counters);
     void tick();
-    bool publish(sparkplug::MessageType type, std::string_view device, sparkplug::Payload payload,
-                 int qos = 0);
+    bool publish(sparkplug::MessageType type, std::string_view device,
+                 const sparkplug::Payload& payload, int qos = 0);
     std::uint64_t next_seq();
     std::vector<std::uint8_t> death_payload() const;
     LinkMetrics link_metrics(const LinkScheduler& link) const;

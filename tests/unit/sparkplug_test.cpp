@@ -168,7 +168,7 @@ TEST(SparkplugModule, ValuesFollowTheMetrics) {
 }
 
 gateway::WritePlan planned(std::optional<ModuleAddress> module, std::string_view name,
-                           std::optional<Value> value) {
+                           const std::optional<Value>& value) {
     auto plan = plan_command(module, name, 0, value);
     EXPECT_TRUE(plan) << (plan ? "" : plan.error().message);
     return plan ? *plan : gateway::WritePlan{};
