@@ -43,21 +43,14 @@ bool is_analog(ModuleType type) {
 
 // A failed transaction of a write, as the write's result.
 WriteResult write_failure(const Error& error) {
-    switch (error.code) {
-        case Errc::error_ack:
+    switch (failure_of(error.code)) {
+        case Failure::error_ack:
             return WriteResult::error_ack;
-        case Errc::timeout:
-        case Errc::malformed:
-        case Errc::line_noisy:
-        case Errc::invalid_argument:
+        case Failure::no_answer:
+        case Failure::bad_answer:
             return WriteResult::no_answer;
-        case Errc::cancelled:
-        case Errc::port_lost:
-        case Errc::port_closed:
-        case Errc::io_error:
-        case Errc::port_not_found:
-        case Errc::permission_denied:
-        case Errc::port_busy:
+        case Failure::port:
+        case Failure::cancelled:
             break;
     }
     return WriteResult::link_down;
@@ -422,24 +415,17 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
         return;
     }
     const auto& error = result.error();
-    switch (error.code) {
-        case Errc::cancelled:
+    switch (failure_of(error.code)) {
+        case Failure::cancelled:
             return;
-        case Errc::port_lost:
-        case Errc::port_closed:
-        case Errc::io_error:
-        case Errc::port_not_found:
-        case Errc::permission_denied:
-        case Errc::port_busy:
+        case Failure::port:
             port_lost(error);
             return;
-        case Errc::timeout:
+        case Failure::no_answer:
             entry.status = ModuleStatus::no_answer;
             break;
-        case Errc::malformed:
-        case Errc::error_ack:
-        case Errc::line_noisy:
-        case Errc::invalid_argument:
+        case Failure::bad_answer:
+        case Failure::error_ack:
             entry.status = ModuleStatus::bad_answer;
             break;
     }

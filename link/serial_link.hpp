@@ -38,25 +38,18 @@ struct LinkCounters {
     std::uint64_t opens = 0;  // successful opens of the port
     std::uint64_t transactions_failed() const { return no_answer + bad_answer + error_ack; }
     void count_failure(Errc code) {
-        switch (code) {
-            case Errc::timeout:
+        switch (failure_of(code)) {
+            case Failure::no_answer:
                 ++no_answer;
                 return;
-            case Errc::error_ack:
-                ++error_ack;
-                return;
-            case Errc::malformed:
-            case Errc::line_noisy:
-            case Errc::invalid_argument:
+            case Failure::bad_answer:
                 ++bad_answer;
                 return;
-            case Errc::cancelled:
-            case Errc::port_lost:
-            case Errc::port_closed:
-            case Errc::io_error:
-            case Errc::port_not_found:
-            case Errc::permission_denied:
-            case Errc::port_busy:
+            case Failure::error_ack:
+                ++error_ack;
+                return;
+            case Failure::port:
+            case Failure::cancelled:
                 return;  // not an answer of the device's: the port's state says it
         }
     }

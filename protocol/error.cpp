@@ -2,6 +2,29 @@
 
 namespace ioport {
 
+Failure failure_of(Errc code) {
+    switch (code) {
+        case Errc::timeout:
+            return Failure::no_answer;
+        case Errc::malformed:
+        case Errc::line_noisy:
+        case Errc::invalid_argument:
+            return Failure::bad_answer;
+        case Errc::error_ack:
+            return Failure::error_ack;
+        case Errc::port_not_found:
+        case Errc::permission_denied:
+        case Errc::port_busy:
+        case Errc::port_lost:
+        case Errc::port_closed:
+        case Errc::io_error:
+            return Failure::port;
+        case Errc::cancelled:
+            break;
+    }
+    return Failure::cancelled;
+}
+
 std::string printable(std::string_view bytes) {
     static constexpr char hex[] = "0123456789ABCDEF";
     std::string out;

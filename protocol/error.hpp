@@ -28,6 +28,11 @@ struct Error {
     std::string message;
 };
 
+// What a failed transaction says of the device: it did not answer, answered wrongly, refused;
+// or nothing about the device, as the port is the matter, or the caller gave up.
+enum class Failure { no_answer, bad_answer, error_ack, port, cancelled };
+Failure failure_of(Errc code);
+
 template <class T = void>
 using Result = Expected<T, Error>;
 
