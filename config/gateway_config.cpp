@@ -1,7 +1,12 @@
 #include "config/gateway_config.hpp"
 
+#include <sys/stat.h>
+
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
+#include <charconv>
+#include <cmath>
 #include <fstream>
 #include <iterator>
 #include <limits>
@@ -18,6 +23,7 @@
 
 #include "config/duration.hpp"
 #include "config/number.hpp"
+#include "protocol/sparkplug.hpp"
 
 namespace ioport::config {
 namespace {
@@ -129,6 +135,75 @@ Parsed<Endpoint> parse_listen(const std::string& text) {
     return Endpoint{*std::move(host), static_cast<std::uint16_t>(*port)};
 }
 
+struct Broker {
+    bool tls = false;
+    std::string host;
+    std::uint16_t port = 1883;
+};
+
+constexpr std::string_view broker_help =
+    "write mqtt://host[:port] or mqtts://host[:port], e.g. mqtt://127.0.0.1:1883";
+
+Parsed<Broker> parse_broker(const std::string& text) {
+    Broker broker;
+    std::string_view rest = text;
+    if (rest.starts_with("mqtts://")) {
+        broker = {true, {}, 8883};
+        rest.remove_prefix(8);
+    } else if (rest.starts_with("mqtt://")) {
+        rest.remove_prefix(7);
+    } else {
+        return Unexpected(fmt::format("'{}' is not an MQTT URL: {}", text, broker_help));
+    }
+    if (rest.ends_with('/')) rest.remove_suffix(1);
+    // The port follows the last colon, after the closing bracket of an IPv6 address.
+    const auto colon = rest.rfind(':');
+    if (colon != std::string_view::npos && rest.find(']', colon) == std::string_view::npos) {
+        const auto port = parse_decimal(rest.substr(colon + 1), 65535);
+        if (!port || *port == 0)
+            return Unexpected(fmt::format("'{}': the port must be 1..65535", text));
+        broker.port = static_cast<std::uint16_t>(*port);
+        rest = rest.substr(0, colon);
+    }
+    if (rest.starts_with('[') && rest.ends_with(']')) {
+        const auto inner = rest.substr(1, rest.size() - 2);
+        if (const auto address = parse_ip(std::string(inner)); !address || !address->is_v6())
+            return Unexpected(fmt::format("'{}' is not an IPv6 address in brackets", text));
+        broker.host = std::string(inner);
+        return broker;
+    }
+    const bool name_like = !rest.empty() && std::ranges::all_of(rest, [](char c) {
+        return std::isalnum(static_cast<unsigned char>(c)) != 0 || c == '-' || c == '.' || c == '_';
+    });
+    if (!name_like) return Unexpected(fmt::format("'{}' has no valid host: {}", text, broker_help));
+    broker.host = std::string(rest);
+    return broker;
+}
+
+// A secret in a file of its own: not readable by others (the o+r bit), not empty; one trailing
+// newline is not part of it.
+Parsed<std::string> read_secret(const std::string& path) {
+    struct stat status {};
+    if (::stat(path.c_str(), &status) != 0)
+        return Unexpected(fmt::format("{}: {}", path, std::generic_category().message(errno)));
+    if (!S_ISREG(status.st_mode)) return Unexpected(fmt::format("{} is not a file", path));
+    if ((status.st_mode & S_IROTH) != 0)
+        return Unexpected(fmt::format("{} is readable by every user: chmod o-r {}", path, path));
+    std::ifstream file(path);
+    std::string secret{std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>()};
+    if (!file && !file.eof()) return Unexpected(fmt::format("{}: cannot be read", path));
+    if (secret.ends_with('\n')) secret.pop_back();
+    if (secret.ends_with('\r')) secret.pop_back();
+    if (secret.empty()) return Unexpected(fmt::format("{} is empty", path));
+    return secret;
+}
+
+Parsed<std::string> readable_file(const std::string& path) {
+    std::ifstream file(path);
+    if (!file) return Unexpected(fmt::format("{}: cannot be read", path));
+    return path;
+}
+
 // --- Scalars --------------------------------------------------------------------------------
 
 // Quoted scalars are strings in YAML: `unit_id: "1"` is a wrong type, not a number.
@@ -211,6 +286,22 @@ Parsed<LogLevel> named_log_level(const YAML::Node& value) {
         fmt::format("'{}' is not allowed: use trace or debug or info or warn or "
                     "error or critical or off",
                     value.Scalar()));
+}
+
+Parsed<std::string> text_value(const YAML::Node& value) {
+    return value.Scalar();
+}
+
+// A decimal number >= 0, such as 0.5 or 2.
+Parsed<double> non_negative(const YAML::Node& value) {
+    const std::string& text = value.Scalar();
+    double number = 0;
+    const auto* end = text.data() + text.size();
+    const auto [at, ec] = std::from_chars(text.data(), end, number);
+    if (quoted(value) || ec != std::errc() || at != end || !std::isfinite(number) || number < 0)
+        return Unexpected(
+            fmt::format("'{}' is not allowed: write a number of at least 0, e.g. 0.5", text));
+    return number;
 }
 
 Parsed<std::string> non_empty(const YAML::Node& value) {
@@ -322,8 +413,11 @@ struct Fields {
 };
 
 using Keys = std::span<const std::string_view>;
-constexpr std::array<std::string_view, 5> top_keys{"modbus", "http", "links", "on_shutdown",
-                                                   "log_level"};
+constexpr std::array<std::string_view, 6> top_keys{"modbus", "http",        "mqtt",
+                                                   "links",  "on_shutdown", "log_level"};
+constexpr std::array<std::string_view, 10> mqtt_keys{
+    "broker",        "group_id", "edge_node_id", "client_id",       "username",
+    "password_file", "ca_file",  "keepalive",    "primary_host_id", "deadband"};
 constexpr std::array<std::string_view, 2> http_keys{"listen", "allow"};
 constexpr std::array<std::string_view, 9> modbus_keys{
     "listen", "max_connections", "idle_timeout",     "allow", "read_only", "word_order",
@@ -383,6 +477,8 @@ class Loader {
     void read_modbus(const Entry& entry, ModbusSettings& modbus);
     void read_allow(const Fields& fields, std::vector<Network>& allow);
     void read_http(const Entry& entry, std::optional<HttpSettings>& http);
+    void read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt);
+    void check_sparkplug_ids(const GatewayConfig& config);
     void read_links(const Entry& entry, std::vector<LinkConfig>& links);
     void read_link(const YAML::Node& node, std::size_t index, std::vector<LinkConfig>& links);
     struct LinkOutcome {
@@ -470,6 +566,8 @@ void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
     if (const Entry* http = top.find("http")) read_http(*http, config.http);
     require(top, "links", "the gateway needs at least one link");
     if (const Entry* links = top.find("links")) read_links(*links, config.links);
+    if (const Entry* mqtt = top.find("mqtt")) read_mqtt(*mqtt, config.mqtt);
+    if (config.mqtt) check_sparkplug_ids(config);
     read(top, "on_shutdown", "keep or initial", config.on_shutdown,
          choice<OnShutdown>(on_shutdown_choices));
     read(top, "log_level", "a log level", config.log_level, named_log_level);
@@ -516,6 +614,70 @@ void Loader::read_http(const Entry& entry, std::optional<HttpSettings>& http) {
              [](const YAML::Node& value) { return parse_listen(value.Scalar()); })) {
         http->listen_host = listen.host;
         http->listen_port = listen.port;
+    }
+}
+
+void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
+    if (entry.value.IsNull()) return;  // "mqtt:" alone: no broker, so off
+    const auto settings = mapping(entry, "mqtt", mqtt_keys,
+                                  "{ broker: \"mqtt://127.0.0.1:1883\", group_id: plant1 }");
+    if (!settings) return;
+    const Fields& f = *settings;
+    if (f.find("broker") == nullptr) return;  // absent = off (gateway.md §5.5)
+    MqttSettings m;
+    Broker broker;
+    if (read(f, "broker", "an MQTT URL", broker,
+             [](const YAML::Node& value) { return parse_broker(value.Scalar()); })) {
+        m.tls = broker.tls;
+        m.host = broker.host;
+        m.port = broker.port;
+    }
+    const auto sparkplug_id = [](const YAML::Node& value) -> Parsed<std::string> {
+        if (auto checked = sparkplug::check_id(value.Scalar()); !checked)
+            return Unexpected(checked.error().message);
+        return value.Scalar();
+    };
+    require(f, "group_id", "the Sparkplug group of this edge node, e.g. group_id: plant1");
+    read(f, "group_id", "a Sparkplug group id", m.group_id, sparkplug_id);
+    require(f, "edge_node_id", "this box's Sparkplug edge node id, e.g. edge_node_id: box7");
+    read(f, "edge_node_id", "a Sparkplug edge node id", m.edge_node_id, sparkplug_id);
+    read(f, "client_id", "an MQTT client id", m.client_id, text_value);
+    if (m.client_id.empty()) m.client_id = fmt::format("ioportd-{}-{}", m.group_id, m.edge_node_id);
+    read(f, "username", "a user name", m.username, text_value);
+    read(f, "password_file", "a file's path", m.password_file, text_value);
+    if (!m.password_file.empty()) {
+        if (auto secret = read_secret(m.password_file))
+            m.password = *std::move(secret);
+        else
+            add(f.line_of("password_file"), f.key("password_file"), std::move(secret).error());
+    }
+    read(f, "ca_file", "a file's path", m.ca_file, text_value);
+    if (!m.ca_file.empty()) {
+        if (!m.tls)
+            add(f.line_of("ca_file"), f.key("ca_file"),
+                "a CA file is for mqtts:// brokers only: use mqtts:// or remove the key");
+        else if (auto readable = readable_file(m.ca_file); !readable)
+            add(f.line_of("ca_file"), f.key("ca_file"), std::move(readable).error());
+    }
+    read(f, "keepalive", "a duration such as 30s", m.keepalive, duration(5s, 65535s));
+    read(f, "primary_host_id", "a Sparkplug host id", m.primary_host_id,
+         [&](const YAML::Node& value) -> Parsed<std::string> {
+             if (value.Scalar().empty()) return std::string();
+             return sparkplug_id(value);
+         });
+    read(f, "deadband", "a number of engineering units, e.g. 0.5", m.deadband, non_negative);
+    mqtt = std::move(m);
+}
+
+// Link names are part of Sparkplug device ids ("hub0.dim16.0"), so they must fit in a topic.
+void Loader::check_sparkplug_ids(const GatewayConfig& config) {
+    for (std::size_t i = 0; i < config.links.size(); ++i) {
+        const auto& link = config.links[i];
+        if (link.name.empty()) continue;  // reported already
+        if (auto checked = sparkplug::check_id(link.name); !checked)
+            add(link.line, fmt::format("links[{}].name", i),
+                fmt::format("with mqtt on, a link name is part of Sparkplug device ids: {}",
+                            checked.error().message));
     }
 }
 

@@ -66,6 +66,24 @@ struct HttpSettings {
     friend bool operator==(const HttpSettings&, const HttpSettings&) = default;
 };
 
+// The Sparkplug B edge node (gateway.md §5.5).
+struct MqttSettings {
+    bool tls = false;  // mqtts://
+    std::string host;  // an IP literal (IPv6 without brackets) or a host name
+    std::uint16_t port = 1883;
+    std::string group_id;
+    std::string edge_node_id;
+    std::string client_id;  // default: ioportd-<group_id>-<edge_node_id>
+    std::string username;
+    std::string password_file;
+    std::string password;  // read from password_file at load (and at each reload)
+    std::string ca_file;   // mqtts: the CA that signed the broker's certificate
+    std::chrono::microseconds keepalive = 30s;
+    std::string primary_host_id;
+    double deadband = 0;  // analog channels, in engineering units
+    friend bool operator==(const MqttSettings&, const MqttSettings&) = default;
+};
+
 struct ModuleConfig {
     ModuleAddress address;
     std::chrono::microseconds poll{0};       // input modules: at most this often; 0 = every cycle
@@ -105,6 +123,8 @@ struct GatewayConfig {
     ModbusSettings modbus;
     // No `http:` section, or `listen: ""`: no HTTP server (an upgrade never opens a port).
     std::optional<HttpSettings> http;
+    // No `mqtt:` section, or no `broker`: no Sparkplug edge node.
+    std::optional<MqttSettings> mqtt;
     std::vector<LinkConfig> links;
     OnShutdown on_shutdown = OnShutdown::keep;
     LogLevel log_level = LogLevel::info;

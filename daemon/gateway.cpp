@@ -36,24 +36,37 @@ Result<> Gateway::start() {
     for (auto& link : links_)
         link->start();
     if (auto started = server_->start(); !started) return started;
-    if (!config_.http) return {};
-    http_ = make_http(*config_.http);
-    return http_->start();
+    if (config_.http) {
+        http_ = make_http(*config_.http);
+        if (auto started = http_->start(); !started) return started;
+    }
+    return start_sparkplug();
+}
+
+Result<> Gateway::start_sparkplug() {
+    if (!config_.mqtt) return {};
+    auto node = SparkplugNode::create(executor_, *config_.mqtt, log_, events_);
+    if (!node) return Unexpected(node.error());
+    sparkplug_ = std::move(*node);
+    sparkplug_->start(links_);
+    return {};
 }
 
 void Gateway::shut_down(std::function<void()> done) {
-    if (http_) http_->stop();
-    server_->shut_down();
-    // Shared by the links' callbacks; `done` runs when the last of them has finished.
-    auto remaining = std::make_shared<std::size_t>(links_.size());
+    // Shared by the links' and the edge node's callbacks; `done` runs when the last has finished.
+    auto remaining = std::make_shared<std::size_t>(links_.size() + (sparkplug_ ? 1 : 0));
     auto finished = [remaining, done = std::move(done)] {
         if (--*remaining == 0) done();
     };
+    if (sparkplug_) sparkplug_->stop(sparkplug_stop_deadline, finished);
+    if (http_) http_->stop();
+    server_->shut_down();
     for (auto& link : links_)
         link->finish(config_.on_shutdown, finished);
 }
 
 void Gateway::stop() {
+    if (sparkplug_) sparkplug_->stop(std::chrono::milliseconds(0), [] {});
     if (http_) http_->stop();
     if (server_) server_->stop();
     for (auto& link : links_)
@@ -66,6 +79,7 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     const bool same_word_order = next.modbus.word_order == config_.modbus.word_order;
     const bool modbus_changed = !(next.modbus == config_.modbus);
     const bool http_changed = next.http != config_.http;
+    const bool mqtt_changed = next.mqtt != config_.mqtt;
     ModbusServer::Units links;
     struct {
         std::vector<std::string> kept, restarted, added, removed;
@@ -104,13 +118,24 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     links_ = std::move(links);
     server_->apply(config_.modbus, links_);
     apply_http(config_.http);
+    if (mqtt_changed) {
+        // Another broker or node: this session ends cleanly (NDEATH), a new one begins.
+        if (sparkplug_) sparkplug_->stop(sparkplug_stop_deadline, [] {});
+        sparkplug_.reset();
+        if (auto started = start_sparkplug(); !started)
+            log_.error({}, "SIGHUP: Sparkplug not started: {}", started.error().message);
+    } else if (sparkplug_) {
+        sparkplug_->set_links(links_);
+    }
     const auto list = [](const std::vector<std::string>& of) {
         return of.empty() ? std::string("none") : fmt::format("{}", fmt::join(of, " "));
     };
     auto summary = fmt::format(
-        "links kept: {}; restarted: {}; added: {}; removed: {}; Modbus settings {}; HTTP {}",
+        "links kept: {}; restarted: {}; added: {}; removed: {}; Modbus settings {}; HTTP {}; "
+        "MQTT {}",
         list(names.kept), list(names.restarted), list(names.added), list(names.removed),
-        modbus_changed ? "changed" : "unchanged", http_changed ? "changed" : "unchanged");
+        modbus_changed ? "changed" : "unchanged", http_changed ? "changed" : "unchanged",
+        mqtt_changed ? "changed" : "unchanged");
     events_.add(EventKind::reload, {}, {}, {}, fmt::format("configuration reloaded: {}", summary));
     return summary;
 }
@@ -212,6 +237,15 @@ std::string describe(const config::GatewayConfig& config) {
                                 : fmt::format("{} allowed networks", http->allow.size()));
     else
         text += "HTTP off\n";
+    if (const auto& mqtt = config.mqtt)
+        text +=
+            fmt::format("Sparkplug B edge node {}/{} on {}://{}:{}{}\n", mqtt->group_id,
+                        mqtt->edge_node_id, mqtt->tls ? "mqtts" : "mqtt", mqtt->host, mqtt->port,
+                        mqtt->primary_host_id.empty()
+                            ? std::string()
+                            : fmt::format(", primary host {}", mqtt->primary_host_id));
+    else
+        text += "MQTT off\n";
     text += fmt::format(
         "on shutdown: outputs {}; on communication loss: {}; log level {}\n",
         config.on_shutdown == config::OnShutdown::keep ? "kept as they are" : "set to initial",

@@ -1,7 +1,7 @@
-// The running gateway: one LinkScheduler per configured link, the Modbus server in front of them
-// and the read-only HTTP side, on one io_context. Started and stopped in a fixed order: links
-// first (so the first clients find ports already being opened), then the Modbus server, then
-// HTTP; stopped the other way round.
+// The running gateway: one LinkScheduler per configured link, the Modbus server in front of them,
+// the read-only HTTP side and the Sparkplug edge node, on one io_context. Started and stopped in
+// a fixed order: links first (so the first clients find ports already being opened), then the
+// Modbus server, HTTP, Sparkplug; stopped the other way round.
 // A reload swaps in a new configuration while running, touching only what it changes.
 #pragma once
 
@@ -15,6 +15,7 @@
 #include "daemon/http_server.hpp"
 #include "daemon/link_scheduler.hpp"
 #include "daemon/modbus_server.hpp"
+#include "daemon/sparkplug_node.hpp"
 
 namespace ioport::daemon {
 
@@ -54,6 +55,8 @@ class Gateway {
     EventLog& events() { return events_; }
     const EventLog& events() const { return events_; }
     std::chrono::system_clock::time_point started() const { return started_; }
+    // The Sparkplug edge node; null when MQTT is off.
+    const SparkplugNode* sparkplug() const { return sparkplug_.get(); }
     // The HTTP server's address; nullopt when it is off.
     std::optional<asio::ip::tcp::endpoint> http_endpoint() const;
 
@@ -63,6 +66,7 @@ class Gateway {
     // A reload's first HTTP step: binds the new address, if it moved (into next_http_).
     Result<> prepare_http(const std::optional<config::HttpSettings>& next);
     void apply_http(const std::optional<config::HttpSettings>& next);
+    Result<> start_sparkplug();
 
     asio::any_io_executor executor_;
     config::GatewayConfig config_;
@@ -73,6 +77,7 @@ class Gateway {
     std::unique_ptr<ModbusServer> server_;
     std::shared_ptr<HttpServer> http_;
     std::shared_ptr<HttpServer> next_http_;  // bound by prepare_http(), taken by apply_http()
+    std::shared_ptr<SparkplugNode> sparkplug_;
 };
 
 // The lines printed by --check-config: the links, their modules and the Modbus front.

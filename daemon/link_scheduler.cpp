@@ -309,6 +309,7 @@ asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
 void LinkScheduler::confirmed(std::size_t entry, std::uint16_t value) {
     entries_[entry].confirmed = value;
     gateway::store_output(image_.tables(), std::get<ModuleAddress>(entries_[entry].target), value);
+    if (observer_) observer_(entries_[entry].slot);
 }
 
 asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan) {
@@ -417,6 +418,7 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
         entry.status = ModuleStatus::online;
         entry.last_good = now;
         update_slot(entry, nullptr);
+        if (observer_) observer_(entry.slot);
         return;
     }
     const auto& error = result.error();
@@ -443,6 +445,7 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
     }
     plan_.done(index, false, now);
     update_slot(entry, &error);
+    if (observer_) observer_(entry.slot);
 }
 
 void LinkScheduler::update_slot(const Entry& changed, const Error* error) {
@@ -494,6 +497,7 @@ void LinkScheduler::port_lost(const Error& error) {
         if (status != ModuleStatus::not_configured && status != ModuleStatus::not_polled)
             status = ModuleStatus::no_answer;
     fail_pending_writes();
+    if (observer_) observer_(-1);
 }
 
 void LinkScheduler::fail_pending_writes() {
@@ -517,29 +521,39 @@ std::optional<std::size_t> LinkScheduler::entry_of(ModuleAddress module) const {
 std::vector<ModuleView> LinkScheduler::modules() const {
     std::vector<ModuleView> views;
     if (state_.kind == gateway::UnitKind::id2) {
-        const auto& stop = entries_[0].reading;
-        const auto& count = entries_[id2_count_entry].reading;
-        views.push_back({.name = "ID-2",
-                         .status = state_.status[0],
-                         .last_good = last_good_[0],
-                         .stop = stop ? std::optional(stop->raw[0] != 0) : std::nullopt,
-                         .count = count ? std::optional(count->raw[0]) : std::nullopt});
+        views.push_back(*module_at(0));
         return views;
     }
     views.reserve(entries_.size());
-    for (const auto& entry : entries_) {
-        const auto address = std::get<ModuleAddress>(entry.target);
-        const auto slot_index = static_cast<std::size_t>(entry.slot);
-        views.push_back({.name = to_string(address),
-                         .address = address,
-                         .slot = entry.slot,
-                         .status = state_.status[slot_index],
-                         .last_good = last_good_[slot_index],
-                         .reading = entry.reading,
-                         .output = entry.confirmed,
-                         .trend = entry.trend.get()});
-    }
+    for (const auto& entry : entries_)
+        views.push_back(*module_at(entry.slot));
     return views;
+}
+
+std::optional<ModuleView> LinkScheduler::module_at(int slot_index) const {
+    if (slot_index < 0 || slot_index >= slot_count) return std::nullopt;
+    const auto at = static_cast<std::size_t>(slot_index);
+    if (state_.kind == gateway::UnitKind::id2) {
+        if (slot_index != 0) return std::nullopt;
+        const auto& stop = entries_[0].reading;
+        const auto& count = entries_[id2_count_entry].reading;
+        return ModuleView{.name = "ID-2",
+                          .status = state_.status[0],
+                          .last_good = last_good_[0],
+                          .stop = stop ? std::optional(stop->raw[0] != 0) : std::nullopt,
+                          .count = count ? std::optional(count->raw[0]) : std::nullopt};
+    }
+    const auto entry = entry_of(module_at_slot(slot_index));
+    if (!entry) return std::nullopt;
+    const auto& e = entries_[*entry];
+    return ModuleView{.name = to_string(module_at_slot(slot_index)),
+                      .address = module_at_slot(slot_index),
+                      .slot = slot_index,
+                      .status = state_.status[at],
+                      .last_good = last_good_[at],
+                      .reading = e.reading,
+                      .output = e.confirmed,
+                      .trend = e.trend.get()};
 }
 
 modbus_mapping_t* LinkScheduler::image(bool diagnostics) {

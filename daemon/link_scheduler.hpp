@@ -93,6 +93,12 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     bool port_open() const { return state_.port_open; }
     int modules_online() const;
     std::vector<ModuleView> modules() const;
+    // The module of `slot` (the ID-2's is 0); nullopt when none is configured there.
+    std::optional<ModuleView> module_at(int slot) const;
+    // Called on the loop, at once, whenever a module's status or values may have changed (a
+    // transaction recorded, an output confirmed, the port lost): `slot`, or -1 for every module.
+    // The observer must not block; it may compare and publish.
+    void set_observer(std::function<void(int slot)> observer) { observer_ = std::move(observer); }
     // Client writes by WriteResult.
     const std::array<std::uint64_t, write_result_count>& writes() const { return writes_count_; }
     const LinkCounters& counters() const { return link_.counters(); }
@@ -160,6 +166,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     bool stopping_ = false;
     std::optional<config::OnShutdown> finishing_;
     std::function<void()> finished_;
+    std::function<void(int slot)> observer_;
     std::string last_open_error_;
     Clock::time_point woke_ = Clock::now();  // started, or last woke from a sleep
     std::optional<Clock::time_point> asleep_until_;

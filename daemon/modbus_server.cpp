@@ -523,17 +523,19 @@ void ModbusServer::audit(const Connection& c, const Write& write, WriteResult re
     if (!request) return;  // planned as a write, so it parses
     const auto values = modbus::written_values(*request);
     const auto& link = write.unit->config();
+    const auto function = std::to_string(static_cast<int>(request->function));
+    const auto address = std::to_string(request->address);
     const WriteAudit audit{
-        .function = static_cast<int>(request->function),
-        .address = request->address,
+        .function = function,
+        .address = address,
         .value = values,
         .result = to_string(result),
         .latency_us =
             std::chrono::duration_cast<std::chrono::microseconds>(Clock::now() - received).count()};
     auto text =
-        fmt::format("write by {} to unit {} ({}): FC {:02d} address {} values {}: {} in {} ms",
-                    c.peer, link.unit_id, link.name, audit.function, audit.address, values,
-                    audit.result, static_cast<double>(audit.latency_us) / 1000);
+        fmt::format("write by {} to unit {} ({}): FC {:0>2} address {} values {}: {} in {} ms",
+                    c.peer, link.unit_id, link.name, function, address, values, audit.result,
+                    static_cast<double>(audit.latency_us) / 1000);
     log_.notice({.link = link.name, .unit = link.unit_id, .client = c.peer, .audit = &audit}, "{}",
                 text);
     events_.add(EventKind::write, link.name, {}, c.peer, std::move(text));

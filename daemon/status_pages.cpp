@@ -195,6 +195,28 @@ void modbus_families(Exposition& out, const ModbusServer& server) {
     out.sample("ioportd_comm_loss", {}, server.comm_lost() ? 1 : 0);
 }
 
+void sparkplug_families(Exposition& out, const SparkplugNode* node) {
+    if (node == nullptr) return;  // MQTT off: no such families
+    const auto stats = node->stats();
+    out.family("ioportd_mqtt_connected", "gauge", "1 while connected to the MQTT broker");
+    out.sample("ioportd_mqtt_connected", {}, stats.connected ? 1 : 0);
+    out.family("ioportd_mqtt_messages_published_total", "counter",
+               "MQTT messages handed to the broker connection");
+    out.sample("ioportd_mqtt_messages_published_total", {}, stats.published);
+    out.family("ioportd_mqtt_messages_dropped_total", "counter",
+               "MQTT messages dropped: not connected, or the send queue full");
+    out.sample("ioportd_mqtt_messages_dropped_total", {}, stats.dropped);
+    out.family("ioportd_sparkplug_online", "gauge",
+               "1 while the edge node's births are out in the current session");
+    out.sample("ioportd_sparkplug_online", {}, stats.online ? 1 : 0);
+    out.family("ioportd_sparkplug_births_total", "counter", "NBIRTHs sent, rebirths included");
+    out.sample("ioportd_sparkplug_births_total", {}, stats.births);
+    out.family("ioportd_sparkplug_commands_total", "counter", "DCMD metrics received, by result");
+    out.sample("ioportd_sparkplug_commands_total", {{"result", "accepted"}},
+               stats.commands - stats.commands_refused);
+    out.sample("ioportd_sparkplug_commands_total", {{"result", "refused"}}, stats.commands_refused);
+}
+
 void process_families(Exposition& out, const ProcessStats& process) {
     out.family("process_cpu_seconds_total", "counter", "User and system CPU time spent");
     out.sample("process_cpu_seconds_total", {}, process.cpu_seconds);
@@ -405,6 +427,7 @@ std::string render_metrics(const Gateway& gateway, const ProcessStats& process) 
     link_families(out, gateway.links());
     module_families(out, gateway.links());
     modbus_families(out, gateway.modbus());
+    sparkplug_families(out, gateway.sparkplug());
     process_families(out, process);
     return out.take();
 }

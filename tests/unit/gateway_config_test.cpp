@@ -327,6 +327,74 @@ TEST(GatewayConfig, TheHttpSection) {
     EXPECT_FALSE(off->http);
 }
 
+// A file of the test's that removes itself; `mode` as chmod takes it.
+class TempFile {
+  public:
+    TempFile(const std::string& content, std::filesystem::perms mode)
+        : path_(std::filesystem::temp_directory_path() /
+                ("ioportd-config-test-" + std::to_string(::getpid()) + "-" +
+                 std::to_string(counter_++))) {
+        std::ofstream(path_) << content;
+        std::filesystem::permissions(path_, mode);
+    }
+    ~TempFile() { std::filesystem::remove(path_); }
+    TempFile(const TempFile&) = delete;
+    TempFile& operator=(const TempFile&) = delete;
+    std::string path() const { return path_.string(); }
+
+  private:
+    static inline int counter_ = 0;
+    std::filesystem::path path_;
+};
+
+using std::filesystem::perms;
+constexpr auto owner_only = perms::owner_read | perms::owner_write;
+
+// §5.5: the Sparkplug edge node's settings; no broker, no edge node.
+TEST(GatewayConfig, TheMqttSection) {
+    const std::string links = R"(links:
+  - { name: hub0, protocol: ioport, device: /dev/ttyUSB0, modules: [{ type: dim16, number: 0 }] }
+)";
+    const TempFile password("s3cret\n", owner_only | perms::group_read);
+    const auto full = parse(
+        "mqtt:\n  broker: \"mqtts://broker.plant.example\"\n"
+        "  group_id: plant1\n  edge_node_id: box7\n  username: box7\n"
+        "  password_file: " +
+        password.path() +
+        "\n"
+        "  ca_file: /dev/null\n  keepalive: 10s\n  primary_host_id: scada\n"
+        "  deadband: 0.25\n" +
+        links);
+    ASSERT_TRUE(full) << describe(full.error());
+    ASSERT_TRUE(full->mqtt);
+    const auto& m = *full->mqtt;
+    EXPECT_TRUE(m.tls);
+    EXPECT_EQ(m.host, "broker.plant.example");
+    EXPECT_EQ(m.port, 8883);
+    EXPECT_EQ(m.group_id, "plant1");
+    EXPECT_EQ(m.edge_node_id, "box7");
+    EXPECT_EQ(m.client_id, "ioportd-plant1-box7");
+    EXPECT_EQ(m.password, "s3cret");
+    EXPECT_EQ(m.keepalive, 10s);
+    EXPECT_EQ(m.primary_host_id, "scada");
+    EXPECT_DOUBLE_EQ(m.deadband, 0.25);
+    const auto plain = parse(
+        "mqtt:\n  broker: \"mqtt://[::1]\"\n  group_id: g\n"
+        "  edge_node_id: n\n  client_id: gw-7\n" +
+        links);
+    ASSERT_TRUE(plain) << describe(plain.error());
+    EXPECT_FALSE(plain->mqtt->tls);
+    EXPECT_EQ(plain->mqtt->host, "::1");
+    EXPECT_EQ(plain->mqtt->port, 1883);
+    EXPECT_EQ(plain->mqtt->client_id, "gw-7");
+    EXPECT_EQ(plain->mqtt->keepalive, 30s);
+    EXPECT_EQ(plain->mqtt->deadband, 0.0);
+    const auto off = parse("mqtt:\n  group_id: g\n" + links);
+    ASSERT_TRUE(off) << describe(off.error());
+    EXPECT_FALSE(off->mqtt);
+    EXPECT_FALSE(parse(links)->mqtt);
+}
+
 // --- Errors ---------------------------------------------------------------------------------
 
 // Lines 1-6: a valid ioport link. Cases append a key of link 0 or a module at line 7.
@@ -404,7 +472,7 @@ TEST(GatewayConfigErrors, TheFileAsAWhole) {
     expect_one_error({"links: hub0\n", 1, "links", "at least one link, found a single value"});
     expect_one_error({hub + "---\n" + hub, 8, "", "one YAML document"});
     expect_one_error(
-        {"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, http, links"});
+        {"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, http, mqtt, links"});
 }
 
 TEST(GatewayConfigErrors, UnknownAndDuplicateKeys) {
@@ -647,6 +715,42 @@ TEST(GatewayConfigErrors, TheHttpSection) {
     expect_one_error(
         {"http:\n  port: 80\n" + hub, 2, "http.port", "allowed here are listen, allow"});
     expect_one_error({"http: on\n" + hub, 1, "http", "expected a mapping"});
+}
+
+TEST(GatewayConfigErrors, TheMqttSection) {
+    const std::string mqtt = "mqtt:\n  group_id: g\n  edge_node_id: n\n";  // lines 1-3
+    const auto broker = [&](const std::string& url, const std::string& fragment) {
+        expect_one_error({mqtt + "  broker: \"" + url + "\"\n" + hub, 4, "mqtt.broker", fragment});
+    };
+    broker("tcp://1.2.3.4", "not an MQTT URL");
+    broker("mqtt://", "no valid host");
+    broker("mqtt://a b", "no valid host");
+    broker("mqtt://1.2.3.4:0", "1..65535");
+    broker("mqtt://[1.2.3.4]", "not an IPv6 address");
+    const std::string b = "mqtt:\n  broker: mqtt://127.0.0.1\n";  // lines 1-2
+    expect_one_error({b + "  edge_node_id: n\n" + hub, 2, "mqtt.group_id", "missing"});
+    expect_one_error({b + "  group_id: a/b\n  edge_node_id: n\n" + hub, 3, "mqtt.group_id",
+                      "'a/b' contains '/'"});
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  keepalive: 2s\n" + hub, 5,
+                      "mqtt.keepalive", "out of range"});
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  deadband: -1\n" + hub, 5,
+                      "mqtt.deadband", "at least 0"});
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  ca_file: /dev/null\n" + hub, 5,
+                      "mqtt.ca_file", "mqtts:// brokers only"});
+    const TempFile open_password("pw\n", owner_only | perms::others_read);
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  password_file: " +
+                          open_password.path() + "\n" + hub,
+                      5, "mqtt.password_file", "readable by every user: chmod o-r"});
+    const TempFile empty_password("\n", owner_only);
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  password_file: " +
+                          empty_password.path() + "\n" + hub,
+                      5, "mqtt.password_file", "is empty"});
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  password_file: /nonexistent\n" + hub,
+                      5, "mqtt.password_file", "No such file"});
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n" +
+                          "links:\n  - { name: \"hub/0\", protocol: ioport, device: /dev/x, "
+                          "modules: [{ type: dim16, number: 0 }] }\n",
+                      6, "links[0].name", "part of Sparkplug device ids"});
 }
 
 TEST(GatewayConfigErrors, CommLossTimeout) {

@@ -1,0 +1,331 @@
+#include "daemon/mqtt_client.hpp"
+
+#include <mosquitto.h>
+
+#include <fmt/format.h>
+
+namespace ioport::daemon {
+namespace {
+
+std::string mosquitto_error(int rc) {
+    if (rc == MOSQ_ERR_ERRNO) return std::generic_category().message(errno);
+    return mosquitto_strerror(rc);
+}
+
+}  // namespace
+
+Result<std::shared_ptr<MqttClient>> MqttClient::create(const asio::any_io_executor& executor,
+                                                       const config::MqttSettings& settings,
+                                                       Log& log, Handlers handlers) {
+    std::shared_ptr<MqttClient> client(
+        new MqttClient(executor, settings, log, std::move(handlers)));
+    if (auto configured = client->configure(); !configured) return Unexpected(configured.error());
+    return client;
+}
+
+MqttClient::MqttClient(const asio::any_io_executor& executor, const config::MqttSettings& settings,
+                       Log& log, Handlers handlers)
+    : executor_(executor),
+      settings_(settings),
+      log_(log),
+      handlers_(std::move(handlers)),
+      socket_(executor),
+      misc_(executor),
+      reconnect_(executor),
+      stop_deadline_(executor),
+      resolver_(executor) {
+    mosquitto_lib_init();  // counted: each client pairs it with its cleanup
+}
+
+MqttClient::~MqttClient() {
+    forget_socket();
+    if (client_ != nullptr) mosquitto_destroy(client_);
+    mosquitto_lib_cleanup();
+}
+
+std::string MqttClient::broker() const {
+    const bool v6 = settings_.host.find(':') != std::string::npos;
+    return fmt::format("{}://{}{}{}:{}", settings_.tls ? "mqtts" : "mqtt", v6 ? "[" : "",
+                       settings_.host, v6 ? "]" : "", settings_.port);
+}
+
+Result<> MqttClient::configure() {
+    // A clean session, as Sparkplug 3.0 requires of an edge node (§7.1).
+    client_ = mosquitto_new(settings_.client_id.c_str(), true, this);
+    if (client_ == nullptr)
+        return fail(Errc::io_error, fmt::format("mqtt: cannot make an MQTT client: {}",
+                                                std::generic_category().message(errno)));
+    mosquitto_int_option(client_, MOSQ_OPT_PROTOCOL_VERSION, MQTT_PROTOCOL_V311);
+    mosquitto_int_option(client_, MOSQ_OPT_TCP_NODELAY, 1);
+    mosquitto_connect_callback_set(client_, &MqttClient::on_connect);
+    mosquitto_disconnect_callback_set(client_, &MqttClient::on_disconnect);
+    mosquitto_publish_callback_set(client_, &MqttClient::on_publish);
+    mosquitto_message_callback_set(client_, &MqttClient::on_message);
+    if (!settings_.username.empty() || !settings_.password.empty()) {
+        const int rc = mosquitto_username_pw_set(
+            client_, settings_.username.empty() ? nullptr : settings_.username.c_str(),
+            settings_.password.empty() ? nullptr : settings_.password.c_str());
+        if (rc != MOSQ_ERR_SUCCESS)
+            return fail(Errc::invalid_argument,
+                        fmt::format("mqtt.username: {}", mosquitto_error(rc)));
+    }
+    if (settings_.tls) {
+        // Without ca_file, the system's CAs: a broker with a public certificate.
+        const int rc = mosquitto_tls_set(
+            client_, settings_.ca_file.empty() ? nullptr : settings_.ca_file.c_str(),
+            settings_.ca_file.empty() ? "/etc/ssl/certs" : nullptr, nullptr, nullptr, nullptr);
+        if (rc != MOSQ_ERR_SUCCESS)
+            return fail(
+                Errc::invalid_argument,
+                fmt::format("mqtt.ca_file: {}: {}", settings_.ca_file, mosquitto_error(rc)));
+        mosquitto_tls_opts_set(client_, 1, "tlsv1.2", nullptr);  // verify the broker, TLS >= 1.2
+    }
+    return {};
+}
+
+void MqttClient::set_will(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
+                          bool retain) {
+    mosquitto_will_set(client_, std::string(topic).c_str(), static_cast<int>(payload.size()),
+                       payload.data(), qos, retain);
+}
+
+void MqttClient::start() {
+    started_ = true;
+    tick();
+    resolve_then_connect();
+}
+
+// libmosquitto looks the host name up itself, with getaddrinfo(), which blocks. It is asked
+// only once Asio's resolver (which never blocks this thread) found the name, so that a DNS that
+// is down or slow is waited for off the loop; the second lookup then normally comes from the
+// same resolver's answer. An IP literal needs no lookup at all.
+void MqttClient::resolve_then_connect() {
+    boost::system::error_code ec;
+    asio::ip::make_address(settings_.host, ec);
+    if (!ec) {
+        connect();
+        return;
+    }
+    resolver_.async_resolve(
+        settings_.host, std::to_string(settings_.port),
+        [self = shared_from_this()](const boost::system::error_code& error, const auto&) {
+            if (self->stopping_ || error == asio::error::operation_aborted) return;
+            if (error) {
+                self->lost(
+                    fmt::format("cannot resolve {}: {}", self->settings_.host, error.message()));
+                return;
+            }
+            self->connect();
+        });
+}
+
+void MqttClient::connect() {
+    if (handlers_.connecting) handlers_.connecting();
+    const auto keepalive = static_cast<int>(
+        std::chrono::duration_cast<std::chrono::seconds>(settings_.keepalive).count());
+    const int rc =
+        mosquitto_connect_async(client_, settings_.host.c_str(), settings_.port, keepalive);
+    if (rc != MOSQ_ERR_SUCCESS) {
+        lost(fmt::format("cannot connect to {}: {}", broker(), mosquitto_error(rc)));
+        return;
+    }
+    watch();
+}
+
+void MqttClient::forget_socket() {
+    if (!socket_.is_open()) return;
+    // libmosquitto owns the descriptor and closes it itself: Asio only stops watching it.
+    boost::system::error_code ignored;
+    socket_.cancel(ignored);
+    (void)socket_.release();
+}
+
+void MqttClient::watch() {
+    const int fd = mosquitto_socket(client_);
+    if (socket_.is_open() && socket_.native_handle() != fd) forget_socket();
+    if (fd < 0) return;
+    if (!socket_.is_open()) {
+        boost::system::error_code ec;
+        socket_.assign(fd, ec);
+        if (ec) {
+            log_.error({}, "mqtt: cannot watch the broker's socket: {}", ec.message());
+            return;
+        }
+    }
+    if (!reading_) {
+        reading_ = true;
+        socket_.async_wait(asio::posix::stream_descriptor::wait_read,
+                           [self = shared_from_this()](const boost::system::error_code& ec) {
+                               self->reading_ = false;
+                               if (ec) {
+                                   if (!self->stopping_ || self->stopped_) self->watch();
+                                   return;
+                               }
+                               self->after_io(mosquitto_loop_read(self->client_, 1), "reading");
+                           });
+    }
+    if (!writing_ && mosquitto_want_write(client_)) {
+        writing_ = true;
+        socket_.async_wait(asio::posix::stream_descriptor::wait_write,
+                           [self = shared_from_this()](const boost::system::error_code& ec) {
+                               self->writing_ = false;
+                               if (ec) {
+                                   if (!self->stopping_ || self->stopped_) self->watch();
+                                   return;
+                               }
+                               self->after_io(mosquitto_loop_write(self->client_, 16), "writing");
+                           });
+    }
+}
+
+void MqttClient::after_io(int rc, std::string_view during) {
+    // A lost connection was reported through on_disconnect already; other errors are said here.
+    if (rc != MOSQ_ERR_SUCCESS && rc != MOSQ_ERR_CONN_LOST && rc != MOSQ_ERR_NO_CONN &&
+        mosquitto_socket(client_) >= 0)
+        log_.debug({}, "mqtt: {} {}: {}", during, broker(), mosquitto_error(rc));
+    if (stopped_ && !mosquitto_want_write(client_)) {
+        finish_stop();
+        return;
+    }
+    watch();
+}
+
+void MqttClient::tick() {
+    misc_.expires_after(std::chrono::seconds(1));
+    misc_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
+        if (ec || !self->started_) return;
+        // Keepalive: a PINGREQ when due, and a broker that stopped answering is found out.
+        mosquitto_loop_misc(self->client_);
+        self->watch();
+        self->tick();
+    });
+}
+
+void MqttClient::lost(const std::string& why) {
+    const bool was_connected = connected_;
+    connected_ = false;
+    queued_.clear();
+    queued_bytes_ = 0;
+    forget_socket();
+    if (stopping_) {
+        finish_stop();
+        return;
+    }
+    // Once per distinct reason while it lasts: a broker away for hours must not flood the log.
+    if (was_connected || why != last_error_)
+        log_.warn({}, "mqtt: {}; reconnecting within {} s", why, reconnect_delay_.count());
+    last_error_ = why;
+    if (handlers_.disconnected) handlers_.disconnected(why);
+    schedule_reconnect();
+}
+
+void MqttClient::schedule_reconnect() {
+    reconnect_.expires_after(reconnect_delay_);
+    reconnect_delay_ = std::min(2 * reconnect_delay_, max_reconnect_delay);
+    reconnect_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
+        if (ec || self->stopping_) return;
+        self->resolve_then_connect();
+    });
+}
+
+bool MqttClient::publish(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
+                         bool retain) {
+    if (!connected_ || queued_bytes_ + payload.size() > max_queued_bytes) {
+        ++dropped_;
+        return false;
+    }
+    int mid = 0;
+    const int rc = mosquitto_publish(client_, &mid, std::string(topic).c_str(),
+                                     static_cast<int>(payload.size()), payload.data(), qos, retain);
+    if (rc != MOSQ_ERR_SUCCESS) {
+        ++dropped_;
+        return false;
+    }
+    ++published_;
+    // on_publish may have run within mosquitto_publish (written at once, QoS 0): then the id is
+    // not queued any more.
+    if (!written_now_) {
+        queued_[mid] = payload.size();
+        queued_bytes_ += payload.size();
+    }
+    written_now_ = false;
+    watch();
+    return true;
+}
+
+void MqttClient::subscribe(std::string_view pattern, int qos) {
+    mosquitto_subscribe(client_, nullptr, std::string(pattern).c_str(), qos);
+    watch();
+}
+
+void MqttClient::stop(std::chrono::milliseconds deadline, std::function<void()> done) {
+    stopping_ = true;
+    started_ = false;
+    stopped_ = std::move(done);
+    misc_.cancel();
+    reconnect_.cancel();
+    resolver_.cancel();
+    if (!connected_) {
+        finish_stop();
+        return;
+    }
+    // DISCONNECT after what is queued; the broker then discards the will (a clean end).
+    mosquitto_disconnect(client_);
+    stop_deadline_.expires_after(deadline);
+    stop_deadline_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
+        if (!ec) self->finish_stop();
+    });
+    watch();
+}
+
+void MqttClient::finish_stop() {
+    stop_deadline_.cancel();
+    connected_ = false;
+    forget_socket();
+    if (auto done = std::exchange(stopped_, nullptr)) done();
+}
+
+void MqttClient::on_connect(mosquitto* /*client*/, void* self, int rc) {
+    auto& me = *static_cast<MqttClient*>(self);
+    if (rc != 0) {
+        // CONNACK refused: libmosquitto keeps the socket open; the reconnect replaces it.
+        me.lost(fmt::format("{} refused the connection: {}", me.broker(),
+                            mosquitto_connack_string(rc)));
+        return;
+    }
+    me.connected_ = true;
+    me.reconnect_delay_ = first_reconnect_delay;
+    me.last_error_.clear();
+    me.log_.info({}, "mqtt: connected to {} as {}", me.broker(), me.settings_.client_id);
+    if (me.handlers_.connected) me.handlers_.connected();
+}
+
+void MqttClient::on_disconnect(mosquitto* /*client*/, void* self, int rc) {
+    auto& me = *static_cast<MqttClient*>(self);
+    if (me.stopping_) {
+        me.finish_stop();
+        return;
+    }
+    me.lost(rc == 0 ? fmt::format("{} closed the connection", me.broker())
+                    : fmt::format("connection to {} lost: {}", me.broker(), mosquitto_error(rc)));
+}
+
+void MqttClient::on_publish(mosquitto* /*client*/, void* self, int mid) {
+    auto& me = *static_cast<MqttClient*>(self);
+    const auto found = me.queued_.find(mid);
+    if (found == me.queued_.end()) {
+        me.written_now_ = true;  // within mosquitto_publish(): never queued
+        return;
+    }
+    me.queued_bytes_ -= found->second;
+    me.queued_.erase(found);
+}
+
+void MqttClient::on_message(mosquitto* /*client*/, void* self, const mosquitto_message* message) {
+    auto& me = *static_cast<MqttClient*>(self);
+    if (!me.handlers_.message || message->topic == nullptr) return;
+    me.handlers_.message(message->topic, {static_cast<const std::uint8_t*>(message->payload),
+                                          static_cast<std::size_t>(message->payloadlen)});
+}
+
+}  // namespace ioport::daemon

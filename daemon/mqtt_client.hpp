@@ -1,0 +1,119 @@
+// One MQTT connection on the daemon's io_context: libmosquitto frames packets and keeps the
+// session; Asio watches its socket (mosquitto_socket) and calls mosquitto_loop_read/write when
+// it is ready, and mosquitto_loop_misc once a second for keepalive. No thread of libmosquitto's
+// (no loop_start) and nothing that waits: a broker that is down, slow or refusing costs the
+// loop a system call now and then, never a wait.
+//
+// Publication is bounded: at most max_queued_bytes may wait in libmosquitto's queue for the
+// socket; a publish beyond that, or while not connected, is dropped and counted, and the caller
+// decides what that means (the edge node rebirths when the connection is back).
+//
+// Owned through a shared_ptr: its completions keep it alive.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <string_view>
+#include <unordered_map>
+
+#include "config/gateway_config.hpp"
+#include "daemon/log.hpp"
+#include "link/asio.hpp"
+
+struct mosquitto;
+struct mosquitto_message;
+
+namespace ioport::daemon {
+
+inline constexpr std::size_t max_queued_bytes = std::size_t{4} << 20;
+inline constexpr std::chrono::seconds first_reconnect_delay{1};
+inline constexpr std::chrono::seconds max_reconnect_delay{30};
+
+class MqttClient : public std::enable_shared_from_this<MqttClient> {
+  public:
+    struct Handlers {
+        // Right before each CONNECT: the moment to set the will of the session it begins.
+        std::function<void()> connecting;
+        // The broker accepted the CONNECT.
+        std::function<void()> connected;
+        // The connection is gone, or the CONNECT was refused; a reconnect is scheduled.
+        std::function<void(const std::string& why)> disconnected;
+        std::function<void(std::string_view topic, std::span<const std::uint8_t> payload)> message;
+    };
+
+    // Fails when libmosquitto cannot make the client or take the settings (a CA file it
+    // cannot load, say).
+    static Result<std::shared_ptr<MqttClient>> create(const asio::any_io_executor& executor,
+                                                      const config::MqttSettings& settings,
+                                                      Log& log, Handlers handlers);
+    ~MqttClient();
+    MqttClient(const MqttClient&) = delete;
+    MqttClient& operator=(const MqttClient&) = delete;
+
+    // Connects, and reconnects whenever the connection is lost (1 s doubling to 30 s).
+    void start();
+    // Sets the will of the next CONNECT.
+    void set_will(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
+                  bool retain);
+    // False, and counted in dropped(), when not connected or the queue is full.
+    bool publish(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
+                 bool retain);
+    void subscribe(std::string_view pattern, int qos);
+    // The clean end: what is queued is sent, then DISCONNECT (so the broker keeps the will), then
+    // `done`; at once when not connected. Not within `deadline`: the socket is closed anyway.
+    void stop(std::chrono::milliseconds deadline, std::function<void()> done);
+
+    bool connected() const { return connected_; }
+    std::uint64_t dropped() const { return dropped_; }
+    std::uint64_t published() const { return published_; }
+    std::string broker() const;
+
+  private:
+    MqttClient(const asio::any_io_executor& executor, const config::MqttSettings& settings,
+               Log& log, Handlers handlers);
+    Result<> configure();
+    void connect();
+    void resolve_then_connect();
+    void watch();
+    void forget_socket();
+    void after_io(int rc, std::string_view during);
+    void lost(const std::string& why);
+    void schedule_reconnect();
+    void tick();
+    void finish_stop();
+
+    static void on_connect(mosquitto* client, void* self, int rc);
+    static void on_disconnect(mosquitto* client, void* self, int rc);
+    static void on_publish(mosquitto* client, void* self, int mid);
+    static void on_message(mosquitto* client, void* self, const mosquitto_message* message);
+
+    asio::any_io_executor executor_;
+    config::MqttSettings settings_;
+    Log& log_;
+    Handlers handlers_;
+    mosquitto* client_ = nullptr;
+    asio::posix::stream_descriptor socket_;
+    asio::steady_timer misc_;
+    asio::steady_timer reconnect_;
+    asio::steady_timer stop_deadline_;
+    asio::ip::tcp::resolver resolver_;
+    bool reading_ = false;
+    bool writing_ = false;
+    bool started_ = false;
+    bool connected_ = false;
+    bool stopping_ = false;
+    bool ever_connected_ = false;
+    std::chrono::seconds reconnect_delay_ = first_reconnect_delay;
+    std::function<void()> stopped_;
+    std::unordered_map<int, std::size_t> queued_;  // by message id: bytes not yet written
+    std::size_t queued_bytes_ = 0;
+    bool written_now_ = false;  // on_publish ran within mosquitto_publish()
+    std::uint64_t dropped_ = 0;
+    std::uint64_t published_ = 0;
+    std::string last_error_;
+};
+
+}  // namespace ioport::daemon

@@ -1,0 +1,136 @@
+// The Sparkplug B 3.0 edge node (gateway.md §5.5): this box as one edge node of a plant-wide
+// MQTT namespace, one Sparkplug device per configured module.
+//
+// Report by exception, driven by the links: each link tells the node at once when a module's
+// status or values may have changed (LinkScheduler::set_observer); the node compares with what
+// it last published and sends DDATA with the metrics that changed (analog channels only beyond
+// `deadband`), DDEATH when a module goes offline and DBIRTH, with fresh values, when it is back.
+// Nothing here waits on the broker: publication goes through MqttClient's bounded queue, and
+// what it drops makes the node rebirth once there is room again, so a host never keeps a value
+// that was lost.
+//
+// A session: CONNECT with NDEATH as the will, carrying bdSeq (one more for every CONNECT);
+// NBIRTH (seq 0) with the node metrics, then a DBIRTH per module that is online; from then on
+// seq counts every message 0..255. With primary_host_id the births wait for that host's STATE
+// {"online": true} and are sent again whenever it comes back online. NCMD "Node Control/Rebirth"
+// sends every birth again with the same bdSeq. DCMD writes take the gateway's one write path
+// (sparkplug::plan_command, then LinkScheduler::write): validated, confirmed by the device,
+// counted and audited like a Modbus write; the new value is published when the device confirmed
+// it, not before. A clean stop publishes NDEATH, then disconnects.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "config/gateway_config.hpp"
+#include "daemon/events.hpp"
+#include "daemon/link_scheduler.hpp"
+#include "daemon/log.hpp"
+#include "daemon/mqtt_client.hpp"
+#include "protocol/sparkplug.hpp"
+
+namespace ioport::daemon {
+
+// A clean stop's NDEATH and DISCONNECT get this long to leave.
+inline constexpr std::chrono::milliseconds sparkplug_stop_deadline{500};
+// Link counters go out in NDATA at most this often: they change with every transaction.
+inline constexpr std::chrono::seconds counter_period{10};
+
+struct SparkplugStats {
+    bool connected = false;  // to the broker
+    bool online = false;     // births sent in this session
+    std::uint64_t bdseq = 0;
+    std::uint64_t published = 0;
+    std::uint64_t dropped = 0;
+    std::uint64_t births = 0;  // NBIRTHs, rebirths included
+    std::uint64_t commands = 0;
+    std::uint64_t commands_refused = 0;
+};
+
+class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
+  public:
+    using Links = std::vector<std::shared_ptr<LinkScheduler>>;
+
+    static Result<std::shared_ptr<SparkplugNode>> create(const asio::any_io_executor& executor,
+                                                         const config::MqttSettings& settings,
+                                                         Log& log, EventLog& events);
+    ~SparkplugNode();
+    SparkplugNode(const SparkplugNode&) = delete;
+    SparkplugNode& operator=(const SparkplugNode&) = delete;
+
+    void start(const Links& links);
+    // A reload: the links running now. A changed module map is announced with new births; the
+    // same map keeps the session (restarted links are only watched anew).
+    void set_links(const Links& links);
+    // NDEATH, then DISCONNECT; `done` when sent or after `deadline`.
+    void stop(std::chrono::milliseconds deadline, std::function<void()> done);
+
+    const config::MqttSettings& settings() const { return settings_; }
+    SparkplugStats stats() const;
+
+  private:
+    struct Device {
+        std::shared_ptr<LinkScheduler> link;
+        int slot = 0;
+        std::optional<ModuleAddress> module;  // nullopt: the ID-2
+        std::string id;
+        std::vector<sparkplug::MetricSpec> metrics;
+        std::uint64_t first_alias = 0;
+        bool born = false;  // DBIRTH sent, no DDEATH since, in this session
+        std::vector<std::optional<sparkplug::Value>> published{};
+    };
+    struct LinkMetrics {
+        std::string name;
+        bool up = false;
+        std::uint64_t ok = 0;
+        std::uint64_t failed = 0;
+        std::uint64_t reopens = 0;
+    };
+
+    SparkplugNode(const asio::any_io_executor& executor, config::MqttSettings settings, Log& log,
+                  EventLog& events);
+    void build(const Links& links);
+    void watch_links();
+    void connecting();
+    void connected();
+    void disconnected();
+    void message(std::string_view topic, std::span<const std::uint8_t> payload);
+    void command(const sparkplug::Topic& topic, std::span<const std::uint8_t> payload);
+    void device_command(Device& device, const sparkplug::Metric& metric);
+    void birth();
+    void device_birth(Device& device, const ModuleView& view);
+    void changed(const LinkScheduler* link, int slot);
+    void update(Device& device);
+    void link_data(bool counters);
+    void tick();
+    bool publish(sparkplug::MessageType type, std::string_view device, sparkplug::Payload payload,
+                 int qos = 0);
+    std::uint64_t next_seq();
+    std::vector<std::uint8_t> death_payload() const;
+    LinkMetrics link_metrics(const LinkScheduler& link) const;
+
+    asio::any_io_executor executor_;
+    config::MqttSettings settings_;
+    Log& log_;
+    EventLog& events_;
+    std::shared_ptr<MqttClient> client_;
+    asio::steady_timer ticker_;
+    std::vector<Device> devices_;
+    std::vector<LinkMetrics> links_published_;
+    Links links_;
+    std::uint64_t next_bdseq_ = 0;
+    std::uint64_t bdseq_ = 0;
+    std::uint64_t seq_ = 0;
+    bool host_online_ = true;  // always, without primary_host_id
+    bool born_ = false;
+    bool rebirth_due_ = false;  // a message was dropped: the host's view is incomplete
+    bool stopping_ = false;
+    std::chrono::steady_clock::time_point counters_sent_{};
+    SparkplugStats stats_;
+};
+
+}  // namespace ioport::daemon

@@ -1,0 +1,284 @@
+#include "protocol/sparkplug.hpp"
+
+#include <algorithm>
+#include <array>
+
+#include <fmt/format.h>
+
+namespace ioport::sparkplug {
+namespace {
+
+constexpr std::array<std::string_view, 9> type_names{
+    "NBIRTH", "NDEATH", "DBIRTH", "DDEATH", "NDATA", "DDATA", "NCMD", "DCMD", "STATE"};
+
+std::vector<std::string_view> split(std::string_view text, char separator) {
+    std::vector<std::string_view> parts;
+    for (;;) {
+        const auto at = text.find(separator);
+        parts.push_back(text.substr(0, at));
+        if (at == std::string_view::npos) return parts;
+        text.remove_prefix(at + 1);
+    }
+}
+
+Unexpected<Error> refused(std::string_view name, std::string why) {
+    return fail(Errc::invalid_argument, fmt::format("metric {}: {}", name, std::move(why)));
+}
+
+std::string_view type_of(const Value& value) {
+    switch (value.index()) {
+        case 0:
+            return "Boolean";
+        case 1:
+            return "an integer";
+        case 2:
+            return "Float";
+        default:
+            return "String";
+    }
+}
+
+// The value of a command to a metric of `type`, in range, or why not.
+Result<std::uint64_t> command_value(std::string_view name, DataType type,
+                                    const std::optional<Value>& value, std::uint64_t max) {
+    if (!value) return refused(name, "a null value is not a command");
+    if (type == DataType::boolean) {
+        if (const auto* flag = std::get_if<bool>(&*value)) return *flag ? 1u : 0u;
+        return refused(name, fmt::format("expected Boolean, got {}", type_of(*value)));
+    }
+    const auto* number = std::get_if<std::uint64_t>(&*value);
+    if (number == nullptr)
+        return refused(name, fmt::format("expected {}, got {}", to_string(type), type_of(*value)));
+    if (*number > max) return refused(name, fmt::format("{} is over {}", *number, max));
+    return *number;
+}
+
+}  // namespace
+
+std::string_view to_string(MessageType type) {
+    return type_names[static_cast<std::size_t>(type)];
+}
+
+std::string topic(std::string_view group, MessageType type, std::string_view node,
+                  std::string_view device) {
+    auto text = fmt::format("{}/{}/{}/{}", namespace_prefix, group, to_string(type), node);
+    if (!device.empty()) {
+        text += '/';
+        text += device;
+    }
+    return text;
+}
+
+std::string state_topic(std::string_view host_id) {
+    return fmt::format("{}/STATE/{}", namespace_prefix, host_id);
+}
+
+std::optional<Topic> parse_topic(std::string_view text) {
+    const auto parts = split(text, '/');
+    if (parts.size() < 3 || parts[0] != namespace_prefix) return std::nullopt;
+    if (parts[1] == "STATE") {
+        if (parts.size() != 3 || parts[2].empty()) return std::nullopt;
+        return Topic{MessageType::state, {}, std::string(parts[2]), {}};
+    }
+    if (parts.size() != 4 && parts.size() != 5) return std::nullopt;
+    std::optional<MessageType> type;
+    for (std::size_t i = 0; i + 1 < type_names.size(); ++i)
+        if (parts[2] == type_names[i]) type = static_cast<MessageType>(i);
+    if (!type || parts[1].empty() || parts[3].empty()) return std::nullopt;
+    const bool device_message = *type == MessageType::dbirth || *type == MessageType::ddeath ||
+                                *type == MessageType::ddata || *type == MessageType::dcmd;
+    if (device_message != (parts.size() == 5) || (device_message && parts[4].empty()))
+        return std::nullopt;
+    return Topic{*type, std::string(parts[1]), std::string(parts[3]),
+                 device_message ? std::string(parts[4]) : std::string()};
+}
+
+Result<> check_id(std::string_view id) {
+    if (id.empty()) return fail(Errc::invalid_argument, "must not be empty");
+    for (const char c : id) {
+        if (c == '/' || c == '+' || c == '#')
+            return fail(Errc::invalid_argument,
+                        fmt::format("'{}' contains '{}', which MQTT topics reserve", id, c));
+        if (static_cast<unsigned char>(c) < 0x20 || c == 0x7F)
+            return fail(Errc::invalid_argument,
+                        fmt::format("'{}' contains a control character", printable(id)));
+    }
+    return {};
+}
+
+std::string_view to_string(DataType type) {
+    switch (type) {
+        case DataType::int64:
+            return "Int64";
+        case DataType::uint8:
+            return "UInt8";
+        case DataType::uint16:
+            return "UInt16";
+        case DataType::uint64:
+            return "UInt64";
+        case DataType::float32:
+            return "Float";
+        case DataType::boolean:
+            return "Boolean";
+        case DataType::string:
+            return "String";
+    }
+    return "Unknown";
+}
+
+std::optional<bool> parse_state(std::string_view json) {
+    // The one object Sparkplug defines here, read without a JSON library: its "online" member.
+    const auto key = json.find("\"online\"");
+    if (key == std::string_view::npos || json.find('{') > key) return std::nullopt;
+    auto rest = json.substr(key + 8);
+    const auto colon = rest.find_first_not_of(" \t\r\n");
+    if (colon == std::string_view::npos || rest[colon] != ':') return std::nullopt;
+    rest.remove_prefix(colon + 1);
+    const auto start = rest.find_first_not_of(" \t\r\n");
+    if (start == std::string_view::npos) return std::nullopt;
+    rest.remove_prefix(start);
+    if (rest.starts_with("true")) return true;
+    if (rest.starts_with("false")) return false;
+    return std::nullopt;
+}
+
+std::string state_json(bool online, std::uint64_t timestamp) {
+    return fmt::format(R"({{"online":{},"timestamp":{}}})", online, timestamp);
+}
+
+std::string device_id(std::string_view link, std::optional<ModuleAddress> module) {
+    if (!module) return fmt::format("{}.id2", link);
+    return fmt::format("{}.{}.{}", link, name(module->type), module->number);
+}
+
+std::vector<MetricSpec> module_metrics(std::optional<ModuleType> type) {
+    std::vector<MetricSpec> metrics;
+    const auto bits = [&](std::string_view prefix, bool writable) {
+        for (int k = 0; k < 16; ++k)
+            metrics.push_back({fmt::format("{}/{}", prefix, k), DataType::boolean, writable});
+        metrics.push_back({"word", DataType::uint16, writable});
+    };
+    if (!type) {
+        metrics.push_back({"stop", DataType::boolean, false});
+        metrics.push_back({"count", DataType::uint16, false});
+        metrics.push_back({"reset", DataType::boolean, true});
+        return metrics;
+    }
+    switch (*type) {
+        case ModuleType::dim16:
+        case ModuleType::lim16:
+            bits("in", false);
+            break;
+        case ModuleType::dom16:
+            bits("out", true);
+            break;
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            for (int ch = 0; ch < reply_words(*type); ++ch)
+                metrics.push_back({fmt::format("raw/{}", ch), DataType::uint16, false});
+            for (int ch = 0; ch < reply_words(*type); ++ch)
+                metrics.push_back({fmt::format("value/{}", ch), DataType::float32, false});
+            break;
+        case ModuleType::rgbdm:
+            metrics.push_back({"colour", DataType::uint8, true});
+            break;
+        case ModuleType::mux8m:
+            metrics.push_back({"pos", DataType::uint8, true});
+            metrics.push_back({"neg", DataType::uint8, true});
+            break;
+    }
+    return metrics;
+}
+
+std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
+                                                const ModuleValues& values) {
+    std::vector<std::optional<Value>> out;
+    const auto bits = [&](std::optional<std::uint16_t> word) {
+        for (int k = 0; k < 16; ++k)
+            out.push_back(word ? std::optional<Value>((*word >> k & 1) != 0) : std::nullopt);
+        out.push_back(word ? std::optional<Value>(std::uint64_t{*word}) : std::nullopt);
+    };
+    if (!type) {
+        out.push_back(values.stop ? std::optional<Value>(*values.stop) : std::nullopt);
+        out.push_back(values.count ? std::optional<Value>(std::uint64_t{*values.count})
+                                   : std::nullopt);
+        out.emplace_back(false);
+        return out;
+    }
+    const auto& reading = values.reading;
+    switch (*type) {
+        case ModuleType::dim16:
+        case ModuleType::lim16:
+            bits(reading ? std::optional(reading->raw[0]) : std::nullopt);
+            break;
+        case ModuleType::dom16:
+            bits(values.output);
+            break;
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::dccim:
+        case ModuleType::dcvim: {
+            const auto channels = static_cast<std::size_t>(reply_words(*type));
+            for (std::size_t ch = 0; ch < channels; ++ch)
+                out.push_back(reading ? std::optional<Value>(std::uint64_t{reading->raw[ch]})
+                                      : std::nullopt);
+            for (std::size_t ch = 0; ch < channels; ++ch)
+                out.push_back(reading ? std::optional<Value>(
+                                            gateway::engineering_float(*type, reading->raw[ch]))
+                                      : std::nullopt);
+            break;
+        }
+        case ModuleType::rgbdm:
+            out.push_back(values.output ? std::optional<Value>(std::uint64_t{*values.output})
+                                        : std::nullopt);
+            break;
+        case ModuleType::mux8m:
+            out.push_back(values.output ? std::optional<Value>(
+                                              static_cast<std::uint64_t>(*values.output >> 8))
+                                        : std::nullopt);
+            out.push_back(values.output ? std::optional<Value>(
+                                              static_cast<std::uint64_t>(*values.output & 0xFF))
+                                        : std::nullopt);
+            break;
+    }
+    return out;
+}
+
+Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std::string_view name,
+                                        const std::optional<Value>& value) {
+    const auto metrics = module_metrics(module ? std::optional(module->type) : std::nullopt);
+    const auto spec = std::find_if(metrics.begin(), metrics.end(),
+                                   [&](const MetricSpec& m) { return m.name == name; });
+    if (spec == metrics.end()) return refused(name, "no such metric on this device");
+    if (!spec->writable) return refused(name, "read-only: an input of the device");
+    gateway::WritePlan plan;
+    if (!module) {  // the ID-2's reset
+        auto reset = command_value(name, spec->type, value, 1);
+        if (!reset) return Unexpected(reset.error());
+        plan.reset_counter = *reset != 0;
+        return plan;
+    }
+    const auto max = spec->type == DataType::boolean  ? 1u
+                     : spec->type == DataType::uint16 ? 0xFFFFu
+                                                      : 7u;  // colour, pos, neg: 0..7
+    auto number = command_value(name, spec->type, value, max);
+    if (!number) return Unexpected(number.error());
+    const auto v = static_cast<std::uint16_t>(*number);
+    gateway::OutputChange change{*module, 0xFFFF, v};
+    if (name.starts_with("out/")) {
+        const auto bit = static_cast<int>(spec - metrics.begin());  // out/0 … out/15 come first
+        change.mask = static_cast<std::uint16_t>(1u << bit);
+        change.value = static_cast<std::uint16_t>(v << bit);
+    } else if (name == "pos") {
+        change.mask = 0xFF00;
+        change.value = static_cast<std::uint16_t>(v << 8);
+    } else if (name == "neg") {
+        change.mask = 0x00FF;
+    }
+    plan.changes.push_back(change);
+    return plan;
+}
+
+}  // namespace ioport::sparkplug

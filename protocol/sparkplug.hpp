@@ -1,0 +1,130 @@
+// Sparkplug B 3.0 as pure functions (gateway.md §5.5): topics, the metrics each module publishes
+// and their values, payloads to and from the protobuf wire format (sparkplug_b.proto), and the
+// validation of a command (DCMD) into the gateway's own write. No I/O and no protobuf types in
+// this interface: the edge node (daemon/sparkplug_node) and the tests use plain values.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <variant>
+#include <vector>
+
+#include "protocol/error.hpp"
+#include "protocol/gateway_map.hpp"
+#include "protocol/ioport.hpp"
+
+namespace ioport::sparkplug {
+
+inline constexpr std::string_view namespace_prefix = "spBv1.0";
+
+// --- Topics ---------------------------------------------------------------------------------
+
+enum class MessageType { nbirth, ndeath, dbirth, ddeath, ndata, ddata, ncmd, dcmd, state };
+std::string_view to_string(MessageType type);  // "NBIRTH", …, "STATE"
+
+// spBv1.0/<group>/<type>/<node>[/<device>]; STATE is spBv1.0/STATE/<host id>.
+std::string topic(std::string_view group, MessageType type, std::string_view node,
+                  std::string_view device = {});
+std::string state_topic(std::string_view host_id);
+
+struct Topic {
+    MessageType type = MessageType::ndata;
+    std::string group;   // empty for STATE
+    std::string node;    // the host id for STATE
+    std::string device;  // empty for node messages
+    friend bool operator==(const Topic&, const Topic&) = default;
+};
+// nullopt for a topic outside the namespace or not of this form.
+std::optional<Topic> parse_topic(std::string_view topic);
+
+// A group, edge node or device id: not empty, no '/', '+' or '#' (MQTT topic syntax), UTF-8
+// without control characters. The message says what is wrong.
+Result<> check_id(std::string_view id);
+
+// --- Values and payloads ----------------------------------------------------------------------
+
+// The data types ioportd publishes and accepts (Sparkplug 3.0 §6.4.16 numbering).
+enum class DataType : std::uint32_t {
+    int64 = 4,
+    uint8 = 5,
+    uint16 = 6,
+    uint64 = 8,
+    float32 = 9,
+    boolean = 11,
+    string = 12,
+};
+std::string_view to_string(DataType type);  // "UInt16", …
+
+// A metric value: Boolean as bool; UInt8, UInt16, UInt64 and Int64 as their integer (Int64 as
+// its two's complement bits); Float as float; String as string.
+using Value = std::variant<bool, std::uint64_t, float, std::string>;
+
+struct Metric {
+    std::string name;  // empty when the metric goes by its alias alone (DATA after a BIRTH)
+    std::optional<std::uint64_t> alias;
+    std::optional<std::uint64_t> timestamp;  // ms since the Unix epoch
+    // The type on the wire. A decoded metric of a type outside DataType keeps its number here
+    // and no value.
+    std::uint32_t datatype = 0;
+    std::optional<Value> value;  // nullopt: is_null
+    friend bool operator==(const Metric&, const Metric&) = default;
+};
+
+struct Payload {
+    std::uint64_t timestamp = 0;       // ms since the Unix epoch
+    std::optional<std::uint64_t> seq;  // absent in NDEATH
+    std::vector<Metric> metrics;
+    friend bool operator==(const Payload&, const Payload&) = default;
+};
+
+std::vector<std::uint8_t> encode(const Payload& payload);
+// Fails with malformed for bytes that are not a Sparkplug B payload.
+Result<Payload> decode(std::span<const std::uint8_t> bytes);
+
+// STATE (Sparkplug 3.0 §7.2): {"online": true|false, "timestamp": <ms>}. nullopt when `json` is
+// not such an object.
+std::optional<bool> parse_state(std::string_view json);
+std::string state_json(bool online, std::uint64_t timestamp);
+
+// --- The metrics of a module (gateway.md §5.5) ------------------------------------------------
+
+// One Sparkplug device per module: "<link>.<type>.<number>", "<link>.id2" for the ID-2.
+std::string device_id(std::string_view link, std::optional<ModuleAddress> module);
+
+struct MetricSpec {
+    std::string name;
+    DataType type;
+    bool writable = false;
+    friend bool operator==(const MetricSpec&, const MetricSpec&) = default;
+};
+// Every metric a module will ever publish, in DBIRTH order. nullopt: the ID-2.
+std::vector<MetricSpec> module_metrics(std::optional<ModuleType> type);
+
+// What a module holds now, as the gateway knows it: the raw words of an input module's last
+// good reading, an output module's confirmed state, the ID-2's stop input and count.
+struct ModuleValues {
+    std::optional<Reading> reading;
+    std::optional<std::uint16_t> output;
+    std::optional<bool> stop;
+    std::optional<std::uint16_t> count;
+};
+// The values of module_metrics(type), in the same order; nullopt where nothing was read yet
+// (published as is_null). The ID-2's `reset` is always false: a command, not a state.
+std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
+                                                const ModuleValues& values);
+
+// --- Commands (DCMD) --------------------------------------------------------------------------
+
+// A DCMD metric as a write the gateway plans like any other: output changes (dom16 bits or
+// word, rgbdm colour, mux8m pos or neg, merged into the desired state when sent) or an ID-2
+// counter reset. `reset_counter` with no changes: reset. Neither: nothing to do (reset false).
+// Fails (invalid_argument, with a message naming the metric) for a metric the module does not
+// have, one that is not writable, a value of another type or outside the metric's range:
+// never truncated.
+Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std::string_view name,
+                                        const std::optional<Value>& value);
+
+}  // namespace ioport::sparkplug

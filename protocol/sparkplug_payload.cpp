@@ -1,0 +1,103 @@
+// The payload's wire format: the part of protocol/sparkplug.hpp that needs protobuf, in its own
+// library (ioport_sparkplug) so that only what publishes or decodes payloads links it.
+#include <limits>
+
+#include "protocol/sparkplug.hpp"
+#include "protocol/sparkplug_b.pb.h"
+
+namespace ioport::sparkplug {
+namespace {
+
+namespace wire = ioport::sparkplug::wire;
+
+void set_value(wire::Payload::Metric& out, std::uint32_t datatype, const Value& value) {
+    std::visit(
+        [&](const auto& v) {
+            using V = std::decay_t<decltype(v)>;
+            if constexpr (std::is_same_v<V, bool>) {
+                out.set_boolean_value(v);
+            } else if constexpr (std::is_same_v<V, std::uint64_t>) {
+                // Sparkplug 3.0 §6.4.17: 8- to 32-bit integers in int_value, 64-bit in long_value.
+                if (datatype == static_cast<std::uint32_t>(DataType::uint64) ||
+                    datatype == static_cast<std::uint32_t>(DataType::int64))
+                    out.set_long_value(v);
+                else
+                    out.set_int_value(static_cast<std::uint32_t>(v));
+            } else if constexpr (std::is_same_v<V, float>) {
+                out.set_float_value(v);
+            } else {
+                out.set_string_value(v);
+            }
+        },
+        value);
+}
+
+std::optional<Value> value_of(const wire::Payload::Metric& metric) {
+    if (metric.is_null()) return std::nullopt;
+    switch (metric.value_case()) {
+        case wire::Payload::Metric::kIntValue:
+            return Value(std::uint64_t{metric.int_value()});
+        case wire::Payload::Metric::kLongValue:
+            return Value(std::uint64_t{metric.long_value()});
+        case wire::Payload::Metric::kFloatValue:
+            return Value(metric.float_value());
+        case wire::Payload::Metric::kDoubleValue:
+            return Value(static_cast<float>(metric.double_value()));
+        case wire::Payload::Metric::kBooleanValue:
+            return Value(metric.boolean_value());
+        case wire::Payload::Metric::kStringValue:
+            return Value(metric.string_value());
+        case wire::Payload::Metric::kBytesValue:
+        case wire::Payload::Metric::kDatasetValue:
+        case wire::Payload::Metric::kTemplateValue:
+        case wire::Payload::Metric::kExtensionValue:
+        case wire::Payload::Metric::VALUE_NOT_SET:
+            break;
+    }
+    return std::nullopt;
+}
+
+}  // namespace
+
+std::vector<std::uint8_t> encode(const Payload& payload) {
+    wire::Payload out;
+    out.set_timestamp(payload.timestamp);
+    if (payload.seq) out.set_seq(*payload.seq);
+    for (const auto& metric : payload.metrics) {
+        auto& m = *out.add_metrics();
+        if (!metric.name.empty()) m.set_name(metric.name);
+        if (metric.alias) m.set_alias(*metric.alias);
+        if (metric.timestamp) m.set_timestamp(*metric.timestamp);
+        m.set_datatype(metric.datatype);
+        if (metric.value)
+            set_value(m, metric.datatype, *metric.value);
+        else
+            m.set_is_null(true);
+    }
+    std::vector<std::uint8_t> bytes(out.ByteSizeLong());
+    out.SerializeToArray(bytes.data(), static_cast<int>(bytes.size()));
+    return bytes;
+}
+
+Result<Payload> decode(std::span<const std::uint8_t> bytes) {
+    wire::Payload in;
+    if (bytes.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()) ||
+        !in.ParseFromArray(bytes.data(), static_cast<int>(bytes.size())))
+        return fail(Errc::malformed, "not a Sparkplug B payload (protobuf decoding failed)");
+    Payload payload;
+    payload.timestamp = in.timestamp();
+    if (in.has_seq()) payload.seq = in.seq();
+    payload.metrics.reserve(static_cast<std::size_t>(in.metrics_size()));
+    for (const auto& m : in.metrics()) {
+        Metric metric;
+        metric.name = m.name();
+        if (m.has_alias()) metric.alias = m.alias();
+        if (m.has_timestamp()) metric.timestamp = m.timestamp();
+        metric.datatype = m.datatype();
+        metric.value = value_of(m);
+        payload.metrics.push_back(std::move(metric));
+    }
+    return payload;
+}
+
+}  // namespace ioport::sparkplug

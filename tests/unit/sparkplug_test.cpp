@@ -1,0 +1,230 @@
+// Sparkplug B 3.0 (gateway.md §5.5) as pure functions: topics, payload bytes on the protobuf
+// wire, the metrics of each module and their values, and DCMD metrics as gateway writes.
+#include <gtest/gtest.h>
+
+#include <vector>
+
+#include "protocol/sparkplug.hpp"
+
+namespace ioport::sparkplug {
+namespace {
+
+using Bytes = std::vector<std::uint8_t>;
+
+TEST(SparkplugTopic, NodeDeviceAndStateTopics) {
+    EXPECT_EQ(topic("plant1", MessageType::nbirth, "box7"), "spBv1.0/plant1/NBIRTH/box7");
+    EXPECT_EQ(topic("plant1", MessageType::ddata, "box7", "hub0.dim16.0"),
+              "spBv1.0/plant1/DDATA/box7/hub0.dim16.0");
+    EXPECT_EQ(state_topic("scada"), "spBv1.0/STATE/scada");
+    EXPECT_EQ(parse_topic("spBv1.0/plant1/DCMD/box7/hub0.dom16.1"),
+              (Topic{MessageType::dcmd, "plant1", "box7", "hub0.dom16.1"}));
+    EXPECT_EQ(parse_topic("spBv1.0/plant1/NCMD/box7"),
+              (Topic{MessageType::ncmd, "plant1", "box7", ""}));
+    EXPECT_EQ(parse_topic("spBv1.0/STATE/scada"), (Topic{MessageType::state, "", "scada", ""}));
+}
+
+TEST(SparkplugTopic, WhatIsNotASparkplugTopic) {
+    for (const char* text :
+         {"", "spBv1.0", "spAv1.0/g/NCMD/n", "spBv1.0/g/NCMD", "spBv1.0/g/NCMD/n/device",
+          "spBv1.0/g/DCMD/n", "spBv1.0/g/DCMD/n/", "spBv1.0//NCMD/n", "spBv1.0/g/NCMD/",
+          "spBv1.0/g/NOPE/n", "spBv1.0/STATE", "spBv1.0/STATE/", "spBv1.0/STATE/a/b",
+          "spBv1.0/g/DCMD/n/d/e"})
+        EXPECT_FALSE(parse_topic(text)) << text;
+}
+
+TEST(SparkplugTopic, IdsMustNotBreakTopics) {
+    EXPECT_TRUE(check_id("plant-1.box_7"));
+    EXPECT_FALSE(check_id(""));
+    for (const char* bad : {"a/b", "a+", "#", "a\nb"}) {
+        const auto checked = check_id(bad);
+        ASSERT_FALSE(checked) << bad;
+        EXPECT_FALSE(checked.error().message.empty());
+    }
+}
+
+// The bytes a Sparkplug host decodes: fields in number order, each a tag (field << 3 | wire
+// type) then a varint or a length and bytes.
+TEST(SparkplugPayload, EncodesToTheProtobufWireFormat) {
+    const Payload payload{1, 0, {Metric{"a", 1, std::nullopt, 11, Value(true)}}};
+    const Bytes expected{
+        0x08, 0x01,       // 1 timestamp: 1
+        0x12, 0x09,       // 2 metrics: 9 bytes
+        0x0A, 0x01, 'a',  //   1 name: "a"
+        0x10, 0x01,       //   2 alias: 1
+        0x20, 0x0B,       //   4 datatype: 11 Boolean
+        0x70, 0x01,       //   14 boolean_value: true
+        0x18, 0x00,       // 3 seq: 0
+    };
+    EXPECT_EQ(encode(payload), expected);
+}
+
+TEST(SparkplugPayload, IntegersGoWhereTheirWidthSays) {
+    const Payload payload{0,
+                          std::nullopt,
+                          {Metric{"", 2, std::nullopt, 6, Value(std::uint64_t{0xFFFF})},
+                           Metric{"", 3, std::nullopt, 4, Value(std::uint64_t{300})},
+                           Metric{"", 4, std::nullopt, 6, std::nullopt}}};
+    const Bytes expected{
+        0x08, 0x00,              // 1 timestamp: 0
+        0x12, 0x08,              // 2 metrics: 8 bytes
+        0x10, 0x02,              //   2 alias: 2
+        0x20, 0x06,              //   4 datatype: 6 UInt16
+        0x50, 0xFF, 0xFF, 0x03,  //   10 int_value: 65535
+        0x12, 0x07,              // 2 metrics: 7 bytes
+        0x10, 0x03,              //   2 alias: 3
+        0x20, 0x04,              //   4 datatype: 4 Int64
+        0x58, 0xAC, 0x02,        //   11 long_value: 300
+        0x12, 0x06,              // 2 metrics: 6 bytes
+        0x10, 0x04,              //   2 alias: 4
+        0x20, 0x06,              //   4 datatype: 6 UInt16
+        0x38, 0x01,              //   7 is_null: true
+    };
+    EXPECT_EQ(encode(payload), expected);
+}
+
+TEST(SparkplugPayload, DecodesWhatItEncodes) {
+    const Payload payload{1796183655123,
+                          255,
+                          {Metric{"bdSeq", std::nullopt, 17, 4, Value(std::uint64_t{7})},
+                           Metric{"value/0", 12, 17, 9, Value(20.154116f)},
+                           Metric{"colour", 13, std::nullopt, 5, Value(std::uint64_t{3})},
+                           Metric{"in/3", 14, std::nullopt, 11, Value(false)},
+                           Metric{"note", std::nullopt, std::nullopt, 12, Value(std::string("ok"))},
+                           Metric{"count", 15, std::nullopt, 6, std::nullopt}}};
+    const auto decoded = decode(encode(payload));
+    ASSERT_TRUE(decoded) << decoded.error().message;
+    EXPECT_EQ(*decoded, payload);
+}
+
+TEST(SparkplugPayload, GarbageIsAnErrorNotACrash) {
+    const Bytes garbage{0x12, 0x40, 0x0A};  // a metric of 64 bytes, three there
+    const auto decoded = decode(garbage);
+    ASSERT_FALSE(decoded);
+    EXPECT_EQ(decoded.error().code, Errc::malformed);
+    EXPECT_TRUE(decode(Bytes{}));  // the empty payload is a valid, empty message
+}
+
+TEST(SparkplugState, TheStateMessageOfSparkplug3) {
+    EXPECT_EQ(parse_state(R"({"online":true,"timestamp":1})"), true);
+    EXPECT_EQ(parse_state(R"({ "timestamp" : 1, "online" : false })"), false);
+    EXPECT_EQ(parse_state(R"({"online": "yes"})"), std::nullopt);
+    EXPECT_EQ(parse_state("ONLINE"), std::nullopt);  // Sparkplug 2's plain text
+    EXPECT_EQ(parse_state(""), std::nullopt);
+    EXPECT_EQ(state_json(true, 5), R"({"online":true,"timestamp":5})");
+}
+
+TEST(SparkplugModule, DeviceIdsAsGatewayMdSays) {
+    EXPECT_EQ(device_id("hub0", ModuleAddress{ModuleType::dim16, 0}), "hub0.dim16.0");
+    EXPECT_EQ(device_id("hub0", ModuleAddress{ModuleType::mux8m, 7}), "hub0.mux8m.7");
+    EXPECT_EQ(device_id("press", std::nullopt), "press.id2");
+}
+
+TEST(SparkplugModule, EveryMetricOfEveryModule) {
+    const auto dim = module_metrics(ModuleType::dim16);
+    ASSERT_EQ(dim.size(), 17u);
+    EXPECT_EQ(dim[0], (MetricSpec{"in/0", DataType::boolean, false}));
+    EXPECT_EQ(dim[15], (MetricSpec{"in/15", DataType::boolean, false}));
+    EXPECT_EQ(dim[16], (MetricSpec{"word", DataType::uint16, false}));
+    const auto dom = module_metrics(ModuleType::dom16);
+    ASSERT_EQ(dom.size(), 17u);
+    EXPECT_EQ(dom[4], (MetricSpec{"out/4", DataType::boolean, true}));
+    EXPECT_EQ(dom[16], (MetricSpec{"word", DataType::uint16, true}));
+    const auto acm = module_metrics(ModuleType::acm3p);
+    ASSERT_EQ(acm.size(), 6u);
+    EXPECT_EQ(acm[2], (MetricSpec{"raw/2", DataType::uint16, false}));
+    EXPECT_EQ(acm[3], (MetricSpec{"value/0", DataType::float32, false}));
+    EXPECT_EQ(module_metrics(ModuleType::dcvim).size(), 2u);
+    EXPECT_EQ(module_metrics(ModuleType::rgbdm),
+              (std::vector<MetricSpec>{{"colour", DataType::uint8, true}}));
+    EXPECT_EQ(
+        module_metrics(ModuleType::mux8m),
+        (std::vector<MetricSpec>{{"pos", DataType::uint8, true}, {"neg", DataType::uint8, true}}));
+    EXPECT_EQ(module_metrics(std::nullopt),
+              (std::vector<MetricSpec>{{"stop", DataType::boolean, false},
+                                       {"count", DataType::uint16, false},
+                                       {"reset", DataType::boolean, true}}));
+}
+
+TEST(SparkplugModule, ValuesFollowTheMetrics) {
+    const auto dim = module_values(ModuleType::dim16, {Reading{{0x8001, 0, 0}, 1}, {}, {}, {}});
+    ASSERT_EQ(dim.size(), 17u);
+    EXPECT_EQ(dim[0], Value(true));
+    EXPECT_EQ(dim[1], Value(false));
+    EXPECT_EQ(dim[15], Value(true));
+    EXPECT_EQ(dim[16], Value(std::uint64_t{0x8001}));
+    const auto acm = module_values(ModuleType::acm3p, {Reading{{0, 32768, 65535}, 3}, {}, {}, {}});
+    ASSERT_EQ(acm.size(), 6u);
+    EXPECT_EQ(acm[1], Value(std::uint64_t{32768}));
+    EXPECT_EQ(acm[5], Value(100.0f));  // raw 65535 = full scale, 100 %
+    const auto mux = module_values(ModuleType::mux8m, {{}, 0x0302, {}, {}});
+    EXPECT_EQ(
+        mux, (std::vector<std::optional<Value>>{Value(std::uint64_t{3}), Value(std::uint64_t{2})}));
+    const auto never = module_values(ModuleType::dom16, {});
+    ASSERT_EQ(never.size(), 17u);
+    EXPECT_EQ(never[16], std::nullopt);  // published as is_null
+    const auto id2 = module_values(std::nullopt, {{}, {}, true, 42});
+    EXPECT_EQ(id2, (std::vector<std::optional<Value>>{Value(true), Value(std::uint64_t{42}),
+                                                      Value(false)}));
+}
+
+gateway::WritePlan planned(std::optional<ModuleAddress> module, std::string_view name,
+                           std::optional<Value> value) {
+    auto plan = plan_command(module, name, value);
+    EXPECT_TRUE(plan) << (plan ? "" : plan.error().message);
+    return plan ? *plan : gateway::WritePlan{};
+}
+
+TEST(SparkplugCommand, WritesBecomeTheGatewaysOutputChanges) {
+    const ModuleAddress dom{ModuleType::dom16, 1};
+    EXPECT_EQ(planned(dom, "out/3", Value(true)).changes,
+              (std::vector<gateway::OutputChange>{{dom, 0x0008, 0x0008}}));
+    EXPECT_EQ(planned(dom, "out/15", Value(false)).changes,
+              (std::vector<gateway::OutputChange>{{dom, 0x8000, 0x0000}}));
+    EXPECT_EQ(planned(dom, "word", Value(std::uint64_t{0x1234})).changes,
+              (std::vector<gateway::OutputChange>{{dom, 0xFFFF, 0x1234}}));
+    const ModuleAddress rgb{ModuleType::rgbdm, 0};
+    EXPECT_EQ(planned(rgb, "colour", Value(std::uint64_t{7})).changes,
+              (std::vector<gateway::OutputChange>{{rgb, 0xFFFF, 7}}));
+    const ModuleAddress mux{ModuleType::mux8m, 2};
+    EXPECT_EQ(planned(mux, "pos", Value(std::uint64_t{3})).changes,
+              (std::vector<gateway::OutputChange>{{mux, 0xFF00, 0x0300}}));
+    EXPECT_EQ(planned(mux, "neg", Value(std::uint64_t{6})).changes,
+              (std::vector<gateway::OutputChange>{{mux, 0x00FF, 0x0006}}));
+    const auto reset = planned(std::nullopt, "reset", Value(true));
+    EXPECT_TRUE(reset.reset_counter);
+    EXPECT_TRUE(reset.changes.empty());
+    EXPECT_FALSE(planned(std::nullopt, "reset", Value(false)).reset_counter);
+}
+
+TEST(SparkplugCommand, RefusedNeverTruncated) {
+    const ModuleAddress dom{ModuleType::dom16, 1};
+    const ModuleAddress rgb{ModuleType::rgbdm, 0};
+    const ModuleAddress dim{ModuleType::dim16, 0};
+    struct Case {
+        std::optional<ModuleAddress> module;
+        std::string name;
+        std::optional<Value> value;
+        std::string fragment;
+    };
+    for (const auto& c : std::vector<Case>{
+             {rgb, "colour", Value(std::uint64_t{8}), "8 is over 7"},
+             {dom, "word", Value(std::uint64_t{0x10000}), "65536 is over 65535"},
+             {dom, "out/3", Value(std::uint64_t{1}), "expected Boolean"},
+             {dom, "word", Value(true), "expected UInt16, got Boolean"},
+             {dom, "word", Value(1.5f), "expected UInt16, got Float"},
+             {dom, "word", std::nullopt, "null"},
+             {dim, "in/0", Value(true), "read-only"},
+             {dom, "out/16", Value(true), "no such metric"},
+             {std::nullopt, "count", Value(std::uint64_t{0}), "read-only"},
+             {std::nullopt, "reset", Value(std::string("yes")), "expected Boolean"}}) {
+        const auto plan = plan_command(c.module, c.name, c.value);
+        ASSERT_FALSE(plan) << c.name;
+        EXPECT_EQ(plan.error().code, Errc::invalid_argument);
+        EXPECT_NE(plan.error().message.find(c.fragment), std::string::npos)
+            << plan.error().message << " should contain " << c.fragment;
+        EXPECT_NE(plan.error().message.find(c.name), std::string::npos) << plan.error().message;
+    }
+}
+
+}  // namespace
+}  // namespace ioport::sparkplug
