@@ -271,6 +271,9 @@ void MqttClient::stop(std::chrono::milliseconds deadline, std::function<void()> 
     }
     // DISCONNECT after what is queued; the broker then discards the will (a clean end).
     mosquitto_disconnect(client_);
+    // With nothing queued, libmosquitto writes the DISCONNECT at once and on_disconnect has
+    // finished the stop within the call: no deadline then, or the io_context would wait for it.
+    if (!connected_) return;
     stop_deadline_.expires_after(deadline);
     stop_deadline_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
         if (!ec) self->finish_stop();
