@@ -17,9 +17,9 @@ namespace {
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, sparkplug, or all (the default). Prints Markdown tables, a "BENCH {json}"
-line per figure and a summary of every figure against its target. Asserts nothing: exit status
-0 unless a program could not be started.
+write, modbus, footprint, http, sparkplug (7a-c), fleet (7c alone), or all (the default).
+Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
+its target. Asserts nothing: exit status 0 unless a program could not be started.
 
   --quick           every phase a fraction of a second: checks that everything runs, the
                     figures mean nothing
@@ -98,7 +98,8 @@ int main(int argc, char** argv) {
             std::cout << usage;
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
-                   arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "all") {
+                   arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "fleet" ||
+                   arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -139,7 +140,7 @@ int main(int argc, char** argv) {
     }
     if (wanted("footprint")) add(footprint(env));
     // The fleet's CPU is the CPU of nodes that mostly wait, as benchmark 5's idle figure.
-    if (wanted("sparkplug")) add(sparkplug_fleet(env));
+    if (wanted("sparkplug") || wanted("fleet")) add(sparkplug_fleet(env));
 
     fmt::print("\n## Summary{}\n", env.quick ? " (--quick: the figures mean nothing)" : "");
     Table summary({"benchmark", "figure", "target", "met"});

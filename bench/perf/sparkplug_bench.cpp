@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <cstdlib>
 #include <fstream>
+#include <latch>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -728,25 +729,40 @@ std::vector<Verdict> fleet(const Environment& env) {
         sims.back()->wander(bus, period);
     }
     // All at once, as a plant's boxes come back after a power cut: one thread a node, each
-    // forking its ioportd and waiting for it to listen.
+    // forking its ioportd and waiting for it to listen. Each thread lives as long as its ioportd
+    // and stops it: a child is sent SIGTERM when the thread that forked it ends
+    // (PR_SET_PDEATHSIG, harness.cpp).
     std::vector<std::unique_ptr<Gateway>> gateways(static_cast<std::size_t>(nodes));
     std::vector<Clock::time_point> launched(static_cast<std::size_t>(nodes));
+    std::latch started(nodes);
+    std::latch release(1);
+    std::vector<std::jthread> starters;
     const auto first = Clock::now();
-    {
-        std::vector<std::jthread> starters;
-        for (std::size_t i = 0; i < gateways.size(); ++i)
-            starters.emplace_back([&, i] {
-                launched[i] = Clock::now();
-                gateways[i] = std::make_unique<Gateway>(
-                    env, *dirs[i],
-                    gateway_yaml({{*dirs[i] / "tty", 115200, bus, poll}}, 32, false,
-                                 mqtt_yaml(broker.port(), node_id(static_cast<int>(i)))));
-            });
-    }
+    for (std::size_t i = 0; i < gateways.size(); ++i)
+        starters.emplace_back([&, i] {
+            launched[i] = Clock::now();
+            gateways[i] = std::make_unique<Gateway>(
+                env, *dirs[i],
+                gateway_yaml({{*dirs[i] / "tty", 115200, bus, poll}}, 32, false,
+                             mqtt_yaml(broker.port(), node_id(static_cast<int>(i)))));
+            started.count_down();
+            release.wait();
+            gateways[i].reset();
+        });
+    // On every way out of here: the threads stop their ioportd and end.
+    struct Release {
+        std::latch& release;
+        std::vector<std::jthread>& threads;
+        ~Release() {
+            release.count_down();
+            threads.clear();
+        }
+    } stop_all{release, starters};
+    started.wait();
+    const auto all_launched = Clock::now();
     for (std::size_t i = 0; i < gateways.size(); ++i)
         if (!gateways[i]->started())
             return {{"7c. fleet", fmt::format("ioportd {} did not start", i), "", false}};
-    const auto all_launched = Clock::now();
     const auto modules = static_cast<int>(bus.size());
     const bool born = wait_for(
         [&] {
