@@ -1,5 +1,6 @@
-// The benchmarks of issue 6, and of issue 16's HTTP side (bench/README.md). Each prints its tables
-// and one machine-readable line per figure, and returns its figures against their targets.
+// The benchmarks of issue 6, of issue 16's HTTP side and of issue 17's Sparkplug edge node
+// (bench/README.md). Each prints its tables and one machine-readable line per figure, and returns
+// its figures against their targets.
 #pragma once
 
 #include <vector>
@@ -21,5 +22,10 @@ std::vector<Verdict> footprint(const Environment& env);
 // 6. The HTTP side: its cost to Modbus while scraped, one scrape's CPU with 8 links, the memory
 // of the trend rings.
 std::vector<Verdict> http_cost(const Environment& env);
+// 7. The Sparkplug B edge node (issue 17): input change → DDATA latency against the poll cycle,
+// ioportd's CPU with MQTT on and off and Modbus beside it, with every analog value changing.
+std::vector<Verdict> sparkplug_cost(const Environment& env);
+// 7c. A fleet of edge nodes (Environment::fleet) on one broker; nothing in a --quick run.
+std::vector<Verdict> sparkplug_fleet(const Environment& env);
 
 }  // namespace ioport::bench

@@ -242,7 +242,8 @@ std::chrono::nanoseconds wire_time(std::size_t bytes, int baud) {
     return std::chrono::nanoseconds(static_cast<std::int64_t>(bytes) * 10 * 1'000'000'000LL / baud);
 }
 
-std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections, bool http) {
+std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections, bool http,
+                         std::string_view more) {
     std::string yaml =
         fmt::format("modbus:\n  listen: \"127.0.0.1:0\"\n  max_connections: {}\n", max_connections);
     if (http) yaml += "http:\n  listen: \"127.0.0.1:0\"\n";
@@ -253,9 +254,13 @@ std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections
             "    unit_id: {}\n    modules:\n",
             i, links[i].device, links[i].baud, i + 1);
         for (const auto module : links[i].modules)
-            yaml += fmt::format("      - {{ type: {}, number: {} }}\n", name(module.type),
-                                module.number);
+            yaml += fmt::format("      - {{ type: {}, number: {}{} }}\n", name(module.type),
+                                module.number,
+                                links[i].poll.count() > 0 && !is_output(module.type)
+                                    ? fmt::format(", poll: {}ms", links[i].poll.count())
+                                    : std::string());
     }
+    yaml += more;
     return yaml;
 }
 
@@ -431,6 +436,18 @@ sim::AnswerErrors InProcessSim::take_answer_errors() {
     });
 }
 
+Clock::time_point InProcessSim::set_values(ModuleAddress module, std::vector<std::uint16_t> words) {
+    return on_sim_thread([&] {
+        (void)model_.set_values(module, words);
+        return Clock::now();
+    });
+}
+
+void InProcessSim::wander(std::vector<ModuleAddress> modules, std::chrono::microseconds period) {
+    on_sim_thread([this] { every_word_ = true; });
+    tick_values(std::move(modules), period);
+}
+
 void InProcessSim::tick_values(std::vector<ModuleAddress> modules,
                                std::chrono::microseconds period) {
     on_sim_thread([&] {
@@ -444,9 +461,21 @@ void InProcessSim::tick_values(std::vector<ModuleAddress> modules,
 }
 
 void InProcessSim::tick() {
-    const std::array<std::uint16_t, 1> value{++tick_value_};
-    for (const auto module : ticked_)
-        (void)model_.set_values(module, value);
+    ++tick_value_;
+    for (const auto module : ticked_) {
+        if (!every_word_) {
+            const std::array<std::uint16_t, 1> value{tick_value_};
+            (void)model_.set_values(module, value);
+            continue;
+        }
+        // Each word its own value, every one of them new at every tick.
+        std::array<std::uint16_t, 3> words{};
+        for (std::size_t w = 0; w < words.size(); ++w)
+            words[w] = static_cast<std::uint16_t>(tick_value_ + std::size_t{0x5555} * w +
+                                                  std::size_t{0x0101} * module.number);
+        (void)model_.set_values(
+            module, std::span(words.data(), static_cast<std::size_t>(reply_words(module.type))));
+    }
     ticker_.expires_at(ticker_.expiry() + tick_period_);
     ticker_.async_wait([this](const boost::system::error_code& ec) {
         if (!ec) tick();

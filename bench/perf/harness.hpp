@@ -34,6 +34,8 @@ struct Binaries {
     std::string sim = IOPORT_SIM_BINARY;
     std::string plain_server = PLAIN_SERVER_BINARY;
     std::string baseline;  // --baseline: an earlier ioportd, measured beside it in benchmark 4
+    // The MQTT broker of benchmark 7 (--mosquitto); without it benchmark 7 says so and skips.
+    std::string mosquitto = "/usr/sbin/mosquitto";
 };
 
 // Where things run. The server under test (ioportd or the plain server) gets a CPU to itself;
@@ -53,6 +55,9 @@ struct Environment {
     // Benchmark 6 waits the ten minutes it takes every trend ring to fill, and measures the
     // memory then, rather than only computing it.
     bool fill_trends = false;
+    // Benchmark 7c: how many edge nodes, each an ioportd on its own simulator, share one broker
+    // (0: skip 7c). Never in a --quick run.
+    int fleet = 50;
     std::chrono::milliseconds window(std::chrono::milliseconds full) const;
 };
 
@@ -138,10 +143,13 @@ struct LinkSpec {
     std::string device;
     int baud = 115200;
     std::vector<ModuleAddress> modules;
+    // The input modules' `poll:` (read at most this often); 0: every cycle, as fast as the line.
+    std::chrono::milliseconds poll{0};
 };
-// `http`: the HTTP side on as well (gateway.md §5.4), on a port of its own choosing.
+// `http`: the HTTP side on as well (gateway.md §5.4), on a port of its own choosing. `more`:
+// further top-level sections, YAML as it goes into the file (the `mqtt:` of benchmark 7).
 std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections = 32,
-                         bool http = false);
+                         bool http = false, std::string_view more = {});
 
 // --- Modbus ---------------------------------------------------------------------------------
 
@@ -242,11 +250,18 @@ class InProcessSim {
     Clock::time_point at(const sim::LogEntry& entry) const { return origin_ + entry.at; }
 
     std::vector<sim::LogEntry> take_log();
+    // Sets an input module's raw words at once, on the simulator's thread, and returns when it
+    // did, on this process's clock: the moment the device's input changed.
+    Clock::time_point set_values(ModuleAddress module, std::vector<std::uint16_t> words);
     // How late the simulator's answers went out against their modelled end since the last call.
     sim::AnswerErrors take_answer_errors();
     // Every `period`, sets each of `modules` (inputs with one word) to a new value, a counter, so
     // that every reading of a module tells which one it was.
     void tick_values(std::vector<ModuleAddress> modules, std::chrono::microseconds period);
+    // The same for input modules of any number of words: every `period`, each word of each of
+    // `modules` moves to a value it did not have, as the analog inputs of a plant never hold
+    // still. Instead of tick_values, not beside it.
+    void wander(std::vector<ModuleAddress> modules, std::chrono::microseconds period);
 
   private:
     template <class F>
@@ -264,6 +279,7 @@ class InProcessSim {
     std::vector<ModuleAddress> ticked_;
     std::chrono::microseconds tick_period_{};
     std::uint16_t tick_value_ = 0;
+    bool every_word_ = false;  // wander(), not tick_values()
     bool ready_ = false;
     std::thread thread_;
 };

@@ -1,4 +1,4 @@
-// ioportd-bench: the benchmarks of issues 6 and 16, described with their results in
+// ioportd-bench: the benchmarks of issues 6, 16 and 17, described with their results in
 // bench/README.md. bench/perf/run builds and runs them all; this program runs one or all of them.
 #include <unistd.h>
 
@@ -17,9 +17,9 @@ namespace {
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, or all (the default). Prints Markdown tables, a "BENCH {json}"
-line per figure and a summary of every figure against its target. Asserts nothing: exit status
-0 unless a program could not be started.
+write, modbus, footprint, http, sparkplug (7a-c), fleet (7c alone), or all (the default).
+Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
+its target. Asserts nothing: exit status 0 unless a program could not be started.
 
   --quick           every phase a fraction of a second: checks that everything runs, the
                     figures mean nothing
@@ -32,6 +32,10 @@ line per figure and a summary of every figure against its target. Asserts nothin
                     in harness.hpp): their figures then include the hypervisor's wake-ups
   --fill-trends     benchmark 6 waits 10 minutes for every trend ring to fill and measures
                     the memory then (otherwise it computes it)
+  --fleet N         benchmark 7c runs N edge nodes on one broker (default 50; 0: skip 7c,
+                    which a --quick run always skips)
+  --mosquitto PATH  the MQTT broker of benchmark 7 (default /usr/sbin/mosquitto; without
+                    one, benchmark 7 says so and is skipped)
 
        ioportd-bench load PORT CONNECTIONS SECONDS [reads|writes|mixed]
 The load client of benchmark 4 alone, against a server started by hand (for profiling it
@@ -80,6 +84,10 @@ int main(int argc, char** argv) {
             hold = false;
         } else if (arg == "--fill-trends") {
             env.fill_trends = true;
+        } else if (arg == "--fleet" && i + 1 < argc) {
+            env.fleet = std::atoi(argv[++i]);
+        } else if (arg == "--mosquitto" && i + 1 < argc) {
+            env.binaries.mosquitto = argv[++i];
         } else if (arg == "--scale" && i + 1 < argc) {
             env.scale = std::atof(argv[++i]);
         } else if (arg == "--ioportd" && i + 1 < argc) {
@@ -90,7 +98,8 @@ int main(int argc, char** argv) {
             std::cout << usage;
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
-                   arg == "footprint" || arg == "http" || arg == "all") {
+                   arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "fleet" ||
+                   arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -114,7 +123,7 @@ int main(int argc, char** argv) {
     {
         std::optional<WakeupLatencyHold> latency;
         if (hold && !env.quick) latency.emplace();
-        fmt::print("\nBenchmarks 1-4 and 6 {}.\n",
+        fmt::print("\nBenchmarks 1-4, 6 and 7a-b {}.\n",
                    !latency ? "with idle CPUs free to halt"
                    : latency->failure().empty()
                        ? "with idle CPUs polling (/dev/cpu_dma_latency held at 0)"
@@ -126,8 +135,12 @@ int main(int argc, char** argv) {
         // Its Modbus part is benchmark 4's load, so under the same conditions; its scrapes'
         // CPU is not an idle figure.
         if (wanted("http")) add(http_cost(env));
+        // Latency and the Modbus load of benchmark 4 again, under the same conditions.
+        if (wanted("sparkplug")) add(sparkplug_cost(env));
     }
     if (wanted("footprint")) add(footprint(env));
+    // The fleet's CPU is the CPU of nodes that mostly wait, as benchmark 5's idle figure.
+    if (wanted("sparkplug") || wanted("fleet")) add(sparkplug_fleet(env));
 
     fmt::print("\n## Summary{}\n", env.quick ? " (--quick: the figures mean nothing)" : "");
     Table summary({"benchmark", "figure", "target", "met"});

@@ -1,0 +1,911 @@
+// Benchmark 7, what the Sparkplug B edge node costs (issue 17, gateway.md §5.5), against a local
+// mosquitto and a subscriber in this process (libmosquitto, on a thread of its own):
+// a. latency from an input change at the device to the DDATA carrying it at the subscriber,
+//    against the poll cycle of a full bus at 115200 baud;
+// b. with every analog value of a full bus changing all the time: ioportd's CPU with MQTT on
+//    against the same ioportd with MQTT off, side by side on the same changing input, the DDATA
+//    rate, and Modbus at 64 connections on the one against the other;
+// c. a fleet: N ioportd (50 by default), each an edge node on its own small simulated bus, on one
+//    broker: how long until every birth arrived, the data rate, the broker's and the nodes' CPU.
+#include <arpa/inet.h>
+#include <mosquitto.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <fstream>
+#include <latch>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <span>
+
+#include <fmt/format.h>
+
+#include "bench/perf/benchmarks.hpp"
+#include "bench/perf/load.hpp"
+#include "protocol/sparkplug.hpp"
+
+namespace ioport::bench {
+namespace {
+
+constexpr std::string_view group = "bench";
+
+std::string node_id(int i) {
+    return fmt::format("node{}", i);
+}
+
+std::string mqtt_yaml(std::uint16_t broker_port, std::string_view node) {
+    return fmt::format(
+        "mqtt:\n  broker: \"mqtt://127.0.0.1:{}\"\n  group_id: {}\n  edge_node_id: {}\n",
+        broker_port, group, node);
+}
+
+sim::SimulatorSettings timed(int baud) {
+    sim::SimulatorSettings settings;
+    settings.baud = baud;
+    settings.line_timing = true;
+    settings.turnaround = 0us;
+    return settings;
+}
+
+bool is_analog(ModuleType type) {  // as the daemon decides which modules keep a trend
+    return reply_words(type) > 0 && full_scale(type) > 0;
+}
+
+std::vector<ModuleAddress> analog_of(const std::vector<ModuleAddress>& modules) {
+    std::vector<ModuleAddress> analog;
+    for (const auto module : modules)
+        if (is_analog(module.type)) analog.push_back(module);
+    return analog;
+}
+
+double median(std::vector<double> values) {
+    if (values.empty()) return 0;
+    std::sort(values.begin(), values.end());
+    return values[(values.size() - 1) / 2];
+}
+
+double ms(double us) {
+    return us / 1000.0;
+}
+
+// --- The broker and the subscriber -----------------------------------------------------------
+
+std::uint16_t free_port() {
+    const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    if (fd < 0) return 0;
+    sockaddr_in address{};
+    address.sin_family = AF_INET;
+    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    socklen_t length = sizeof address;
+    std::uint16_t port = 0;
+    if (::bind(fd, reinterpret_cast<const sockaddr*>(&address), sizeof address) == 0 &&
+        ::getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length) == 0)
+        port = ntohs(address.sin_port);
+    ::close(fd);
+    return port;
+}
+
+bool accepts(std::uint16_t port) {
+    const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    if (fd < 0) return false;
+    sockaddr_in address{};
+    address.sin_family = AF_INET;
+    address.sin_port = htons(port);
+    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    const bool ok = ::connect(fd, reinterpret_cast<const sockaddr*>(&address), sizeof address) == 0;
+    ::close(fd);
+    return ok;
+}
+
+// mosquitto on a free loopback port, with $SYS every second and room for every QoS 0 message a
+// slow subscriber has not taken yet (so that what the broker drops is not what is measured).
+class Broker {
+  public:
+    Broker(const Environment& env, const TempDir& dir, std::optional<int> cpu) {
+        if (::access(env.binaries.mosquitto.c_str(), X_OK) != 0) {
+            why_ = fmt::format("no broker at {} (--mosquitto PATH)", env.binaries.mosquitto);
+            return;
+        }
+        const auto port = free_port();
+        std::ofstream(dir / "mosquitto.conf") << fmt::format(
+            "listener {} 127.0.0.1\nallow_anonymous true\npersistence false\nsys_interval 1\n"
+            "max_queued_messages 100000\nmax_queued_bytes 0\nmax_inflight_messages 0\n"
+            "log_type error\nlog_type warning\n",
+            port);
+        process_ = std::make_unique<Process>(
+            std::vector<std::string>{env.binaries.mosquitto, "-c", dir / "mosquitto.conf"}, cpu,
+            dir / "mosquitto.log");
+        const auto until = Clock::now() + 5s;
+        while (Clock::now() < until && process_->running()) {
+            if (accepts(port)) {
+                port_ = port;
+                return;
+            }
+            std::this_thread::sleep_for(10ms);
+        }
+        why_ = fmt::format("mosquitto did not start: {}", process_->output());
+    }
+    bool started() const { return port_ != 0; }
+    const std::string& why() const { return why_; }
+    std::uint16_t port() const { return port_; }
+    pid_t pid() const { return process_ ? process_->pid() : -1; }
+
+  private:
+    std::unique_ptr<Process> process_;
+    std::uint16_t port_ = 0;
+    std::string why_;
+};
+
+struct Received {
+    Clock::time_point at;
+    std::string_view topic;
+    std::span<const std::uint8_t> payload;
+};
+
+// A subscriber on libmosquitto's own thread (mosquitto_loop_start): `handler` runs there, for
+// every message, with the time it arrived.
+class Subscriber {
+  public:
+    using Handler = std::function<void(const Received&)>;
+
+    Subscriber(std::uint16_t port, std::vector<std::string> patterns, Handler handler)
+        : patterns_(std::move(patterns)), handler_(std::move(handler)) {
+        static const int initialised = mosquitto_lib_init();
+        (void)initialised;
+        client_ = mosquitto_new(nullptr, true, this);
+        if (client_ == nullptr) return;
+        mosquitto_connect_callback_set(client_, &Subscriber::on_connect);
+        mosquitto_subscribe_callback_set(client_, &Subscriber::on_subscribe);
+        mosquitto_message_callback_set(client_, &Subscriber::on_message);
+        if (mosquitto_connect(client_, "127.0.0.1", port, 60) != MOSQ_ERR_SUCCESS) return;
+        if (mosquitto_loop_start(client_) != MOSQ_ERR_SUCCESS) return;
+        started_ = true;
+        const auto until = Clock::now() + 5s;
+        while (Clock::now() < until && !ready())
+            std::this_thread::sleep_for(5ms);
+    }
+    ~Subscriber() {
+        if (client_ == nullptr) return;
+        if (started_) {
+            mosquitto_disconnect(client_);
+            mosquitto_loop_stop(client_, false);
+        }
+        mosquitto_destroy(client_);
+    }
+    Subscriber(const Subscriber&) = delete;
+    Subscriber& operator=(const Subscriber&) = delete;
+
+    bool ready() const {
+        return started_ && subscribed_.load() == static_cast<int>(patterns_.size());
+    }
+
+  private:
+    static void on_connect(mosquitto* client, void* self, int rc) {
+        if (rc != 0) return;
+        for (const auto& pattern : static_cast<Subscriber*>(self)->patterns_)
+            mosquitto_subscribe(client, nullptr, pattern.c_str(), 0);
+    }
+    static void on_subscribe(mosquitto* /*client*/, void* self, int /*mid*/, int /*count*/,
+                             const int* /*granted*/) {
+        ++static_cast<Subscriber*>(self)->subscribed_;
+    }
+    static void on_message(mosquitto* /*client*/, void* self, const mosquitto_message* message) {
+        const auto at = Clock::now();
+        static_cast<Subscriber*>(self)->handler_(
+            {at,
+             message->topic,
+             {static_cast<const std::uint8_t*>(message->payload),
+              static_cast<std::size_t>(message->payloadlen)}});
+    }
+
+    std::vector<std::string> patterns_;
+    Handler handler_;
+    mosquitto* client_ = nullptr;
+    bool started_ = false;
+    std::atomic<int> subscribed_{0};
+};
+
+// What a subscriber to spBv1.0/bench/# counted: messages and bytes (topic and payload) by
+// message type and node, births, and gaps in each node's seq (a message lost on the way).
+class Tally {
+  public:
+    void add(const Received& message) {
+        const auto topic = sparkplug::parse_topic(message.topic);
+        if (!topic) return;
+        const auto payload = sparkplug::decode(message.payload);
+        const std::scoped_lock lock(mutex_);
+        auto& node = nodes_[topic->node];
+        ++messages_;
+        bytes_ += message.topic.size() + message.payload.size();
+        switch (topic->type) {
+            case sparkplug::MessageType::nbirth:
+                if (!node.nbirth) node.nbirth = message.at;
+                node.seq.reset();
+                ++births_;
+                break;
+            case sparkplug::MessageType::dbirth:
+                ++node.dbirths;
+                node.last_dbirth = message.at;
+                break;
+            case sparkplug::MessageType::ddata:
+                ++ddata_;
+                ddata_bytes_ += message.topic.size() + message.payload.size();
+                break;
+            default:
+                break;
+        }
+        if (payload && payload->seq && topic->type != sparkplug::MessageType::ndeath) {
+            if (node.seq && *payload->seq != (*node.seq + 1) % 256)
+                lost_ += (*payload->seq + 256 - (*node.seq + 1) % 256) % 256;
+            node.seq = *payload->seq;
+        }
+    }
+
+    struct Counts {
+        std::uint64_t messages = 0, bytes = 0, ddata = 0, ddata_bytes = 0, lost = 0, births = 0;
+        Counts operator-(const Counts& o) const {
+            return {messages - o.messages,       bytes - o.bytes, ddata - o.ddata,
+                    ddata_bytes - o.ddata_bytes, lost - o.lost,   births - o.births};
+        }
+    };
+    Counts counts() const {
+        const std::scoped_lock lock(mutex_);
+        return {messages_, bytes_, ddata_, ddata_bytes_, lost_, births_};
+    }
+    struct Node {
+        std::optional<Clock::time_point> nbirth;
+        int dbirths = 0;
+        Clock::time_point last_dbirth{};
+        std::optional<std::uint64_t> seq;
+    };
+    std::optional<Node> node(const std::string& id) const {
+        const std::scoped_lock lock(mutex_);
+        const auto found = nodes_.find(id);
+        if (found == nodes_.end()) return std::nullopt;
+        return found->second;
+    }
+
+  private:
+    mutable std::mutex mutex_;
+    std::map<std::string, Node, std::less<>> nodes_;
+    std::uint64_t messages_ = 0, bytes_ = 0, ddata_ = 0, ddata_bytes_ = 0, lost_ = 0, births_ = 0;
+};
+
+template <class Condition>
+bool wait_for(Condition condition, std::chrono::milliseconds deadline) {
+    const auto until = Clock::now() + deadline;
+    while (!condition()) {
+        if (Clock::now() >= until) return false;
+        std::this_thread::sleep_for(5ms);
+    }
+    return true;
+}
+
+// --- a. Latency of report by exception ----------------------------------------------------------
+
+std::vector<Verdict> latency(const Environment& env) {
+    const int changes = env.quick ? 5 : std::max(200, static_cast<int>(200 * env.scale));
+    const auto bus = full_bus();
+    const ModuleAddress target{ModuleType::dim16, 0};
+    fmt::print(
+        "\n### 7a. Input change → DDATA at a subscriber ({} changes)\n\nA full bus ({} modules) "
+        "at 115200 baud, modelled line timing, simulated in this process; ioportd an edge node on "
+        "a local mosquitto (client CPU), a subscriber to the DDATA of {} (libmosquitto, client "
+        "CPU). At random moments 60–140 ms apart, dim16 0's word is set to a new value on the "
+        "simulator's thread, which timestamps it; the subscriber timestamps the DDATA whose "
+        "`word` carries it. \"Read\" is when the device answered the first read that carried "
+        "the value (its request's arrival plus the modelled wire time, from the simulator's "
+        "log): before it, the change waits for the poll; after it, ioportd, the broker and the "
+        "subscriber.\n",
+        changes, bus.size(), sparkplug::device_id("hub0", target));
+    TempDir dir;
+    Broker broker(env, dir, env.placement.client_cpu);
+    if (!broker.started()) {
+        fmt::print("\n{}: benchmark 7 skipped.\n", broker.why());
+        return {};
+    }
+    InProcessSim sim(dir / "tty", bus, timed(115200), env.placement.client_cpu);
+    const auto device = sparkplug::device_id("hub0", target);
+    std::mutex mutex;
+    std::optional<std::uint64_t> word_alias;
+    std::map<std::uint64_t, Clock::time_point> arrived;  // word → first DDATA carrying it
+    int rebirths = 0;
+    Subscriber subscriber(
+        broker.port(),
+        {sparkplug::topic(group, sparkplug::MessageType::dbirth, node_id(0), device),
+         sparkplug::topic(group, sparkplug::MessageType::ddata, node_id(0), device)},
+        [&](const Received& message) {
+            const auto topic = sparkplug::parse_topic(message.topic);
+            const auto payload = sparkplug::decode(message.payload);
+            if (!topic || !payload) return;
+            const std::scoped_lock lock(mutex);
+            if (topic->type == sparkplug::MessageType::dbirth) {
+                if (word_alias) ++rebirths;
+                for (const auto& metric : payload->metrics)
+                    if (metric.name == "word") word_alias = metric.alias;
+            }
+            for (const auto& metric : payload->metrics) {
+                const bool word =
+                    metric.name == "word" || (word_alias && metric.alias == word_alias);
+                const auto* value =
+                    metric.value ? std::get_if<std::uint64_t>(&*metric.value) : nullptr;
+                if (word && value != nullptr) arrived.try_emplace(*value, message.at);
+            }
+        });
+    Gateway gateway(env, dir,
+                    gateway_yaml({{dir / "tty", 115200, bus}}, 32, false,
+                                 mqtt_yaml(broker.port(), node_id(0))));
+    if (!sim.ready() || !subscriber.ready() || !gateway.started() ||
+        !gateway.wait_until_polling() ||
+        !wait_for(
+            [&] {
+                const std::scoped_lock lock(mutex);
+                return word_alias.has_value();
+            },
+            10s))
+        return {{"7a. change → DDATA", "ioportd did not start", "", false}};
+
+    std::this_thread::sleep_for(100ms);
+    (void)sim.take_log();
+    ModbusConnection diagnostics(gateway.port());
+    const auto before = read_diagnostics(diagnostics);
+    const auto start = Clock::now();
+    std::mt19937 random(17);
+    std::uniform_int_distribution<int> pause_us(60'000, 140'000);
+    std::vector<std::pair<std::uint16_t, Clock::time_point>> applied;
+    for (int i = 0; i < changes; ++i) {
+        std::this_thread::sleep_for(std::chrono::microseconds(pause_us(random)));
+        const auto word = static_cast<std::uint16_t>(0x1000 + i);
+        applied.emplace_back(word, sim.set_values(target, {word}));
+    }
+    wait_for(
+        [&] {
+            const std::scoped_lock lock(mutex);
+            return arrived.contains(applied.back().first);
+        },
+        1s);
+    const auto after = read_diagnostics(diagnostics);
+    const auto elapsed = Clock::now() - start;
+    const auto log = sim.take_log();
+
+    // The cycle: ioportd's count of cycles over the window, and from the simulator's log the time
+    // between two requests to dim16 0.
+    double cycle_us = 0;
+    if (before && after && after->cycles > before->cycles)
+        cycle_us = microseconds(elapsed) / static_cast<double>(after->cycles - before->cycles);
+    std::vector<double> device_cycles;
+    std::optional<Clock::time_point> previous;
+    for (const auto& entry : log) {
+        if (entry.request != "a0") continue;
+        if (previous) device_cycles.push_back(microseconds(sim.at(entry) - *previous));
+        previous = sim.at(entry);
+    }
+    const auto device_cycle = summarize(device_cycles);
+
+    // A change that the next one replaced before a read of dim16 0 saw it (a cycle longer than
+    // the pause, on a busy machine) was never the device's input to any read: not counted.
+    // One that a read carried and no DDATA did is lost.
+    std::vector<double> total, waiting, after_read;
+    int unread = 0, missing = 0;
+    {
+        const std::scoped_lock lock(mutex);
+        for (const auto& change : applied) {
+            const auto word = change.first;
+            const auto at = change.second;
+            const auto read = std::find_if(log.begin(), log.end(), [&](const sim::LogEntry& e) {
+                return e.request == "a0" && !e.answer.empty() &&
+                       std::strtoul(e.answer.c_str(), nullptr, 16) == word;
+            });
+            if (read == log.end()) {
+                ++unread;
+                continue;
+            }
+            const auto found = arrived.find(word);
+            if (found == arrived.end()) {
+                ++missing;
+                continue;
+            }
+            const auto answered =
+                sim.at(*read) +
+                wire_time(read->request.size() + 1 + read->answer.size() + 1, 115200);
+            total.push_back(microseconds(found->second - at));
+            waiting.push_back(microseconds(answered - at));
+            after_read.push_back(microseconds(found->second - answered));
+        }
+    }
+    const auto t = summarize(total);
+    const auto w = summarize(waiting);
+    const auto r = summarize(after_read);
+    Table table({"", "p50 ms", "p99 ms", "max ms", "changes"});
+    const auto row = [&](std::string_view what, const Summary& s) {
+        table.row({std::string(what), fmt::format("{:.2f}", ms(s.p50)),
+                   fmt::format("{:.2f}", ms(s.p99)), fmt::format("{:.2f}", ms(s.max)),
+                   fmt::format("{}", s.count)});
+    };
+    row("**change → DDATA at the subscriber**", t);
+    row("change → read (the wait for the poll)", w);
+    row("read → DDATA at the subscriber (ioportd, broker, subscriber)", r);
+    row("poll cycle at the device (dim16 0 to dim16 0)", device_cycle);
+    const double allowed_us = cycle_us + 5000;
+    fmt::print(
+        "\nPoll cycle: {:.2f} ms from ioportd's cycle count over the window (register 1001, the "
+        "last cycle: {:.1f} ms). {} change(s) replaced by the next before a read saw them; {} "
+        "read and never published; {} rebirth(s) of the device meanwhile.\n",
+        ms(cycle_us), after ? after->last_cycle_100us / 10.0 : 0.0, unread, missing, rebirths);
+    machine_line(fmt::format(
+        R"({{"bench":"sparkplug_latency","changes":{},"received":{},"unread":{},"missing":{},"p50_ms":{:.3f},"p99_ms":{:.3f},"max_ms":{:.3f},"wait_p50_ms":{:.3f},"wait_p99_ms":{:.3f},"after_read_p50_ms":{:.3f},"after_read_p99_ms":{:.3f},"after_read_max_ms":{:.3f},"cycle_ms":{:.3f},"register_1001_ms":{:.1f}}})",
+        changes, t.count, unread, missing, ms(t.p50), ms(t.p99), ms(t.max), ms(w.p50), ms(w.p99),
+        ms(r.p50), ms(r.p99), ms(r.max), ms(cycle_us),
+        after ? after->last_cycle_100us / 10.0 : 0.0));
+    return {{"7a. input change → DDATA p99, full bus at 115200",
+             fmt::format("{:.2f} ms (p50 {:.2f}; read → DDATA p99 {:.2f}); cycle {:.2f} ms; {} of "
+                         "{} read, {} lost",
+                         ms(t.p99), ms(t.p50), ms(r.p99), ms(cycle_us), changes - unread, changes,
+                         missing),
+             fmt::format("<= cycle + 5 ms ({:.2f} ms), none lost", ms(allowed_us)),
+             missing == 0 && t.count > 0 && cycle_us > 0 && t.p99 <= allowed_us}};
+}
+
+// --- b. CPU of publication, and Modbus beside it ------------------------------------------------
+
+std::vector<Verdict> publication_cost(const Environment& env) {
+    const auto bus = full_bus();
+    const auto analog = analog_of(bus);
+    const auto period = 5ms;
+    fmt::print(
+        "\n### 7b. CPU of publication: every analog value changing\n\nTwo full buses at 115200 "
+        "baud (modelled, simulated in this process), each with its {} analog modules' every "
+        "channel moving every {} ms, so that every read of them is a new value. Two ioportd on "
+        "the server CPU, one per bus: \"on\" an edge node on a local mosquitto (client CPU), "
+        "\"off\" without `mqtt:`. Both run throughout: their CPU is measured over the same "
+        "windows, and the Modbus load of benchmark 4 (64 connections, reads) goes to one and "
+        "then the other in alternating rounds.\n",
+        analog.size(), period.count());
+    TempDir dir;
+    Broker broker(env, dir, env.placement.client_cpu);
+    if (!broker.started()) {
+        fmt::print("\n{}: benchmark 7 skipped.\n", broker.why());
+        return {};
+    }
+    Tally tally;
+    Subscriber subscriber(broker.port(), {fmt::format("spBv1.0/{}/#", group)},
+                          [&](const Received& message) { tally.add(message); });
+    InProcessSim sim_on(dir / "tty-on", bus, timed(115200), env.placement.client_cpu);
+    InProcessSim sim_off(dir / "tty-off", bus, timed(115200), env.placement.client_cpu);
+    TempDir dir_off;
+    Gateway on(env, dir,
+               gateway_yaml({{dir / "tty-on", 115200, bus}}, 300, false,
+                            mqtt_yaml(broker.port(), node_id(0))));
+    Gateway off(env, dir_off, gateway_yaml({{dir / "tty-off", 115200, bus}}, 300));
+    if (!sim_on.ready() || !sim_off.ready() || !subscriber.ready() || !on.started() ||
+        !off.started() || !on.wait_until_polling() || !off.wait_until_polling() ||
+        !wait_for(
+            [&] {
+                const auto node = tally.node(node_id(0));
+                return node && node->dbirths >= static_cast<int>(bus.size());
+            },
+            10s))
+        return {{"7b. CPU of publication", "ioportd did not start", "", false}};
+    sim_on.wander(analog, period);
+    sim_off.wander(analog, period);
+    std::this_thread::sleep_for(env.quick ? 100ms : 1s);
+
+    // b1. CPU, both over the same windows.
+    const int windows = env.quick ? 1 : 5;
+    const auto window = env.window(3s);
+    const Table cpu_table({"window", "ioportd on, CPU", "ioportd off, CPU", "on ÷ off", "DDATA/s",
+                           "KiB/s at the subscriber", "broker CPU"});
+    std::vector<double> ratios;
+    std::chrono::nanoseconds total_on{}, total_off{}, total_broker{};
+    Tally::Counts total_counts;
+    double total_seconds = 0;
+    for (int i = 0; i < windows; ++i) {
+        const auto counts_before = tally.counts();
+        const auto on_before = cpu_time(on.pid());
+        const auto off_before = cpu_time(off.pid());
+        const auto broker_before = cpu_time(broker.pid());
+        const auto start = Clock::now();
+        std::this_thread::sleep_for(window);
+        const auto cpu_on = cpu_time(on.pid()) - on_before;
+        const auto cpu_off = cpu_time(off.pid()) - off_before;
+        const auto cpu_broker = cpu_time(broker.pid()) - broker_before;
+        const double s = seconds(Clock::now() - start);
+        const auto counts = tally.counts() - counts_before;
+        const double on_pct = microseconds(cpu_on) / 1e4 / s;
+        const double off_pct = microseconds(cpu_off) / 1e4 / s;
+        ratios.push_back(on_pct / off_pct);
+        cpu_table.row({fmt::format("{}", i + 1), fmt::format("{:.2f} %", on_pct),
+                       fmt::format("{:.2f} %", off_pct), fmt::format("{:.2f}", ratios.back()),
+                       fmt::format("{:.0f}", static_cast<double>(counts.ddata) / s),
+                       fmt::format("{:.1f}", static_cast<double>(counts.bytes) / 1024 / s),
+                       fmt::format("{:.2f} %", microseconds(cpu_broker) / 1e4 / s)});
+        total_on += cpu_on;
+        total_off += cpu_off;
+        total_broker += cpu_broker;
+        total_seconds += s;
+        total_counts.messages += counts.messages;
+        total_counts.bytes += counts.bytes;
+        total_counts.ddata += counts.ddata;
+        total_counts.ddata_bytes += counts.ddata_bytes;
+        total_counts.lost += counts.lost;
+    }
+    const double on_pct = microseconds(total_on) / 1e4 / total_seconds;
+    const double off_pct = microseconds(total_off) / 1e4 / total_seconds;
+    const double broker_pct = microseconds(total_broker) / 1e4 / total_seconds;
+    const double ddata_per_s = static_cast<double>(total_counts.ddata) / total_seconds;
+    const double us_per_ddata = microseconds(total_on - total_off) /
+                                static_cast<double>(std::max<std::uint64_t>(total_counts.ddata, 1));
+    const double cpu_ratio = median(ratios);
+    fmt::print(
+        "\nAll windows ({:.1f} s): ioportd {:.2f} % of a core with MQTT on, {:.2f} % off: "
+        "{:.3f}× (median of the windows {:.3f}×); {:.0f} DDATA/s ({:.0f} B each with its topic), "
+        "{:.1f} µs of ioportd's CPU per DDATA beyond polling; the broker {:.2f} %; {} lost "
+        "(gaps in seq).\n",
+        total_seconds, on_pct, off_pct, on_pct / off_pct, cpu_ratio, ddata_per_s,
+        static_cast<double>(total_counts.ddata_bytes) /
+            static_cast<double>(std::max<std::uint64_t>(total_counts.ddata, 1)),
+        us_per_ddata, broker_pct, total_counts.lost);
+    machine_line(fmt::format(
+        R"({{"bench":"sparkplug_cpu","analog_modules":{},"change_period_ms":{},"seconds":{:.2f},"cpu_on_pct":{:.3f},"cpu_off_pct":{:.3f},"ratio_total":{:.4f},"ratio_median":{:.4f},"ddata_per_s":{:.1f},"bytes_per_s":{:.0f},"us_per_ddata":{:.2f},"broker_cpu_pct":{:.3f},"lost":{}}})",
+        analog.size(), period.count(), total_seconds, on_pct, off_pct, on_pct / off_pct, cpu_ratio,
+        ddata_per_s, static_cast<double>(total_counts.bytes) / total_seconds, us_per_ddata,
+        broker_pct, total_counts.lost));
+
+    // b2. Modbus at 64 connections, on the one and then the other.
+    constexpr int connections = 64;
+    const int rounds = env.quick ? 1 : 7;
+    const auto load_window = env.window(3s);
+    fmt::print(
+        "\n#### Modbus at {} connections, MQTT on against off ({} pairs of {} ms rounds, "
+        "alternating)\n",
+        connections, rounds, load_window.count());
+    const Table rounds_table({"round", "ioportd", "req/s", "p99 µs", "server CPU µs/req", "errors",
+                              "poll cycle ms", "DDATA/s meanwhile"});
+    // The poll cycle of the loaded ioportd over its round, from its own counters: what the load
+    // leaves of polling, and so of what there is to publish.
+    ModbusConnection diagnostics_on(on.port()), diagnostics_off(off.port());
+    std::vector<double> p99_ratios, cpu_ratios;
+    std::array<std::optional<LoadResult>, 2> sides;  // [on?]
+    std::vector<bool> order{true, false};
+    Tally::Counts loaded;
+    double loaded_seconds = 0;
+    for (int round = 0; round < rounds; ++round) {
+        std::array<double, 2> p99{}, cpu{};
+        for (const bool mqtt : order) {
+            const auto& gateway = mqtt ? on : off;
+            const auto counts_before = tally.counts();
+            auto& diagnostics = mqtt ? diagnostics_on : diagnostics_off;
+            const auto cycles_before = read_diagnostics(diagnostics);
+            LoadSpec spec{gateway.port(),
+                          gateway.pid(),
+                          connections,
+                          Mix::reads,
+                          1,
+                          env.quick ? 100ms : 500ms,
+                          load_window,
+                          {},
+                          {}};
+            const auto round_start = Clock::now();
+            auto result = run_load(spec);
+            const auto counts = tally.counts() - counts_before;
+            const auto cycles_after = read_diagnostics(diagnostics);
+            const double cycle_ms =
+                cycles_before && cycles_after && cycles_after->cycles > cycles_before->cycles
+                    ? seconds(Clock::now() - round_start) * 1000 /
+                          static_cast<double>(cycles_after->cycles - cycles_before->cycles)
+                    : 0.0;
+            const auto latency =
+                summarize(std::vector<double>(result.latency_us.begin(), result.latency_us.end()));
+            const double total_s = result.seconds + seconds(spec.warmup);
+            rounds_table.row(
+                {fmt::format("{}", round + 1), mqtt ? "on" : "off",
+                 fmt::format("{:.0f}", result.per_second()), fmt::format("{:.0f}", latency.p99),
+                 fmt::format("{:.2f}", result.cpu_us_per_request()),
+                 fmt::format("{}", result.errors), fmt::format("{:.1f}", cycle_ms),
+                 mqtt ? fmt::format("{:.0f}", static_cast<double>(counts.ddata) / total_s)
+                      : std::string()});
+            if (mqtt) {
+                loaded.ddata += counts.ddata;
+                loaded.lost += counts.lost;
+                loaded_seconds += total_s;
+            }
+            p99[mqtt] = latency.p99;
+            cpu[mqtt] = result.cpu_us_per_request();
+            if (sides[mqtt])
+                sides[mqtt]->add(std::move(result));
+            else
+                sides[mqtt] = std::move(result);
+        }
+        p99_ratios.push_back(p99[1] / p99[0]);
+        cpu_ratios.push_back(cpu[1] / cpu[0]);
+        std::rotate(order.begin(), order.begin() + 1, order.end());
+    }
+    std::array<Summary, 2> latency;
+    for (int mqtt = 0; mqtt < 2; ++mqtt) {
+        auto& values = sides[static_cast<std::size_t>(mqtt)]->latency_us;
+        latency[static_cast<std::size_t>(mqtt)] =
+            summarize(std::vector<double>(values.begin(), values.end()));
+        values.clear();
+    }
+    const auto& load_on = *sides[1];
+    const auto& load_off = *sides[0];
+    fmt::print("\nAll rounds together:\n");
+    const Table table(
+        {"ioportd", "req/s", "p50 µs", "p99 µs", "p99.9 µs", "server CPU µs/req", "errors"});
+    for (const int mqtt : {0, 1}) {
+        const auto& side = *sides[static_cast<std::size_t>(mqtt)];
+        const auto& l = latency[static_cast<std::size_t>(mqtt)];
+        table.row({mqtt ? "MQTT on" : "MQTT off", fmt::format("{:.0f}", side.per_second()),
+                   fmt::format("{:.0f}", l.p50), fmt::format("{:.0f}", l.p99),
+                   fmt::format("{:.0f}", l.p999), fmt::format("{:.2f}", side.cpu_us_per_request()),
+                   fmt::format("{}", side.errors)});
+    }
+    const double p99_median = median(p99_ratios);
+    const double cpu_median = median(cpu_ratios);
+    const double p99_total = latency[1].p99 / latency[0].p99;
+    fmt::print(
+        "\nOn ÷ off: p99 median of {} pairs {:.3f}× (all rounds {:.3f}×), CPU per request "
+        "{:.3f}× (all rounds {:.3f}×); {:.0f} DDATA/s published during the loaded rounds, {} "
+        "lost.\n",
+        rounds, p99_median, p99_total, cpu_median,
+        load_on.cpu_us_per_request() / load_off.cpu_us_per_request(),
+        static_cast<double>(loaded.ddata) / std::max(loaded_seconds, 1e-9), loaded.lost);
+    machine_line(fmt::format(
+        R"({{"bench":"sparkplug_modbus","connections":{},"rounds":{},"req_s_on":{:.0f},"req_s_off":{:.0f},"p99_us_on":{:.0f},"p99_us_off":{:.0f},"p99_ratio_median":{:.4f},"p99_ratio_total":{:.4f},"cpu_us_on":{:.3f},"cpu_us_off":{:.3f},"cpu_ratio_median":{:.4f},"errors_on":{},"errors_off":{},"ddata_per_s":{:.1f},"lost":{}}})",
+        connections, rounds, load_on.per_second(), load_off.per_second(), latency[1].p99,
+        latency[0].p99, p99_median, p99_total, load_on.cpu_us_per_request(),
+        load_off.cpu_us_per_request(), cpu_median, load_on.errors, load_off.errors,
+        static_cast<double>(loaded.ddata) / std::max(loaded_seconds, 1e-9), loaded.lost));
+
+    return {{"7b. ioportd CPU, MQTT on ÷ off, every analog value changing",
+             fmt::format("{:.2f} % ÷ {:.2f} % = {:.3f}× (median of {} windows; {:.0f} DDATA/s, "
+                         "{:.1f} µs each; broker {:.2f} %)",
+                         on_pct, off_pct, on_pct / off_pct, windows, ddata_per_s, us_per_ddata,
+                         broker_pct),
+             "(reported), none lost", total_counts.lost == 0 && total_counts.ddata > 0},
+            {"7b. Modbus p99 at 64 connections, MQTT on ÷ off",
+             fmt::format("median of {} pairs {:.3f}× (all rounds: {:.0f} vs {:.0f} µs = {:.3f}×)",
+                         rounds, p99_median, latency[1].p99, latency[0].p99, p99_total),
+             "<= 1.05×", load_on.errors == 0 && load_off.errors == 0 && p99_median <= 1.05}};
+}
+
+// --- c. A fleet on one broker
+// ---------------------------------------------------------------------
+
+std::vector<Verdict> fleet(const Environment& env) {
+    const int nodes = env.fleet;
+    const std::vector<ModuleAddress> bus{{ModuleType::dim16, 0},
+                                         {ModuleType::acm3p, 0},
+                                         {ModuleType::acm3c, 0},
+                                         {ModuleType::dccim, 0}};
+    const auto poll = 100ms;
+    const auto period = 20ms;
+    fmt::print(
+        "\n### 7c. A fleet: {} edge nodes on one broker\n\n{} ioportd (server CPU), each on its "
+        "own simulated bus (in this process, client CPU) of {} modules ({}) at 115200 baud, each "
+        "module read every {} ms (`poll:`), every input word changing every {} ms, so that every "
+        "read is published; one mosquitto (client CPU, sys_interval 1) and one subscriber to "
+        "spBv1.0/{}/# and the broker's $SYS counters. The ioportd are started all at once, a "
+        "thread each, as boxes coming back after a power cut; the births are timed from the "
+        "first start. Then a window of steady publication. CPU from schedstat, idle CPUs free "
+        "to halt.\n",
+        nodes, nodes, bus.size(), hub_argument(bus), poll.count(), period.count(), group);
+    TempDir dir;
+    Broker broker(env, dir, env.placement.client_cpu);
+    if (!broker.started()) {
+        fmt::print("\n{}: 7c skipped.\n", broker.why());
+        return {};
+    }
+    Tally tally;
+    std::mutex sys_mutex;
+    std::map<std::string, std::vector<std::pair<Clock::time_point, double>>> sys;
+    Subscriber subscriber(
+        broker.port(),
+        {fmt::format("spBv1.0/{}/#", group), "$SYS/broker/messages/received",
+         "$SYS/broker/messages/sent", "$SYS/broker/bytes/received", "$SYS/broker/bytes/sent"},
+        [&](const Received& message) {
+            if (message.topic.starts_with("$SYS/")) {
+                const std::string text(message.payload.begin(), message.payload.end());
+                const std::scoped_lock lock(sys_mutex);
+                sys[std::string(message.topic)].emplace_back(message.at, std::atof(text.c_str()));
+                return;
+            }
+            tally.add(message);
+        });
+    if (!subscriber.ready()) return {{"7c. fleet", "the subscriber did not start", "", false}};
+
+    std::vector<std::unique_ptr<TempDir>> dirs;
+    std::vector<std::unique_ptr<InProcessSim>> sims;
+    for (int i = 0; i < nodes; ++i) {
+        dirs.push_back(std::make_unique<TempDir>());
+        sims.push_back(std::make_unique<InProcessSim>(*dirs.back() / "tty", bus, timed(115200),
+                                                      env.placement.client_cpu));
+        if (!sims.back()->ready()) return {{"7c. fleet", "a simulator did not start", "", false}};
+        sims.back()->wander(bus, period);
+    }
+    // All at once, as a plant's boxes come back after a power cut: one thread a node, each
+    // forking its ioportd and waiting for it to listen. Each thread lives as long as its ioportd
+    // and stops it: a child is sent SIGTERM when the thread that forked it ends
+    // (PR_SET_PDEATHSIG, harness.cpp).
+    std::vector<std::unique_ptr<Gateway>> gateways(static_cast<std::size_t>(nodes));
+    std::vector<Clock::time_point> launched(static_cast<std::size_t>(nodes));
+    std::latch started(nodes);
+    std::latch release(1);
+    std::vector<std::jthread> starters;
+    const auto first = Clock::now();
+    for (std::size_t i = 0; i < gateways.size(); ++i)
+        starters.emplace_back([&, i] {
+            launched[i] = Clock::now();
+            gateways[i] = std::make_unique<Gateway>(
+                env, *dirs[i],
+                gateway_yaml({{*dirs[i] / "tty", 115200, bus, poll}}, 32, false,
+                             mqtt_yaml(broker.port(), node_id(static_cast<int>(i)))));
+            started.count_down();
+            release.wait();
+            gateways[i].reset();
+        });
+    // On every way out of here: the threads stop their ioportd and end.
+    struct Release {
+        std::latch& release;
+        std::vector<std::jthread>& threads;
+        ~Release() {
+            release.count_down();
+            threads.clear();
+        }
+    } stop_all{release, starters};
+    started.wait();
+    const auto all_launched = Clock::now();
+    for (std::size_t i = 0; i < gateways.size(); ++i)
+        if (!gateways[i]->started())
+            return {{"7c. fleet", fmt::format("ioportd {} did not start", i), "", false}};
+    const auto modules = static_cast<int>(bus.size());
+    const bool born = wait_for(
+        [&] {
+            for (int i = 0; i < nodes; ++i) {
+                const auto node = tally.node(node_id(i));
+                if (!node || !node->nbirth || node->dbirths < modules) return false;
+            }
+            return true;
+        },
+        60s);
+    std::vector<double> to_nbirth, to_dbirths;
+    Clock::time_point last_nbirth = first, last_dbirth = first;
+    int nbirths = 0, dbirths = 0;
+    for (int i = 0; i < nodes; ++i) {
+        const auto node = tally.node(node_id(i));
+        if (!node || !node->nbirth) continue;
+        ++nbirths;
+        dbirths += std::min(node->dbirths, modules);
+        const auto at = launched[static_cast<std::size_t>(i)];
+        to_nbirth.push_back(microseconds(*node->nbirth - at));
+        last_nbirth = std::max(last_nbirth, *node->nbirth);
+        if (node->dbirths >= modules) {
+            to_dbirths.push_back(microseconds(node->last_dbirth - at));
+            last_dbirth = std::max(last_dbirth, node->last_dbirth);
+        }
+    }
+    const auto nb = summarize(to_nbirth);
+    const auto db = summarize(to_dbirths);
+    fmt::print(
+        "\nStarting the {} ioportd (until each listened) took {:.2f} s. {} of {} NBIRTHs and {} of "
+        "{} DBIRTHs arrived; "
+        "the last NBIRTH {:.2f} s and the last DBIRTH {:.2f} s after the first start.\n",
+        nodes, seconds(all_launched - first), nbirths, nodes, dbirths, nodes * modules,
+        seconds(last_nbirth - first), seconds(last_dbirth - first));
+    const Table births({"one node's start →", "p50 ms", "max ms", "nodes"});
+    births.row({"its NBIRTH at the subscriber", fmt::format("{:.1f}", ms(nb.p50)),
+                fmt::format("{:.1f}", ms(nb.max)), fmt::format("{}", nb.count)});
+    births.row({"its last DBIRTH (every module polled)", fmt::format("{:.1f}", ms(db.p50)),
+                fmt::format("{:.1f}", ms(db.max)), fmt::format("{}", db.count)});
+
+    // Steady publication.
+    std::this_thread::sleep_for(env.quick ? 200ms : 2s);
+    const auto fleet_cpu = [&] {
+        std::chrono::nanoseconds total{};
+        for (const auto& gateway : gateways)
+            total += cpu_time(gateway->pid());
+        return total;
+    };
+    const auto window = env.window(10s);
+    const auto counts_before = tally.counts();
+    const auto nodes_before = fleet_cpu();
+    const auto broker_before = cpu_time(broker.pid());
+    const auto start = Clock::now();
+    std::this_thread::sleep_for(window);
+    const auto nodes_cpu = fleet_cpu() - nodes_before;
+    const auto broker_cpu = cpu_time(broker.pid()) - broker_before;
+    const auto end = Clock::now();
+    const double s = seconds(end - start);
+    const auto counts = tally.counts() - counts_before;
+    const std::uint64_t lost_in_total = tally.counts().lost;
+    // The broker's rate from its own counters: the samples within the window.
+    const auto sys_rate = [&](const std::string& topic) -> std::optional<double> {
+        const std::scoped_lock lock(sys_mutex);
+        const auto found = sys.find(topic);
+        if (found == sys.end()) return std::nullopt;
+        std::optional<std::pair<Clock::time_point, double>> a, b;
+        for (const auto& sample : found->second) {
+            if (sample.first < start || sample.first > end + 500ms) continue;
+            if (!a) a = sample;
+            b = sample;
+        }
+        if (!a || !b || b->first <= a->first) return std::nullopt;
+        return (b->second - a->second) / seconds(b->first - a->first);
+    };
+    const auto received = sys_rate("$SYS/broker/messages/received");
+    const auto sent = sys_rate("$SYS/broker/messages/sent");
+    const auto bytes_received = sys_rate("$SYS/broker/bytes/received");
+    const auto bytes_sent = sys_rate("$SYS/broker/bytes/sent");
+    const auto rate_text = [](std::optional<double> r, std::string_view unit) {
+        return r ? fmt::format("{:.0f} {}", *r, unit) : std::string("(no $SYS samples)");
+    };
+    const double messages_per_s = static_cast<double>(counts.messages) / s;
+    const double per_node = messages_per_s / nodes;
+    const double broker_pct = microseconds(broker_cpu) / 1e4 / s;
+    const double nodes_pct = microseconds(nodes_cpu) / 1e4 / s;
+    const Table steady({"figure", "over the window", "per node"});
+    steady.row(
+        {"messages/s at the subscriber (DDATA)",
+         fmt::format("{:.0f} ({:.0f})", messages_per_s, static_cast<double>(counts.ddata) / s),
+         fmt::format("{:.1f}", per_node)});
+    steady.row({"bytes/s at the subscriber (topics and payloads)",
+                fmt::format("{:.1f} KiB/s", static_cast<double>(counts.bytes) / 1024 / s),
+                fmt::format("{:.0f} B/s", static_cast<double>(counts.bytes) / s / nodes)});
+    steady.row({"the broker's messages received / sent ($SYS)",
+                fmt::format("{} / {}", rate_text(received, "/s"), rate_text(sent, "/s")), ""});
+    steady.row(
+        {"the broker's bytes received / sent ($SYS)",
+         fmt::format("{} / {}", rate_text(bytes_received, "B/s"), rate_text(bytes_sent, "B/s")),
+         ""});
+    steady.row({"the broker's CPU", fmt::format("**{:.2f} %** of a core", broker_pct),
+                fmt::format("{:.3f} %", broker_pct / nodes)});
+    steady.row({"the ioportd's CPU, all together", fmt::format("{:.2f} % of a core", nodes_pct),
+                fmt::format("{:.2f} %", nodes_pct / nodes)});
+    steady.row({"messages lost (gaps in the nodes' seq), whole run",
+                fmt::format("{}", lost_in_total), ""});
+    fmt::print(
+        "\nThis box and its broker held {} nodes × {:.1f} msg/s = {:.0f} msg/s ({:.1f} KiB/s) at "
+        "{:.1f} % of one core for the broker; the {} ioportd together {:.1f} % ({:.2f} % each), "
+        "{} lost.\n",
+        nodes, per_node, messages_per_s, static_cast<double>(counts.bytes) / 1024 / s, broker_pct,
+        nodes, nodes_pct, nodes_pct / nodes, lost_in_total);
+    machine_line(fmt::format(
+        R"({{"bench":"sparkplug_fleet","nodes":{},"modules_per_node":{},"poll_ms":{},"launch_s":{:.3f},"all_nbirths":{},"all_dbirths":{},"last_nbirth_s":{:.3f},"last_dbirth_s":{:.3f},"nbirth_p50_ms":{:.1f},"nbirth_max_ms":{:.1f},"dbirths_p50_ms":{:.1f},"dbirths_max_ms":{:.1f},"messages_per_s":{:.1f},"ddata_per_s":{:.1f},"bytes_per_s":{:.0f},"broker_received_per_s":{},"broker_sent_per_s":{},"broker_cpu_pct":{:.3f},"nodes_cpu_pct":{:.3f},"lost":{}}})",
+        nodes, bus.size(), poll.count(), seconds(all_launched - first), nbirths, dbirths,
+        seconds(last_nbirth - first), seconds(last_dbirth - first), ms(nb.p50), ms(nb.max),
+        ms(db.p50), ms(db.max), messages_per_s, static_cast<double>(counts.ddata) / s,
+        static_cast<double>(counts.bytes) / s, received ? fmt::format("{:.1f}", *received) : "null",
+        sent ? fmt::format("{:.1f}", *sent) : "null", broker_pct, nodes_pct, lost_in_total));
+    return {{fmt::format("7c. {} edge nodes on one broker: births, loss", nodes),
+             fmt::format("{}/{} NBIRTH, {}/{} DBIRTH in {:.2f} s; {:.0f} msg/s, broker {:.1f} %, "
+                         "{} lost",
+                         nbirths, nodes, dbirths, nodes * modules, seconds(last_dbirth - first),
+                         messages_per_s, broker_pct, lost_in_total),
+             "every birth, none lost", born && lost_in_total == 0}};
+}
+
+}  // namespace
+
+std::vector<Verdict> sparkplug_cost(const Environment& env) {
+    fmt::print(
+        "\n## 7. Sparkplug B edge node\n\nWhat the edge node (issue 17) costs: the latency of "
+        "report by exception, ioportd's CPU to publish a bus that never holds still and what "
+        "that does to Modbus, and (7c, not with --quick) a fleet of edge nodes on one broker.\n");
+    auto verdicts = latency(env);
+    if (verdicts.empty()) return verdicts;  // no broker
+    const auto more = publication_cost(env);
+    verdicts.insert(verdicts.end(), more.begin(), more.end());
+    return verdicts;
+}
+
+std::vector<Verdict> sparkplug_fleet(const Environment& env) {
+    if (env.quick || env.fleet <= 0) return {};
+    return fleet(env);
+}
+
+}  // namespace ioport::bench
