@@ -101,7 +101,8 @@ class Rig:
     """ioport-sim with a hub and one with an ID-2, and ioportd on them as edge node plant1/box7,
     in a temporary directory."""
 
-    def __init__(self, directory, broker_port, hub_modules=HUB_MODULES, mqtt_extra=""):
+    def __init__(self, directory, broker_port, hub_modules=HUB_MODULES, mqtt_extra="",
+                 broker_url=None):
         self.dir = directory
         self.link = os.path.join(self.dir, "ttyHUB")
         self.id2_link = os.path.join(self.dir, "ttyID2")
@@ -110,6 +111,7 @@ class Rig:
         self.config = os.path.join(self.dir, "ioportd.yaml")
         self.log = os.path.join(self.dir, "ioportd.log")
         self.broker_port = broker_port
+        self.broker_url = broker_url or f"mqtt://127.0.0.1:{broker_port}"
         self.sims = []
         self.daemon = None
         self.start_sim("--control", self.hub_ctl, "--hub",
@@ -143,7 +145,7 @@ links:
     device: {self.id2_link}
     unit_id: 2
 mqtt:
-  broker: "mqtt://127.0.0.1:{self.broker_port}"
+  broker: "{self.broker_url}"
   group_id: {GROUP}
   edge_node_id: {NODE}
   keepalive: 5s
@@ -586,6 +588,37 @@ class Lifecycle(SparkplugCase):
         self.host.wait(lambda: self.host.connects > connects, 5, "host app back")
         self.wait_births(mark)
 
+    def test_a_stalled_broker_delays_neither_polling_nor_modbus(self):
+        """The broker frozen (SIGSTOP) while inputs change: the node goes on publishing into
+        the socket until its buffers fill and its queue drops, but Modbus answers at once and
+        the modules stay freshly polled."""
+        self.start()
+        client = self.modbus(self.rig)
+        try:
+            os.kill(self.broker.process.pid, signal.SIGSTOP)
+            try:
+                slowest, oldest = 0.0, 0
+                until = time.monotonic() + 3
+                word = 0
+                while time.monotonic() < until:
+                    word = (word + 1) & 0xFFFF
+                    self.rig.ctl(f"set dim16:0 {word}")
+                    asked = time.monotonic()
+                    ages = client.read_input_registers(1200, 1, slave=1)  # dim16 0's age, ms
+                    slowest = max(slowest, time.monotonic() - asked)
+                    self.assertFalse(ages.isError())
+                    oldest = max(oldest, ages.registers[0])
+                print(f"\n  broker stalled: slowest Modbus read {slowest * 1000:.1f} ms, "
+                      f"oldest dim16 0 data {oldest} ms", file=sys.stderr)
+                self.assertLess(slowest, 0.2, "Modbus waited for the broker")
+                self.assertLess(oldest, 500, "polling waited for the broker")
+            finally:
+                os.kill(self.broker.process.pid, signal.SIGCONT)
+        finally:
+            client.close()
+        # and the session goes on (or, had it been lost, a new one begins) with the last word
+        self.host.wait_metric("hub0.dim16.0", "word", word, timeout=15)
+
     def test_primary_host_gates_births(self):
         self.host.state("scada", False)  # a retained STATE offline from before
         self.rig.write_config(HUB_MODULES, "  primary_host_id: scada\n")
@@ -628,6 +661,90 @@ class Lifecycle(SparkplugCase):
         self.host.dcmd(GROUP, NODE, "hub0.mux8m.0", [{"name": "pos", "value": 3}])
         self.host.wait_metric("hub0.mux8m.0", "pos", 3, since=mark)
         self.assertEqual(int(self.rig.ctl("get mux8m:0")) >> 8, 3)
+
+
+class SecureBroker(unittest.TestCase):
+    """mqtts with a CA of the test's, a user and a password file: the edge node on a TLS
+    listener that refuses anonymous clients; the host app on a plain listener of the same
+    broker."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.dir = tempfile.mkdtemp(prefix="ioportd-spb-tls-")
+        d = cls.dir
+
+        def openssl(*args):
+            subprocess.run(["openssl", *args], cwd=d, check=True, capture_output=True)
+        openssl("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+                "-keyout", "ca.key", "-out", "ca.pem", "-days", "2", "-subj", "/CN=test CA")
+        openssl("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+                "-keyout", "server.key", "-out", "server.csr", "-subj", "/CN=localhost")
+        with open(os.path.join(d, "san.ext"), "w") as f:
+            f.write("subjectAltName=IP:127.0.0.1,DNS:localhost\n")
+        openssl("x509", "-req", "-in", "server.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
+                "-CAcreateserial", "-out", "server.pem", "-days", "2", "-extfile", "san.ext")
+        subprocess.run(["mosquitto_passwd", "-b", "-c", os.path.join(d, "passwd"), "box7",
+                        "s3cret"], check=True, capture_output=True)
+        for name, secret in (("password", "s3cret\n"), ("wrong", "guess\n")):
+            path = os.path.join(d, name)
+            with open(path, "w") as f:
+                f.write(secret)
+            os.chmod(path, 0o640)
+        # mosquitto started as root runs as the user mosquitto, which must read these
+        os.chmod(d, 0o755)
+        for name in ("ca.pem", "server.pem", "server.key", "passwd"):
+            os.chmod(os.path.join(d, name), 0o644)
+        cls.broker = Broker(d)
+        cls.tls_port = free_port()
+        with open(cls.broker.config, "w") as f:
+            f.write(f"""per_listener_settings true
+persistence false
+listener {cls.broker.port} 127.0.0.1
+allow_anonymous true
+listener {cls.tls_port} 127.0.0.1
+cafile {d}/ca.pem
+certfile {d}/server.pem
+keyfile {d}/server.key
+allow_anonymous false
+password_file {d}/passwd
+""")
+        cls.broker.start()
+        cls.host = HostApp(cls.broker.port)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.host.close()
+        cls.broker.stop()
+        shutil.rmtree(cls.dir, ignore_errors=True)
+
+    def test_mqtts_with_a_user_and_a_password_file(self):
+        def mqtt_extra(password):
+            return (f"  username: box7\n  password_file: {self.dir}/{password}\n"
+                    f"  ca_file: {self.dir}/ca.pem\n")
+        rig = Rig(tempfile.mkdtemp(dir=self.dir), self.broker.port,
+                  mqtt_extra=mqtt_extra("wrong"),
+                  broker_url=f"mqtts://127.0.0.1:{self.tls_port}")
+        try:
+            rig.start_daemon()
+            # a wrong password: refused, said once, retried; Modbus as ever
+            rig.wait_log(r"refused the connection: .*not authori[sz]ed", 10)
+            client = ModbusTcpClient("127.0.0.1", port=rig.port, timeout=3)
+            assert client.connect()
+            self.assertFalse(client.read_input_registers(1000, 1, slave=1).isError())
+            client.close()
+            # the right one, by SIGHUP: the new settings begin a session over TLS
+            mark = self.host.mark()
+            rig.write_config(HUB_MODULES, mqtt_extra("password"))
+            rig.daemon.send_signal(signal.SIGHUP)
+            rig.wait_log(r"mqtt: connected to mqtts://127\.0\.0\.1:\d+ as ioportd-plant1-box7",
+                         15)
+            nbirth = self.host.wait_message("NBIRTH", since=mark, node=NODE, timeout=10)
+            self.host.wait_message("DBIRTH", "hub0.dim16.0", since=nbirth.index, timeout=10)
+            self.assertEqual(self.host.violations, [])
+        finally:
+            if rig.daemon and rig.daemon.poll() is None:
+                rig.stop_daemon(signal.SIGTERM)
+            rig.close()
 
 
 if __name__ == "__main__":
