@@ -75,6 +75,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     const config::MqttSettings& settings() const { return settings_; }
     SparkplugStats stats() const;
     std::uint64_t next_bdseq() const { return next_bdseq_; }
+    std::string broker() const { return client_->broker(); }
 
   private:
     struct Device {

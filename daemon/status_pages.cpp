@@ -351,6 +351,26 @@ void modbus_json(Json& json, const ModbusServer& server) {
     json.end_array().end_object();
 }
 
+void sparkplug_json(Json& json, const SparkplugNode* node) {
+    json.key("sparkplug");
+    if (node == nullptr) {
+        json.null();
+        return;
+    }
+    const auto stats = node->stats();
+    json.begin_object()
+        .member("broker", node->broker())
+        .member("group_id", node->settings().group_id)
+        .member("edge_node_id", node->settings().edge_node_id)
+        .member("connected", stats.connected)
+        .member("online", stats.online)
+        .member("bdseq", stats.bdseq)
+        .member("published", stats.published)
+        .member("dropped", stats.dropped)
+        .member("births", stats.births)
+        .end_object();
+}
+
 std::string html_escaped(std::string_view text) {
     std::string out;
     out.reserve(text.size());
@@ -443,6 +463,7 @@ std::string render_state(const Gateway& gateway) {
     json.key("health").begin_object().member("ok", health.ok).member("reason", health.reason);
     json.end_object();
     modbus_json(json, gateway.modbus());
+    sparkplug_json(json, gateway.sparkplug());
     json.key("links").begin_array();
     for (const auto& link : gateway.links())
         link_json(json, *link, now);

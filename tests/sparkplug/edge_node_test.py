@@ -6,6 +6,7 @@ test (each test ends by asserting it recorded no violation).
 
 Usage: edge_node_test.py IOPORTD IOPORT_SIM PYTHON_DIR   (PYTHON_DIR holds sparkplug_b_pb2.py)
 """
+import json
 import os
 import re
 import shutil
@@ -17,6 +18,7 @@ import sys
 import tempfile
 import time
 import unittest
+import urllib.request
 
 IOPORTD, IOPORT_SIM, PYTHON_DIR = sys.argv[1], sys.argv[2], sys.argv[3]
 sys.path.insert(0, PYTHON_DIR)
@@ -132,6 +134,8 @@ class Rig:
         with open(self.config, "w") as f:
             f.write(f"""modbus:
   listen: "127.0.0.1:0"
+http:
+  listen: "127.0.0.1:0"
 links:
   - name: hub0
     protocol: ioport
@@ -158,6 +162,13 @@ mqtt:
                                            stderr=log)
         found = self.wait_log(r"Modbus TCP on 127\.0\.0\.1:(\d+)", 10)
         self.port = int(found.group(1))
+        self.http_port = int(self.wait_log(r"HTTP on http://127\.0\.0\.1:(\d+)/", 10).group(1))
+
+    def state(self):
+        """/api/v1/state, decoded."""
+        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/api/v1/state",
+                                    timeout=5) as reply:
+            return json.load(reply)
 
     def log_text(self):
         with open(self.log) as f:
@@ -319,6 +330,16 @@ class EdgeNode(SparkplugCase):
         self.assertAlmostEqual(acm["value/0"], 1000 / 65535 * 100, places=4)
         id2 = self.host.since(self.births, "DBIRTH", "press.id2")[0].resolved
         self.assertEqual((id2["count"], id2["reset"]), (7, False))
+
+    def test_the_status_api_shows_the_session(self):
+        state = self.rig.state()["sparkplug"]
+        self.assertEqual((state["group_id"], state["edge_node_id"]), (GROUP, NODE))
+        self.assertEqual(state["broker"], f"mqtt://127.0.0.1:{self.broker.port}")
+        self.assertTrue(state["connected"])
+        self.assertTrue(state["online"])
+        self.assertGreaterEqual(state["births"], 1)
+        self.assertGreater(state["published"], 0)
+        self.assertEqual(state["dropped"], 0)
 
     def test_input_change_is_published_once_with_only_the_changed_metrics(self):
         self.rig.ctl("set dim16:0 0x0005")
