@@ -123,7 +123,9 @@ class _Page:
         _wait('the window is %d px wide' % size[0], 5,
               lambda: True if self.driver.execute_script('return window.innerWidth') <= size[0]
               else None)
-        time.sleep(0.3)  # one animation frame or two for the reflow; the poll keeps running
+        # The reflow at the new width is done once two animation frames have been drawn.
+        self.driver.execute_async_script(
+            'const done = arguments[0]; requestAnimationFrame(() => requestAnimationFrame(done));')
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         try:
             m = self.driver.execute_cdp_cmd('Page.getLayoutMetrics', {})
