@@ -46,16 +46,6 @@ std::optional<std::uint16_t> port_after(const std::string& text, std::string_vie
     return static_cast<std::uint16_t>(port);
 }
 
-template <class Condition>
-bool wait_for(Condition condition, std::chrono::milliseconds deadline) {
-    const auto until = Clock::now() + deadline;
-    while (!condition()) {
-        if (Clock::now() >= until) return false;
-        std::this_thread::sleep_for(5ms);
-    }
-    return true;
-}
-
 }  // namespace
 
 std::chrono::milliseconds Environment::window(std::chrono::milliseconds full) const {
@@ -171,7 +161,10 @@ std::chrono::nanoseconds cpu_time(pid_t pid) {
             schedstat = true;
         }
     }
-    if (schedstat) return total;
+    return schedstat ? total : stat_cpu_time(pid);
+}
+
+std::chrono::nanoseconds stat_cpu_time(pid_t pid) {
     // utime and stime, fields 14 and 15, in clock ticks; the command name may hold spaces.
     const auto stat = read_file(fmt::format("/proc/{}/stat", pid));
     const auto close = stat.rfind(')');

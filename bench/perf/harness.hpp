@@ -119,6 +119,20 @@ class Process {
 // Run time of every thread of a process, from /proc/PID/task/*/schedstat (nanoseconds, as the
 // scheduler accounts it), or /proc/PID/stat utime + stime where schedstat is missing.
 std::chrono::nanoseconds cpu_time(pid_t pid);
+// utime + stime of a process from /proc/PID/stat, in clock ticks (10 ms here): the coarse
+// figure `top` and process_cpu_seconds_total use, as a check on the schedstat figures.
+std::chrono::nanoseconds stat_cpu_time(pid_t pid);
+
+// Polls `condition` every 5 ms until it holds (true) or `deadline` has passed (false).
+template <class Condition>
+bool wait_for(Condition condition, std::chrono::milliseconds deadline) {
+    const auto until = std::chrono::steady_clock::now() + deadline;
+    while (!condition()) {
+        if (std::chrono::steady_clock::now() >= until) return false;
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return true;
+}
 struct Memory {
     std::size_t rss_kib = 0;
     std::size_t peak_kib = 0;  // VmHWM: the peak resident set since the process started

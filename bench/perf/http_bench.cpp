@@ -141,23 +141,6 @@ class HttpClient {
     int fd_ = -1;
 };
 
-// utime + stime of a process from /proc/PID/stat, in clock ticks (10 ms here): the coarse
-// figure `top` and process_cpu_seconds_total use, as a check on the schedstat figures.
-std::chrono::nanoseconds stat_cpu_time(pid_t pid) {
-    std::ifstream in(fmt::format("/proc/{}/stat", pid));
-    std::stringstream text;
-    text << in.rdbuf();
-    const auto stat = text.str();
-    const auto close = stat.rfind(')');
-    if (close == std::string::npos) return {};
-    std::istringstream fields(stat.substr(close + 2));
-    std::string field;
-    long long ticks = 0;
-    for (int i = 3; i <= 15 && fields >> field; ++i)
-        if (i >= 14) ticks += std::stoll(field);
-    return std::chrono::nanoseconds(ticks * 1'000'000'000LL / ::sysconf(_SC_CLK_TCK));
-}
-
 double mib(std::size_t kib) {
     return static_cast<double>(kib) / 1024.0;
 }

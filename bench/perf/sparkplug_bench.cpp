@@ -276,16 +276,6 @@ class Tally {
     std::uint64_t messages_ = 0, bytes_ = 0, ddata_ = 0, ddata_bytes_ = 0, lost_ = 0, births_ = 0;
 };
 
-template <class Condition>
-bool wait_for(Condition condition, std::chrono::milliseconds deadline) {
-    const auto until = Clock::now() + deadline;
-    while (!condition()) {
-        if (Clock::now() >= until) return false;
-        std::this_thread::sleep_for(5ms);
-    }
-    return true;
-}
-
 // --- a. Latency of report by exception ----------------------------------------------------------
 
 std::vector<Verdict> latency(const Environment& env) {
