@@ -11,6 +11,7 @@
 #include <iterator>
 #include <limits>
 #include <map>
+#include <ranges>
 #include <span>
 #include <sstream>
 #include <system_error>
@@ -23,6 +24,7 @@
 
 #include "config/duration.hpp"
 #include "config/number.hpp"
+#include "config/tls_files.hpp"
 #include "protocol/sparkplug.hpp"
 
 namespace ioport::config {
@@ -419,9 +421,14 @@ constexpr std::array<std::string_view, 10> mqtt_keys{
     "broker",        "group_id", "edge_node_id", "client_id",       "username",
     "password_file", "ca_file",  "keepalive",    "primary_host_id", "deadband"};
 constexpr std::array<std::string_view, 2> http_keys{"listen", "allow"};
-constexpr std::array<std::string_view, 9> modbus_keys{
-    "listen", "max_connections", "idle_timeout",     "allow", "read_only", "word_order",
-    "stale",  "keepalive",       "comm_loss_timeout"};
+constexpr std::array<std::string_view, 10> modbus_keys{
+    "listen", "max_connections", "idle_timeout",      "allow", "read_only", "word_order",
+    "stale",  "keepalive",       "comm_loss_timeout", "tls"};
+constexpr std::array<std::string_view, 6> tls_keys{"listen",    "certificate",  "key",
+                                                   "client_ca", "default_role", "roles"};
+constexpr std::array<std::string_view, 2> role_keys{"units", "access"};
+constexpr std::array<std::pair<std::string_view, modbus_security::Access>, 2> accesses{
+    {{"read", modbus_security::Access::read}, {"read_write", modbus_security::Access::read_write}}};
 constexpr std::array<std::string_view, 9> link_keys{
     "name", "protocol", "device", "baud", "unit_id", "timeout", "retries", "modules", "identity"};
 constexpr std::array<std::string_view, 6> module_keys{"type",    "number", "poll",
@@ -475,6 +482,12 @@ class Loader {
 
     void read_root(const YAML::Node& root, GatewayConfig& config);
     void read_modbus(const Entry& entry, ModbusSettings& modbus);
+    void read_tls(const Entry& entry, std::optional<TlsSettings>& tls);
+    void read_tls_files(const Fields& fields, TlsSettings& tls);
+    void read_roles(const Fields& fields, TlsSettings& tls);
+    std::optional<modbus_security::Role> read_role(const Entry& entry, const std::string& path);
+    void read_role_units(const Entry& entry, const std::string& path, modbus_security::Role& role);
+    void check_role_units(const GatewayConfig& config);
     void read_allow(const Fields& fields, std::vector<Network>& allow);
     void read_http(const Entry& entry, std::optional<HttpSettings>& http);
     void read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt);
@@ -498,6 +511,12 @@ class Loader {
     std::map<std::string, FirstUse> names_;
     std::map<int, FirstUse> unit_ids_;
     std::map<std::string, FirstUse> devices_;  // by resolved path
+    struct RoleUnit {
+        int unit_id = 0;
+        int line = 0;
+        std::string key;
+    };
+    std::vector<RoleUnit> role_units_;  // checked against the links once they are read
 };
 
 Fields Loader::fields(const YAML::Node& map, std::string path, Keys allowed) {
@@ -568,6 +587,7 @@ void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
     if (const Entry* links = top.find("links")) read_links(*links, config.links);
     if (const Entry* mqtt = top.find("mqtt")) read_mqtt(*mqtt, config.mqtt);
     if (config.mqtt) check_sparkplug_ids(config);
+    check_role_units(config);
     read(top, "on_shutdown", "keep or initial", config.on_shutdown,
          choice<OnShutdown>(on_shutdown_choices));
     read(top, "log_level", "a log level", config.log_level, named_log_level);
@@ -579,8 +599,12 @@ void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
     if (!settings) return;
     const Fields& f = *settings;
     Endpoint listen{modbus.listen_host, modbus.listen_port};
-    if (read(f, "listen", "host:port", listen,
-             [](const YAML::Node& value) { return parse_listen(value.Scalar()); })) {
+    const Entry* off = f.find("listen");
+    if (off != nullptr && off->value.IsScalar() && off->value.Scalar().empty()) {
+        modbus.listen_host.clear();  // `listen: ""`: TLS only, or no Modbus at all
+        modbus.listen_port = 0;
+    } else if (read(f, "listen", "host:port, or \"\" for no plain Modbus TCP", listen,
+                    [](const YAML::Node& value) { return parse_listen(value.Scalar()); })) {
         modbus.listen_host = listen.host;
         modbus.listen_port = listen.port;
     }
@@ -595,6 +619,146 @@ void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
          duration(microseconds{0}, 2h));
     read(f, "comm_loss_timeout", "a duration such as 10s, or 0 for off", modbus.comm_loss_timeout,
          duration(microseconds{0}, 24h));
+    if (const Entry* tls = f.find("tls")) read_tls(*tls, modbus.tls);
+}
+
+void Loader::read_tls(const Entry& entry, std::optional<TlsSettings>& tls) {
+    if (entry.value.IsNull()) return;  // "tls:" alone: no listen, so off
+    const auto settings =
+        mapping(entry, "modbus.tls", tls_keys, "{ listen: \"0.0.0.0:802\", certificate: ... }");
+    if (!settings) return;
+    const Fields& f = *settings;
+    if (f.find("listen") == nullptr) return;  // absent = off (gateway.md §5.6)
+    TlsSettings t;
+    Endpoint listen{t.listen_host, t.listen_port};
+    if (read(f, "listen", "host:port", listen,
+             [](const YAML::Node& value) { return parse_listen(value.Scalar()); })) {
+        t.listen_host = listen.host;
+        t.listen_port = listen.port;
+    }
+    read_tls_files(f, t);
+    read_roles(f, t);
+    read(f, "default_role", "a role name, or \"\" for none", t.default_role, text_value);
+    if (!t.default_role.empty() && !t.roles.contains(t.default_role) && f.find("roles") != nullptr)
+        add(f.line_of("default_role"), f.key("default_role"),
+            fmt::format("'{}' is not one of the roles: give one of {}, or \"\" for none",
+                        t.default_role, fmt::join(std::views::keys(t.roles), ", ")));
+    tls = std::move(t);
+}
+
+void Loader::read_tls_files(const Fields& f, TlsSettings& t) {
+    require(f, "certificate", "the server's certificate (PEM), e.g. /etc/ioportd/tls/server.pem");
+    require(f, "key",
+            "the server certificate's private key (PEM), e.g. /etc/ioportd/tls/server.key");
+    require(
+        f, "client_ca",
+        "the CA that signs the clients' certificates (PEM), e.g. /etc/ioportd/tls/client-ca.pem");
+    const auto file = [&](std::string_view name, std::string& path, std::string& pem, auto reader) {
+        if (!read(f, name, "a file's path", path, text_value)) return false;
+        auto text = reader(path);
+        if (!text) {
+            add(f.line_of(name), f.key(name), std::move(text).error());
+            return false;
+        }
+        pem = *std::move(text);
+        return true;
+    };
+    const bool certificate =
+        file("certificate", t.certificate, t.certificate_pem, read_certificates);
+    const bool key = file("key", t.key, t.key_pem, read_private_key);
+    file("client_ca", t.client_ca, t.client_ca_pem, read_certificates);
+    if (certificate && key)
+        if (auto pair = check_key_pair(t.certificate_pem, t.key_pem, t.key); !pair)
+            add(f.line_of("key"), f.key("key"), std::move(pair).error());
+}
+
+void Loader::read_roles(const Fields& f, TlsSettings& t) {
+    constexpr std::string_view example =
+        "{ operator: { units: all, access: read_write }, viewer: { units: all, access: read } }";
+    const Entry* entry = f.find("roles");
+    if (entry == nullptr) {
+        require(f, "roles", fmt::format("the roles clients may have, e.g. roles: {}", example));
+        return;
+    }
+    if (!entry->value.IsMap() || entry->value.size() == 0) {
+        add(entry->line, f.key("roles"),
+            fmt::format("expected a mapping of role names such as {}, found {}", example,
+                        entry->value.IsMap() ? "an empty mapping" : kind(entry->value)));
+        return;
+    }
+    for (const auto& pair : entry->value) {
+        const int line = line_of(pair.first);
+        const std::string name = pair.first.IsScalar() ? pair.first.Scalar() : "";
+        const std::string path = fmt::format("{}.{}", f.key("roles"), name);
+        if (name.empty() || name.size() > modbus_security::max_role_length) {
+            add(line, f.key("roles"),
+                fmt::format("a role is a name of 1..{} characters",
+                            modbus_security::max_role_length));
+            continue;
+        }
+        if (t.roles.contains(name)) {
+            add(line, path, "duplicate role");
+            continue;
+        }
+        if (auto role = read_role({pair.second, line}, path)) t.roles.emplace(name, *role);
+    }
+}
+
+std::optional<modbus_security::Role> Loader::read_role(const Entry& entry,
+                                                       const std::string& path) {
+    const auto settings = mapping(entry, path, role_keys, "{ units: all, access: read }");
+    if (!settings) return std::nullopt;
+    const Fields& f = *settings;
+    modbus_security::Role role;
+    require(f, "units", "all, or a list of unit ids such as [1, 2]");
+    require(f, "access", "read or read_write");
+    const std::size_t errors = errors_.size();
+    read(f, "access", "read or read_write", role.access, choice<modbus_security::Access>(accesses));
+    if (const Entry* units = f.find("units")) read_role_units(*units, path, role);
+    if (errors_.size() != errors) return std::nullopt;
+    return role;
+}
+
+void Loader::read_role_units(const Entry& entry, const std::string& path,
+                             modbus_security::Role& role) {
+    const std::string key = path + ".units";
+    if (entry.value.IsScalar() && entry.value.Scalar() == "all" && !quoted(entry.value)) {
+        role.units.set();
+        return;
+    }
+    if (!entry.value.IsSequence() || entry.value.size() == 0) {
+        add(entry.line, key,
+            fmt::format("expected all, or a list of unit ids such as [1, 2], found {}",
+                        entry.value.IsSequence() ? "an empty list" : kind(entry.value)));
+        return;
+    }
+    std::size_t index = 0;
+    for (const auto& item : entry.value) {
+        const std::string item_key = fmt::format("{}[{}]", key, index++);
+        const int line = std::max(line_of(item), entry.line);
+        auto unit_id =
+            item.IsScalar()
+                ? integer(1, max_unit_id)(item)
+                : Parsed<int>(Unexpected(fmt::format("expected a unit id, found {}", kind(item))));
+        if (!unit_id) {
+            add(line, item_key, std::move(unit_id).error());
+            continue;
+        }
+        role.units.set(static_cast<std::size_t>(*unit_id));
+        role_units_.push_back({*unit_id, line, item_key});
+    }
+}
+
+// A unit no link has is a typing error: the role would grant nothing there.
+void Loader::check_role_units(const GatewayConfig& config) {
+    for (const auto& unit : role_units_) {
+        if (std::ranges::any_of(
+                config.links, [&](const LinkConfig& link) { return link.unit_id == unit.unit_id; }))
+            continue;
+        add(unit.line, unit.key,
+            fmt::format("no link has unit id {}: give the unit_id of one of the links",
+                        unit.unit_id));
+    }
 }
 
 void Loader::read_http(const Entry& entry, std::optional<HttpSettings>& http) {

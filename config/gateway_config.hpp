@@ -20,6 +20,7 @@
 #include "protocol/expected.hpp"
 #include "protocol/gateway_map.hpp"
 #include "protocol/ioport.hpp"
+#include "protocol/modbus_security.hpp"
 
 namespace ioport::config {
 
@@ -43,8 +44,27 @@ struct Network {
     friend bool operator==(const Network&, const Network&) = default;
 };
 
+// Modbus/TCP Security (gateway.md §5.6): TLS with mutual authentication, roles from the client
+// certificate.
+struct TlsSettings {
+    std::string listen_host = "0.0.0.0";  // as ModbusSettings::listen_host
+    std::uint16_t listen_port = 802;
+    std::string certificate;  // paths, for messages
+    std::string key;
+    std::string client_ca;
+    // Their contents, read and checked at load (and at each reload, so a renewed certificate is
+    // taken by a SIGHUP): PEM.
+    std::string certificate_pem;
+    std::string key_pem;
+    std::string client_ca_pem;
+    std::string default_role;  // "" = none
+    modbus_security::Roles roles;
+    friend bool operator==(const TlsSettings&, const TlsSettings&) = default;
+};
+
 struct ModbusSettings {
-    std::string listen_host = "0.0.0.0";  // an IPv4 or IPv6 literal, without brackets
+    // An IPv4 or IPv6 literal, without brackets; "" (`listen: ""`): no plain Modbus TCP listener.
+    std::string listen_host = "0.0.0.0";
     std::uint16_t listen_port = 502;
     int max_connections = 32;                       // 1..
     std::chrono::microseconds idle_timeout = 5min;  // 0 = never
@@ -55,6 +75,8 @@ struct ModbusSettings {
     std::chrono::microseconds keepalive = 60s;  // TCP keepalive idle time; 0 = off
     // No request from any client for this long puts every output in its safe state; 0 = off.
     std::chrono::microseconds comm_loss_timeout{0};
+    std::optional<TlsSettings> tls;  // no `tls:` section, or no `listen`: none
+    bool plain() const { return !listen_host.empty(); }
     friend bool operator==(const ModbusSettings&, const ModbusSettings&) = default;
 };
 

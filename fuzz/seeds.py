@@ -393,3 +393,30 @@ sparkplug("topic-dcmd", DOM16, b"spBv1.0/plant1/DCMD/box7/hub0.dom16.0")
 sparkplug("topic-state", 0, b"spBv1.0/STATE/scada")
 sparkplug("state-online", 0, b'{"online":true,"timestamp":1796183655123}')
 sparkplug("state-offline", 0, b'{ "timestamp": 1, "online" : false }')
+
+
+# --- modbus_security: byte 0 the unit id, byte 1 the function code, byte 2 the default role
+# (0 none, 1 operator, 2 viewer, 3 line2), then the role extension's value as a client certificate
+# carries it (gateway.md §5.6: the DER of an ASN.1 UTF8String).
+def utf8_string(text):
+    data = text.encode()
+    length = bytes([len(data)]) if len(data) < 0x80 else bytes([0x81, len(data)])
+    return b"\x0c" + length + data
+
+
+def security(name, unit, function, default_role, extension):
+    write("modbus_security", name, bytes([unit, function, default_role]) + extension)
+
+
+security("operator-write", 1, 0x06, 0, utf8_string("operator"))
+security("viewer-read", 1, 0x03, 0, utf8_string("viewer"))
+security("viewer-write", 1, 0x10, 0, utf8_string("viewer"))
+security("line2-other-unit", 1, 0x05, 0, utf8_string("line2"))
+security("unknown-role-default-operator", 1, 0x06, 1, utf8_string("admin"))
+security("umlaut", 2, 0x17, 2, utf8_string("Bediener-\u00fc"))
+security("long-form", 2, 0x04, 0, utf8_string("r" * 200))
+security("printable-string", 1, 0x03, 2, b"\x13\x08operator")
+security("truncated", 1, 0x03, 2, b"\x0c\x08oper")
+security("trailing", 1, 0x03, 2, utf8_string("viewer") + b"\x00")
+security("bad-utf8", 1, 0x03, 1, b"\x0c\x02o\xc3")
+security("no-extension-default-viewer", 1, 0x0F, 2, b"")

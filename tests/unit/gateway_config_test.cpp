@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
+#include "tests/unit/tls_fixtures.hpp"
 
 namespace ioport::config {
 namespace {
@@ -499,7 +500,7 @@ TEST(GatewayConfigErrors, WrongTypes) {
     expect_one_error({modbus("read_only: \"true\""), 2, "modbus.read_only", "use true or false"});
     expect_one_error({modbus("read_only:"), 2, "modbus.read_only", "found no value"});
     expect_one_error({modbus("listen: { host: 0.0.0.0 }"), 2, "modbus.listen",
-                      "expected host:port, found a mapping"});
+                      "expected host:port, or \"\" for no plain Modbus TCP, found a mapping"});
     expect_one_error({"modbus: [listen]\n" + hub, 1, "modbus", "expected a mapping"});
     expect_one_error({hub + "    unit_id: \"3\"\n", 7, "links[0].unit_id", "quoted"});
     expect_one_error(
@@ -965,4 +966,117 @@ TEST(GatewayConfig, TheSimulatorExampleIsWhatTheDemoExpects) {
 }
 
 }  // namespace
+
+// --- Modbus/TCP Security (gateway.md §5.6) -------------------------------------------------
+
+// The TLS files of a test: the fixtures' certificate, key and CA in files of their own.
+struct TlsFiles {
+    TempFile certificate{test::tls_fixtures::server_pem, owner_only};
+    TempFile key{test::tls_fixtures::server_key, owner_only | perms::group_read};
+    TempFile ca{test::tls_fixtures::ca_pem, owner_only | perms::group_read | perms::others_read};
+
+    // modbus: with a tls: section, lines 1-7, then `extra` (at line 8 on) and the hub.
+    std::string yaml(const std::string& extra =
+                         "    roles:\n      operator: { units: all, access: read_write }\n") const {
+        return "modbus:\n  listen: \"\"\n  tls:\n    listen: \"127.0.0.1:802\"\n"
+               "    certificate: " +
+               certificate.path() + "\n    key: " + key.path() + "\n    client_ca: " + ca.path() +
+               "\n" + extra + hub;
+    }
+};
+
+TEST(GatewayConfig, TheTlsSection) {
+    const TlsFiles files;
+    const auto config = parse(files.yaml(
+        "    default_role: viewer\n    roles:\n      operator: { units: all, access: read_write }\n"
+        "      viewer: { units: [1], access: read }\n"));
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_FALSE(config->modbus.plain());
+    ASSERT_TRUE(config->modbus.tls);
+    const auto& tls = *config->modbus.tls;
+    EXPECT_EQ(tls.listen_host, "127.0.0.1");
+    EXPECT_EQ(tls.listen_port, 802);
+    EXPECT_EQ(tls.certificate_pem, test::tls_fixtures::server_pem);
+    EXPECT_EQ(tls.key_pem, test::tls_fixtures::server_key);
+    EXPECT_EQ(tls.client_ca_pem, test::tls_fixtures::ca_pem);
+    EXPECT_EQ(tls.default_role, "viewer");
+    ASSERT_EQ(tls.roles.size(), 2u);
+    EXPECT_TRUE(tls.roles.at("operator").units.all());
+    EXPECT_EQ(tls.roles.at("operator").access, modbus_security::Access::read_write);
+    EXPECT_EQ(tls.roles.at("viewer").units.count(), 1u);
+    EXPECT_TRUE(tls.roles.at("viewer").units.test(1));
+    EXPECT_EQ(tls.roles.at("viewer").access, modbus_security::Access::read);
+    // Absent, or without listen: off; the plain listener's default stays.
+    const auto off = parse("modbus:\n  tls:\n    certificate: /nonexistent\n" + hub);
+    ASSERT_TRUE(off) << describe(off.error());
+    EXPECT_FALSE(off->modbus.tls);
+    EXPECT_TRUE(off->modbus.plain());
+    EXPECT_FALSE(parse(hub)->modbus.tls);
+}
+
+TEST(GatewayConfigErrors, TheTlsSection) {
+    const TlsFiles files;
+    const std::string roles = "    roles:\n      operator: { units: all, access: read_write }\n";
+    // Lines: 5 certificate, 6 key, 7 client_ca, 8 on what is added.
+    expect_one_error({files.yaml("    default_role: admin\n" + roles), 8, "modbus.tls.default_role",
+                      "'admin' is not one of the roles: give one of operator"});
+    expect_one_error({files.yaml(""), 4, "modbus.tls.roles", "missing"});
+    expect_one_error({files.yaml("    roles: {}\n"), 8, "modbus.tls.roles", "an empty mapping"});
+    expect_one_error({files.yaml("    roles:\n      op: { units: all }\n"), 9,
+                      "modbus.tls.roles.op.access", "missing: read or read_write"});
+    expect_one_error({files.yaml("    roles:\n      op: { units: all, access: write }\n"), 9,
+                      "modbus.tls.roles.op.access",
+                      "'write' is not allowed: use read or read_write"});
+    expect_one_error({files.yaml("    roles:\n      op: { units: [], access: read }\n"), 9,
+                      "modbus.tls.roles.op.units", "an empty list"});
+    expect_one_error({files.yaml("    roles:\n      op: { units: \"all\", access: read }\n"), 9,
+                      "modbus.tls.roles.op.units", "expected all, or a list"});
+    expect_one_error({files.yaml("    roles:\n      op: { units: [1, 0], access: read }\n"), 9,
+                      "modbus.tls.roles.op.units[1]", "out of range: use 1..247"});
+    expect_one_error({files.yaml("    roles:\n      op: { units: [1, 9], access: read }\n"), 9,
+                      "modbus.tls.roles.op.units[1]", "no link has unit id 9"});
+    expect_one_error({files.yaml("    roles:\n      op: { units: all, access: read, x: 1 }\n"), 9,
+                      "modbus.tls.roles.op.x", "unknown key"});
+    expect_one_error({files.yaml(roles + "    ciphers: ALL\n"), 10, "modbus.tls.ciphers",
+                      "unknown key: allowed here are listen, certificate, key, client_ca, "
+                      "default_role, roles"});
+    // The files.
+    const auto with = [&](const std::string& certificate, const std::string& key,
+                          const std::string& ca) {
+        return "modbus:\n  tls:\n    listen: \"127.0.0.1:802\"\n    certificate: " + certificate +
+               "\n    key: " + key + "\n    client_ca: " + ca + "\n" + roles + hub;
+    };
+    const auto& c = files.certificate.path();
+    const auto& k = files.key.path();
+    const auto& a = files.ca.path();
+    expect_one_error({with("/nonexistent/server.pem", k, a), 4, "modbus.tls.certificate",
+                      "/nonexistent/server.pem: No such file or directory"});
+    expect_one_error({with(c, "/nonexistent/server.key", a), 5, "modbus.tls.key",
+                      "/nonexistent/server.key: No such file or directory"});
+    expect_one_error({with(c, k, "/nonexistent/ca.pem"), 6, "modbus.tls.client_ca",
+                      "/nonexistent/ca.pem: No such file or directory"});
+    const TempFile readable_key(test::tls_fixtures::server_key, owner_only | perms::others_read);
+    expect_one_error({with(c, readable_key.path(), a), 5, "modbus.tls.key",
+                      "readable by every user: chmod o-r " + readable_key.path()});
+    const TempFile other_key(test::tls_fixtures::other_key, owner_only);
+    expect_one_error(
+        {with(c, other_key.path(), a), 5, "modbus.tls.key", "is not the key of the certificate"});
+    const TempFile not_pem("hello\n", owner_only);
+    expect_one_error(
+        {with(not_pem.path(), k, a), 4, "modbus.tls.certificate", "has no PEM certificate"});
+    expect_one_error(
+        {with(c, not_pem.path(), a), 5, "modbus.tls.key", "is not an unencrypted PEM private key"});
+    expect_one_error(
+        {with(c, k, not_pem.path()), 6, "modbus.tls.client_ca", "has no PEM certificate"});
+    std::string broken = test::tls_fixtures::server_pem;
+    broken[100] = broken[100] == 'A' ? 'B' : 'A';
+    const TempFile damaged(broken, owner_only);
+    expect_one_error(
+        {with(damaged.path(), k, a), 4, "modbus.tls.certificate", "certificate 1 does not parse"});
+    expect_one_error({with("/tmp", k, a), 4, "modbus.tls.certificate", "/tmp is not a file"});
+    expect_one_error({"modbus:\n  tls:\n    listen: \"127.0.0.1:802\"\n    key: " + k +
+                          "\n    client_ca: " + a + "\n" + roles + hub,
+                      3, "modbus.tls.certificate", "missing: the server's certificate"});
+}
+
 }  // namespace ioport::config

@@ -1,0 +1,119 @@
+#include "config/tls_files.hpp"
+
+#include <sys/stat.h>
+
+#include <cerrno>
+#include <fstream>
+#include <iterator>
+#include <memory>
+#include <system_error>
+
+#include <fmt/format.h>
+#include <openssl/bio.h>
+#include <openssl/err.h>
+#include <openssl/evp.h>
+#include <openssl/pem.h>
+#include <openssl/x509.h>
+
+namespace ioport::config {
+namespace {
+
+template <auto Free>
+struct Deleter {
+    template <class T>
+    void operator()(T* p) const {
+        Free(p);
+    }
+};
+using BioPtr = std::unique_ptr<BIO, Deleter<BIO_free>>;
+using X509Ptr = std::unique_ptr<X509, Deleter<X509_free>>;
+using KeyPtr = std::unique_ptr<EVP_PKEY, Deleter<EVP_PKEY_free>>;
+
+BioPtr memory(const std::string& text) {
+    return BioPtr(BIO_new_mem_buf(text.data(), static_cast<int>(text.size())));
+}
+
+// OpenSSL's reason for the last failure, which it queued, and the queue emptied.
+std::string openssl_reason() {
+    const unsigned long code = ERR_peek_last_error();
+    ERR_clear_error();
+    const char* reason = code != 0 ? ERR_reason_error_string(code) : nullptr;
+    return reason != nullptr ? reason : "no PEM data";
+}
+
+Expected<std::string, std::string> read_file(const std::string& path, bool secret) {
+    struct stat status {};
+    if (::stat(path.c_str(), &status) != 0)
+        return Unexpected(fmt::format("{}: {}", path, std::generic_category().message(errno)));
+    if (!S_ISREG(status.st_mode)) return Unexpected(fmt::format("{} is not a file", path));
+    if (secret && (status.st_mode & S_IROTH) != 0)
+        return Unexpected(fmt::format(
+            "{} is readable by every user: chmod o-r {} (group-readable is fine)", path, path));
+    std::ifstream file(path);
+    if (!file) return Unexpected(fmt::format("{}: cannot be read by this user", path));
+    return std::string{std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>()};
+}
+
+}  // namespace
+
+Expected<std::string, std::string> read_certificates(const std::string& path) {
+    auto text = read_file(path, false);
+    if (!text) return text;
+    const auto bio = memory(*text);
+    int count = 0;
+    while (X509Ptr certificate{PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)})
+        ++count;
+    // The loop ends at the end of the text (PEM_R_NO_START_LINE) or at a certificate that does
+    // not parse.
+    const unsigned long last = ERR_peek_last_error();
+    if (count > 0 && ERR_GET_REASON(last) == PEM_R_NO_START_LINE) {
+        ERR_clear_error();
+        return text;
+    }
+    if (count == 0 && ERR_GET_REASON(last) == PEM_R_NO_START_LINE) {
+        ERR_clear_error();
+        return Unexpected(fmt::format(
+            "{} has no PEM certificate (-----BEGIN CERTIFICATE-----): convert a DER file with "
+            "openssl x509 -inform der -in FILE -out {}",
+            path, path));
+    }
+    return Unexpected(
+        fmt::format("{}: certificate {} does not parse: {}", path, count + 1, openssl_reason()));
+}
+
+Expected<std::string, std::string> read_private_key(const std::string& path) {
+    auto text = read_file(path, true);
+    if (!text) return text;
+    const auto bio = memory(*text);
+    // An encrypted key would need its passphrase at every start: no callback, so it fails here.
+    const KeyPtr key(PEM_read_bio_PrivateKey(bio.get(), nullptr, nullptr, nullptr));
+    if (!key)
+        return Unexpected(fmt::format(
+            "{} is not an unencrypted PEM private key ({}): write one with openssl pkey -in "
+            "{} -out NEW_FILE",
+            path, openssl_reason(), path));
+    return text;
+}
+
+Expected<void, std::string> check_key_pair(const std::string& certificate_pem,
+                                           const std::string& key_pem,
+                                           const std::string& key_path) {
+    const auto certificate_bio = memory(certificate_pem);
+    const auto key_bio = memory(key_pem);
+    const X509Ptr certificate(PEM_read_bio_X509(certificate_bio.get(), nullptr, nullptr, nullptr));
+    const KeyPtr key(PEM_read_bio_PrivateKey(key_bio.get(), nullptr, nullptr, nullptr));
+    if (!certificate || !key) {
+        ERR_clear_error();
+        return Unexpected(fmt::format("{} or its certificate does not parse", key_path));
+    }
+    if (X509_check_private_key(certificate.get(), key.get()) != 1) {
+        ERR_clear_error();
+        return Unexpected(fmt::format(
+            "{} is not the key of the certificate (the first one in the certificate file): "
+            "give the key the certificate was made for",
+            key_path));
+    }
+    return {};
+}
+
+}  // namespace ioport::config
