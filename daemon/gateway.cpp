@@ -214,27 +214,53 @@ bool Gateway::healthy() const {
                        [&](const auto& link) { return link->progressing(now); });
 }
 
+namespace {
+
+std::string units_of(const modbus_security::Role& role) {
+    std::string units;
+    for (std::size_t id = 0; id < role.units.size(); ++id)
+        if (role.units.test(id)) units += fmt::format("{}{}", units.empty() ? "units " : ", ", id);
+    return units;
+}
+
+std::string host_port(const std::string& host, std::uint16_t port) {
+    return host.find(':') != std::string::npos ? fmt::format("[{}]:{}", host, port)
+                                               : fmt::format("{}:{}", host, port);
+}
+
+}  // namespace
+
 std::string describe(const config::GatewayConfig& config) {
     const auto& modbus = config.modbus;
     std::string text = fmt::format(
-        "Modbus TCP on {}:{}, at most {} clients, idle timeout {}, keepalive {}, {}{}, word order "
+        "Modbus TCP {}, at most {} clients, idle timeout {}, keepalive {}, {}{}, word order "
         "{}, stale {}\n",
-        modbus.listen_host.find(':') != std::string::npos ? "[" + modbus.listen_host + "]"
-                                                          : modbus.listen_host,
-        modbus.listen_port, modbus.max_connections, format_duration(modbus.idle_timeout),
+        modbus.plain() ? "on " + host_port(modbus.listen_host, modbus.listen_port) : "off",
+        modbus.max_connections, format_duration(modbus.idle_timeout),
         modbus.keepalive.count() == 0 ? "off" : format_duration(modbus.keepalive),
         modbus.allow.empty() ? "any client"
                              : fmt::format("{} allowed networks", modbus.allow.size()),
         modbus.read_only ? ", read-only" : "",
         modbus.word_order == gateway::WordOrder::big ? "big" : "little",
         modbus.stale == gateway::Stale::exception ? "exception" : "hold");
-    if (const auto& http = config.http)
+    if (const auto& tls = modbus.tls) {
         text += fmt::format(
-            "HTTP (status page, /metrics, /healthz) on {}:{}, {}\n",
-            http->listen_host.find(':') != std::string::npos ? "[" + http->listen_host + "]"
-                                                             : http->listen_host,
-            http->listen_port,
-            http->allow.empty() ? "any client"
+            "Modbus/TCP Security (TLS 1.2/1.3, client certificates of {}) on {}, certificate {}, "
+            "default role {}\n",
+            tls->client_ca, host_port(tls->listen_host, tls->listen_port), tls->certificate,
+            tls->default_role.empty() ? "none" : tls->default_role);
+        for (const auto& [name, role] : tls->roles)
+            text +=
+                fmt::format("  role {}: {} of {}\n", name, modbus_security::to_string(role.access),
+                            role.units.all() ? std::string("every unit") : units_of(role));
+    } else {
+        text += "Modbus/TCP Security off\n";
+    }
+    if (const auto& http = config.http)
+        text += fmt::format("HTTP (status page, /metrics, /healthz) on {}, {}\n",
+                            host_port(http->listen_host, http->listen_port),
+                            http->allow.empty()
+                                ? "any client"
                                 : fmt::format("{} allowed networks", http->allow.size()));
     else
         text += "HTTP off\n";

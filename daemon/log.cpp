@@ -46,6 +46,10 @@ std::vector<std::string> journal_entry(LogLevel level, const LogFields& fields,
     if (!fields.module.empty()) entry.push_back(fmt::format("MODULE={}", fields.module));
     if (!fields.client.empty()) entry.push_back(fmt::format("CLIENT={}", fields.client));
     if (fields.comm_loss) entry.emplace_back("COMM_LOSS=1");
+    if (const auto* tls = fields.tls) {
+        entry.push_back(fmt::format("TLS_SUBJECT={}", tls->subject));
+        entry.push_back(fmt::format("ROLE={}", tls->role));
+    }
     if (const auto* audit = fields.audit) {
         entry.push_back(fmt::format("FUNCTION={}", audit->function));
         entry.push_back(fmt::format("ADDRESS={}", audit->address));

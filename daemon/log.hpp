@@ -32,6 +32,13 @@ struct WriteAudit {
     long long latency_us = 0;     // request received → outcome known
 };
 
+// Who a Modbus/TCP Security client is (gateway.md §5.6): its certificate's subject and its role
+// ("" for none).
+struct TlsIdentity {
+    std::string_view subject{};
+    std::string_view role{};
+};
+
 // What a line is about. Empty fields are left out of the journal entry.
 struct LogFields {
     std::string_view link{};    // a link's name
@@ -41,6 +48,7 @@ struct LogFields {
     bool comm_loss = false;     // COMM_LOSS=1: outputs put in their safe state (gateway.md §5.3)
     // FUNCTION, ADDRESS, VALUE, RESULT, LATENCY_US; a line with them is a notice (PRIORITY=5).
     const WriteAudit* audit = nullptr;
+    const TlsIdentity* tls = nullptr;  // TLS_SUBJECT, ROLE (also when empty)
 };
 
 // The journal entry of one line, as KEY=value strings: MESSAGE, PRIORITY (syslog's numbers),

@@ -7,8 +7,11 @@
 
 #include <algorithm>
 #include <cstring>
+#include <ranges>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <openssl/ssl.h>
 
 #include "config/duration.hpp"
 #include "daemon/descriptors.hpp"
@@ -38,13 +41,20 @@ using KeepaliveProbes = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KE
 }  // namespace
 
 struct ModbusServer::Connection {
-    Connection(tcp::socket s, const tcp::endpoint& from)
-        : socket(std::move(s)),
-          timer(socket.get_executor()),
+    Connection(tcp::socket s, const tcp::endpoint& from, TlsContext context)
+        : plain(std::move(s)),
+          timer(plain.get_executor()),
           address(from.address()),
-          peer(describe(from)) {}
+          peer(describe(from)),
+          tls_context(std::move(context)),
+          handshaking(tls_context != nullptr) {
+        if (tls_context) tls = std::make_unique<TlsStream>(std::move(plain), *tls_context);
+    }
+
+    tcp::socket& socket() { return tls ? tls->next_layer() : plain; }
 
     Clock::time_point deadline(std::chrono::microseconds idle_timeout) const {
+        if (handshaking) return accepted + tls_handshake_timeout;
         if (sending) return drained + send_timeout;
         if (busy) return Clock::time_point::max();
         if (partial) return frame_started + frame_timeout;
@@ -59,7 +69,7 @@ struct ModbusServer::Connection {
     // acknowledges a KB or so now and then while the client reads nothing.
     bool client_took_data() {
         int bytes = 0;
-        if (::ioctl(socket.native_handle(), SIOCOUTQ, &bytes) != 0) return true;
+        if (::ioctl(socket().native_handle(), SIOCOUTQ, &bytes) != 0) return true;
         const bool took = bytes == 0 || bytes + reading_evidence <= unacknowledged;
         if (took || bytes > unacknowledged) unacknowledged = bytes;
         if (took) drained = Clock::now();
@@ -78,15 +88,23 @@ struct ModbusServer::Connection {
         if (!open) return;
         open = false;
         boost::system::error_code ignored;
-        socket.shutdown(tcp::socket::shutdown_both, ignored);
-        socket.close(ignored);
+        socket().shutdown(tcp::socket::shutdown_both, ignored);
+        socket().close(ignored);
         timer.cancel();
     }
 
-    tcp::socket socket;
-    asio::steady_timer timer;  // the watchdog: idle, frame and send timeouts
+    tcp::socket plain;         // moved into `tls` for a TLS connection
+    asio::steady_timer timer;  // the watchdog: handshake, idle, frame and send timeouts
     asio::ip::address address;
     std::string peer;
+    // TLS: the context it was accepted with (kept: a reload may replace the listener's), the
+    // stream over the socket, and what the client may do, decided at the handshake.
+    TlsContext tls_context;
+    std::unique_ptr<TlsStream> tls;
+    modbus_security::Rights rights;
+    bool handshaking = false;
+    bool refusal_logged = false;  // a request its role does not allow: logged once
+    Clock::time_point accepted = Clock::now();
     // Pipelined requests are framed from here; larger than a frame so one always fits.
     std::array<std::uint8_t, 4096> rx{};
     std::size_t begin = 0;
@@ -129,8 +147,38 @@ void ModbusServer::set_units(const Units& units) {
 
 ModbusServer::~ModbusServer() = default;
 
-Result<Acceptor> ModbusServer::listen(const config::ModbusSettings& settings) {
-    return listen_tcp(executor_, settings.listen_host, settings.listen_port, "modbus.listen");
+ModbusServer::Listener& ModbusServer::listener(Transport transport) {
+    switch (transport) {
+        case Transport::tcp:
+            return plain_;
+        case Transport::tls:
+            return tls_;
+    }
+    return plain_;
+}
+
+bool ModbusServer::same_address(const config::ModbusSettings& a, const config::ModbusSettings& b,
+                                Transport transport) {
+    switch (transport) {
+        case Transport::tcp:
+            return a.listen_host == b.listen_host && a.listen_port == b.listen_port;
+        case Transport::tls:
+            return a.tls && b.tls && a.tls->listen_host == b.tls->listen_host &&
+                   a.tls->listen_port == b.tls->listen_port;
+    }
+    return false;
+}
+
+Result<Acceptor> ModbusServer::listen(const config::ModbusSettings& settings, Transport transport) {
+    switch (transport) {
+        case Transport::tcp:
+            return listen_tcp(executor_, settings.listen_host, settings.listen_port,
+                              "modbus.listen");
+        case Transport::tls:
+            return listen_tcp(executor_, settings.tls->listen_host, settings.tls->listen_port,
+                              "modbus.tls.listen");
+    }
+    return fail(Errc::invalid_argument, "no such transport");
 }
 
 Result<> ModbusServer::start() {
@@ -138,9 +186,17 @@ Result<> ModbusServer::start() {
     if (!replies) return Unexpected(replies.error());
     replies_ = std::move(*replies);
     make_room();
-    auto acceptor = listen(settings_);
-    if (!acceptor) return Unexpected(acceptor.error());
-    accept_on(std::move(*acceptor));
+    // As a reload from nothing: both listeners bound, or neither.
+    config::ModbusSettings none;
+    none.listen_host.clear();
+    const auto settings = std::exchange(settings_, none);
+    auto prepared = prepare(settings);
+    settings_ = settings;
+    if (!prepared) return prepared;
+    for (const auto transport : {Transport::tcp, Transport::tls})
+        apply(settings_, transport);
+    if (!plain_.acceptor && !tls_.acceptor)
+        log_.warn({}, "no Modbus listener: modbus.listen is \"\" and modbus.tls has no listen");
     last_request_ = Clock::now();  // comm loss counts from start-up too
     arm_comm_loss();
     return {};
@@ -207,26 +263,79 @@ void ModbusServer::make_room() {
                   settings_.max_connections);
 }
 
-void ModbusServer::accept_on(Acceptor acceptor) {
-    if (acceptor_) {
-        boost::system::error_code ignored;
-        acceptor_->close(ignored);
-        accept_retry_.cancel();
+void ModbusServer::close(Listener& listener) {
+    if (!listener.acceptor) return;
+    boost::system::error_code ignored;
+    listener.acceptor->close(ignored);
+    listener.acceptor.reset();
+}
+
+void ModbusServer::accept_on(Transport transport, Acceptor acceptor) {
+    auto& l = listener(transport);
+    if (l.acceptor) accept_retry_.cancel();
+    close(l);
+    l.acceptor = std::move(acceptor);
+    boost::system::error_code ec;
+    const auto where = describe(l.acceptor->local_endpoint(ec));
+    const char* read_only = settings_.read_only ? ", read-only" : "";
+    switch (transport) {
+        case Transport::tcp:
+            log_.info({}, "Modbus TCP on {}, at most {} clients{}", where,
+                      settings_.max_connections, read_only);
+            break;
+        case Transport::tls:
+            log_.info({}, "Modbus/TCP Security (TLS) on {}, at most {} clients{}, roles {}", where,
+                      settings_.max_connections, read_only,
+                      fmt::join(std::views::keys(settings_.tls->roles), ", "));
+            break;
     }
-    acceptor_ = std::move(acceptor);
-    log_.info({}, "Modbus TCP on {}, at most {} clients{}", describe(local_endpoint()),
-              settings_.max_connections, settings_.read_only ? ", read-only" : "");
-    asio::co_spawn(executor_, accept_loop(acceptor_), asio::detached);
+    asio::co_spawn(executor_, accept_loop(transport, l.acceptor), asio::detached);
 }
 
 Result<> ModbusServer::prepare(const config::ModbusSettings& next) {
-    next_acceptor_.reset();
-    if (next.listen_host == settings_.listen_host && next.listen_port == settings_.listen_port)
-        return {};
-    auto acceptor = listen(next);
+    for (auto* l : {&plain_, &tls_}) {
+        l->next.reset();
+        l->next_context.reset();
+    }
+    if (auto prepared = prepare(next, Transport::tcp); !prepared) return prepared;
+    return prepare(next, Transport::tls);
+}
+
+Result<> ModbusServer::prepare(const config::ModbusSettings& next, Transport transport) {
+    auto& l = listener(transport);
+    const bool wanted = transport == Transport::tcp ? next.plain() : next.tls.has_value();
+    if (!wanted) return {};
+    if (transport == Transport::tls &&
+        (!settings_.tls || !tls_.context ||
+         settings_.tls->certificate_pem != next.tls->certificate_pem ||
+         settings_.tls->key_pem != next.tls->key_pem ||
+         settings_.tls->client_ca_pem != next.tls->client_ca_pem)) {
+        auto context = make_tls_context(*next.tls);
+        if (!context) return Unexpected(context.error());
+        l.next_context = std::move(*context);
+    }
+    if (l.acceptor && same_address(settings_, next, transport)) return {};
+    auto acceptor = listen(next, transport);
     if (!acceptor) return Unexpected(acceptor.error());
-    next_acceptor_ = std::move(*acceptor);
+    l.next = std::move(*acceptor);
     return {};
+}
+
+// `settings_` is `next` already: the listener's log line tells the new limits.
+void ModbusServer::apply(const config::ModbusSettings& next, Transport transport) {
+    auto& l = listener(transport);
+    if (l.next_context) l.context = std::exchange(l.next_context, nullptr);
+    if (l.next) {
+        accept_on(transport, std::exchange(l.next, nullptr));
+        return;
+    }
+    const bool wanted = transport == Transport::tcp ? next.plain() : next.tls.has_value();
+    if (!wanted && l.acceptor) {
+        log_.info({}, "{} listener closed",
+                  transport == Transport::tcp ? "Modbus TCP" : "Modbus/TCP Security (TLS)");
+        close(l);
+        l.context.reset();
+    }
 }
 
 void ModbusServer::apply(config::ModbusSettings next, const Units& units) {
@@ -238,7 +347,8 @@ void ModbusServer::apply(config::ModbusSettings next, const Units& units) {
         comm_loss_timer_.cancel();  // re-armed with the new timeout, or not at all
     else
         arm_comm_loss();
-    if (next_acceptor_) accept_on(std::exchange(next_acceptor_, nullptr));
+    for (const auto transport : {Transport::tcp, Transport::tls})
+        apply(settings_, transport);
     for (auto* connection : connections_) {
         if (!allowed(connection->address)) {
             log_.info({.client = connection->peer},
@@ -255,8 +365,10 @@ void ModbusServer::shut_down() {
     stopping_ = true;
     comm_loss_timer_.cancel();
     boost::system::error_code ignored;
-    if (acceptor_) acceptor_->close(ignored);
-    if (next_acceptor_) next_acceptor_->close(ignored);
+    for (auto* l : {&plain_, &tls_}) {
+        close(*l);
+        if (l->next) l->next->close(ignored);
+    }
     accept_retry_.cancel();
     for (auto* connection : connections_)
         if (!connection->busy && !connection->sending) connection->close();
@@ -270,14 +382,20 @@ void ModbusServer::stop() {
 
 tcp::endpoint ModbusServer::local_endpoint() const {
     boost::system::error_code ec;
-    return acceptor_ ? acceptor_->local_endpoint(ec) : tcp::endpoint();
+    return plain_.acceptor ? plain_.acceptor->local_endpoint(ec) : tcp::endpoint();
+}
+
+tcp::endpoint ModbusServer::tls_endpoint() const {
+    boost::system::error_code ec;
+    return tls_.acceptor ? tls_.acceptor->local_endpoint(ec) : tcp::endpoint();
 }
 
 std::vector<ClientView> ModbusServer::clients() const {
     std::vector<ClientView> views;
     views.reserve(connections_.size());
     for (const auto* connection : connections_)
-        views.push_back({connection->peer, connection->since, connection->requests});
+        views.push_back({connection->peer, connection->since, connection->requests,
+                         connection->tls != nullptr, connection->rights.role});
     std::ranges::sort(views, {}, &ClientView::since);
     return views;
 }
@@ -297,15 +415,19 @@ bool ModbusServer::allowed(const asio::ip::address& address) const {
 
 void ModbusServer::log_refusal(const asio::ip::address& address, const std::string& why) {
     const auto now = Clock::now();
-    const auto key = address.to_string();
+    const auto client = address.to_string();
+    // By address and reason: one address may have several problems (an expired certificate on
+    // one HMI, a missing one on another), each worth its line.
+    const auto key = fmt::format("{} {}", client, why);
     const auto found = refused_logged_.find(key);
     if (found != refused_logged_.end() && now - found->second < refusal_log_interval) return;
     if (refused_logged_.size() >= refusal_log_memory) refused_logged_.clear();
     refused_logged_[key] = now;
-    log_.warn({.client = key}, "refused Modbus client {}: {} (logged once a minute per address)",
-              key, why);
-    events_.add(EventKind::client_refused, {}, {}, key,
-                fmt::format("refused Modbus client {}: {}", key, why));
+    log_.warn({.client = client},
+              "refused Modbus client {}: {} (logged once a minute per address and reason)", client,
+              why);
+    events_.add(EventKind::client_refused, {}, {}, client,
+                fmt::format("refused Modbus client {}: {}", client, why));
 }
 
 // Keepalive reaps clients that vanished without a FIN: their connection would otherwise hold a
@@ -323,7 +445,7 @@ void ModbusServer::configure(tcp::socket& socket) const {
     socket.set_option(KeepaliveProbes(keepalive_probes), ec);
 }
 
-asio::awaitable<void> ModbusServer::accept_loop(Acceptor acceptor) {
+asio::awaitable<void> ModbusServer::accept_loop(Transport transport, Acceptor acceptor) {
     while (acceptor->is_open()) {
         tcp::socket socket(executor_);
         boost::system::error_code ec;
@@ -346,7 +468,8 @@ asio::awaitable<void> ModbusServer::accept_loop(Acceptor acceptor) {
             continue;
         }
         configure(socket);
-        auto connection = std::make_shared<Connection>(std::move(socket), peer);
+        auto connection = std::make_shared<Connection>(
+            std::move(socket), peer, transport == Transport::tls ? tls_.context : nullptr);
         connections_.insert(connection.get());
         log_.debug({.client = connection->peer}, "Modbus client {} connected ({} open)",
                    connection->peer, connections_.size());
@@ -367,9 +490,10 @@ asio::awaitable<void> ModbusServer::watch(ConnectionPtr c) {
         // A slow reader may leave the socket unwritable for long: it still reads.
         if (c->sending && c->client_took_data()) continue;
         log_.debug({.client = c->peer}, "Modbus client {}: {}", c->peer,
-                   c->sending   ? "it read nothing for 5 s while a response waited, closed"
-                   : c->partial ? "request not complete within 1 s of its first byte, closed"
-                                : "idle timeout, closed");
+                   c->handshaking ? "TLS handshake not complete within 5 s, closed"
+                   : c->sending   ? "it read nothing for 5 s while a response waited, closed"
+                   : c->partial   ? "request not complete within 1 s of its first byte, closed"
+                                  : "idle timeout, closed");
         c->close();
     }
 }
@@ -384,10 +508,47 @@ asio::awaitable<boost::system::error_code> ModbusServer::send_rest(
     c.client_took_data();  // the baseline the watchdog compares with
     if (c.drained + send_timeout < c.armed) c.timer.cancel();
     boost::system::error_code ec;
-    co_await asio::async_write(c.socket, asio::buffer(rest.data(), rest.size()),
-                               redirect_error(use_awaitable, ec));
+    const auto buffer = asio::buffer(rest.data(), rest.size());
+    if (c.tls)
+        co_await asio::async_write(*c.tls, buffer, redirect_error(use_awaitable, ec));
+    else
+        co_await asio::async_write(c.plain, buffer, redirect_error(use_awaitable, ec));
     c.sending = false;
     co_return ec;
+}
+
+asio::awaitable<std::size_t> ModbusServer::read_some(Connection& c, boost::system::error_code& ec) {
+    const auto buffer = asio::buffer(c.rx.data() + c.end, c.rx.size() - c.end);
+    if (c.tls) co_return co_await c.tls->async_read_some(buffer, redirect_error(use_awaitable, ec));
+    co_return co_await c.plain.async_read_some(buffer, redirect_error(use_awaitable, ec));
+}
+
+asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
+    boost::system::error_code ec;
+    co_await c.tls->async_handshake(asio::ssl::stream_base::server,
+                                    redirect_error(use_awaitable, ec));
+    c.handshaking = false;
+    if (!c.open) co_return false;  // the watchdog closed it: too slow
+    if (ec) {
+        // A client without a valid certificate retries, maybe every second: as a refusal, logged
+        // once a minute per address.
+        ++stats_.refused_tls_handshake;
+        log_refusal(c.address,
+                    fmt::format("TLS handshake failed: {}", handshake_failure(ec, *c.tls)));
+        co_return false;
+    }
+    c.last_activity = Clock::now();
+    c.timer.cancel();  // re-armed for the idle timeout
+    const auto peer = tls_peer(*c.tls);
+    c.rights =
+        modbus_security::rights_of(peer.role, settings_.tls ? settings_.tls->default_role : "",
+                                   settings_.tls ? settings_.tls->roles : modbus_security::Roles{});
+    const TlsIdentity identity{peer.subject, c.rights.role};
+    log_.info({.client = c.peer, .tls = &identity},
+              "Modbus/TCP Security client {} ({}, TLS {}{}): {}", c.peer, peer.subject,
+              SSL_get_version(c.tls->native_handle()),
+              SSL_session_reused(c.tls->native_handle()) != 0 ? ", resumed" : "", c.rights.why);
+    co_return true;
 }
 
 // GCC 12 reports Asio's coroutine frame, allocated and freed by awaitable_frame_base's own
@@ -399,6 +560,10 @@ asio::awaitable<boost::system::error_code> ModbusServer::send_rest(
 #endif
 asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
     std::string why = "closed by the client";
+    if (c->tls && !co_await handshake(*c)) {
+        why = "no TLS session";
+        c->close();
+    }
     while (c->open) {
         bool completed_frame = false;
         for (;;) {
@@ -428,9 +593,11 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             }
             if (response && c->open) {
                 // Nearly always the socket takes a response at once: written then and there,
-                // without an asynchronous operation and its completion.
+                // without an asynchronous operation and its completion. TLS writes records
+                // through Asio's engine, which needs its own operation.
                 boost::system::error_code ec;
-                const auto written = c->socket.write_some(asio::buffer(*response), ec);
+                std::size_t written = 0;
+                if (!c->tls) written = c->plain.write_some(asio::buffer(*response), ec);
                 if (ec == asio::error::would_block) ec = {};
                 if (!ec && written < response->size())
                     ec = co_await send_rest(*c, std::span(*response).subspan(written));
@@ -461,9 +628,7 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             if (c->frame_started + frame_timeout < c->armed) c->timer.cancel();
         }
         boost::system::error_code ec;
-        const auto n = co_await c->socket.async_read_some(
-            asio::buffer(c->rx.data() + c->end, c->rx.size() - c->end),
-            redirect_error(use_awaitable, ec));
+        const auto n = co_await read_some(*c, ec);
         if (ec) {
             if (c->partial && c->open) why = "connection ended in the middle of a request";
             break;
@@ -486,6 +651,10 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
     if (!unit)
         return built(c, replies_->exception(request, modbus::Exception::gateway_path_unavailable));
     const auto pdu = adu.subspan(modbus::mbap_length);
+    if (c.tls && !modbus_security::permits(c.rights, unit->config().unit_id, pdu[0])) {
+        log_role_refusal(c, unit->config().unit_id, pdu[0]);
+        return built(c, replies_->exception(request, modbus::Exception::illegal_function));
+    }
     // Identification is the unit's, not its devices': it answers with the port down and in
     // read_only mode.
     if (pdu[0] == modbus::encapsulated_interface_transport) {
@@ -502,6 +671,19 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
         return built(c, replies_->reply(request, image));
     }
     return Write{unit, std::get<gateway::WritePlan>(std::move(plan)), request, pdu};
+}
+
+void ModbusServer::log_role_refusal(Connection& c, int unit_id, std::uint8_t function) {
+    if (std::exchange(c.refusal_logged, true)) return;
+    const auto& grants = c.rights.grants;
+    log_.warn({.unit = unit_id, .client = c.peer},
+              "Modbus/TCP Security client {}: FC {:02} to unit {} refused (exception 01): {} "
+              "(logged once per connection)",
+              c.peer, function, unit_id,
+              !grants ? c.rights.why
+              : !grants->units.test(static_cast<std::size_t>(unit_id))
+                  ? fmt::format("role {} is not for unit {}", c.rights.role, unit_id)
+                  : fmt::format("role {} may only read", c.rights.role));
 }
 
 void ModbusServer::count(int unit_id, std::span<const std::uint8_t> adu,

@@ -30,12 +30,16 @@
 #include "daemon/link_scheduler.hpp"
 #include "daemon/listener.hpp"
 #include "daemon/modbus_reply.hpp"
+#include "daemon/modbus_tls.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {
 
 // A request must be complete within this time of its first byte (gateway.md §3.5).
 inline constexpr std::chrono::microseconds frame_timeout = 1s;
+// A TLS client must complete its handshake within this time of connecting: one that opens and
+// says nothing, or trickles its handshake, gives its max_connections place back.
+inline constexpr std::chrono::microseconds tls_handshake_timeout = 5s;
 // A response must make progress into the client's socket within this time. The socket buffers
 // hold hundreds of responses, so only a client that stopped reading altogether gets here.
 inline constexpr std::chrono::microseconds send_timeout = 5s;
@@ -52,7 +56,8 @@ struct ModbusStats {
     std::map<std::pair<int, int>, std::uint64_t> exceptions;  // by (unit id, exception code)
     Histogram request_duration{request_duration_bounds};      // frame received → response sent
     std::uint64_t refused_not_allowed = 0;
-    std::uint64_t refused_too_many = 0;  // max_connections, or out of file descriptors
+    std::uint64_t refused_too_many = 0;       // max_connections, or out of file descriptors
+    std::uint64_t refused_tls_handshake = 0;  // no valid client certificate, old TLS, plaintext
 };
 
 // A client connected now.
@@ -60,6 +65,8 @@ struct ClientView {
     std::string address;  // "10.0.0.5:50123"
     std::chrono::system_clock::time_point since;
     std::uint64_t requests = 0;
+    bool tls = false;
+    std::string role;  // TLS: the client's role, "" for none
 };
 
 class ModbusServer {
@@ -76,7 +83,8 @@ class ModbusServer {
     ModbusServer& operator=(const ModbusServer&) = delete;
     ~ModbusServer();
 
-    // Binds and listens; fails when the address is in use or not permitted.
+    // Binds and listens (plain Modbus TCP, Modbus/TCP Security, or both); fails when an address
+    // is in use or not permitted, or the TLS context cannot be made.
     Result<> start();
     // The orderly end: stops accepting and reading; a connection waiting for a write's outcome
     // is closed once its response is sent, every other one at once.
@@ -85,15 +93,18 @@ class ModbusServer {
     void stop();
 
     // A reload in two steps, so that nothing changes unless everything can: prepare() binds the
-    // new listen address if it differs; apply() takes the new settings and units. Connections
-    // are kept, but those the new `allow` refuses.
+    // new listen addresses if they differ and makes the new TLS context (certificates read anew);
+    // apply() takes the new settings and units. Connections are kept, but those the new `allow`
+    // refuses; TLS clients keep the role they connected with.
     Result<> prepare(const config::ModbusSettings& next);
     void apply(config::ModbusSettings next, const Units& units);
 
     std::size_t connections() const { return connections_.size(); }
     // A communication loss is in effect: declared, and no request since (register 1020).
     bool comm_lost() const { return comm_loss_; }
+    // Where the plain and the TLS listener are; a default endpoint for one that is off.
     asio::ip::tcp::endpoint local_endpoint() const;
+    asio::ip::tcp::endpoint tls_endpoint() const;
     const config::ModbusSettings& settings() const { return settings_; }
     const ModbusStats& stats() const { return stats_; }
     std::vector<ClientView> clients() const;
@@ -102,12 +113,30 @@ class ModbusServer {
     struct Connection;
     using ConnectionPtr = std::shared_ptr<Connection>;
 
-    Result<Acceptor> listen(const config::ModbusSettings& settings);
+    enum class Transport { tcp, tls };
+    // The listener of a transport: its socket and, for TLS, the context new connections get.
+    struct Listener {
+        Acceptor acceptor;
+        Acceptor next;  // bound by prepare(), taken by apply()
+        TlsContext context;
+        TlsContext next_context;
+    };
+    Listener& listener(Transport transport);
+    static bool same_address(const config::ModbusSettings& a, const config::ModbusSettings& b,
+                             Transport transport);
+    Result<Acceptor> listen(const config::ModbusSettings& settings, Transport transport);
+    Result<> prepare(const config::ModbusSettings& next, Transport transport);
+    void apply(const config::ModbusSettings& next, Transport transport);
     void set_units(const Units& units);
-    void accept_on(Acceptor acceptor);
-    asio::awaitable<void> accept_loop(Acceptor acceptor);
+    void accept_on(Transport transport, Acceptor acceptor);
+    void close(Listener& listener);
+    asio::awaitable<void> accept_loop(Transport transport, Acceptor acceptor);
     void configure(asio::ip::tcp::socket& socket) const;
     asio::awaitable<void> serve(ConnectionPtr connection);
+    // The TLS handshake within tls_handshake_timeout, then the client's rights; false when the
+    // connection is to be closed.
+    asio::awaitable<bool> handshake(Connection& connection);
+    asio::awaitable<std::size_t> read_some(Connection& connection, boost::system::error_code& ec);
     asio::awaitable<boost::system::error_code> send_rest(Connection& connection,
                                                          std::span<const std::uint8_t> rest);
     asio::awaitable<void> watch(ConnectionPtr connection);
@@ -139,6 +168,8 @@ class ModbusServer {
     // A response sent: §5.1's traffic and the metrics.
     void count(int unit_id, std::span<const std::uint8_t> adu,
                std::span<const std::uint8_t> response, Clock::time_point received);
+    // A request the client's role does not allow, logged the first time on a connection.
+    void log_role_refusal(Connection& connection, int unit_id, std::uint8_t function);
     // The audit trail of a write that reached a device.
     void audit(const Connection& connection, const Write& write, WriteResult result,
                Clock::time_point received);
@@ -155,8 +186,8 @@ class ModbusServer {
     EventLog& events_;
     ModbusStats stats_;
     std::array<std::shared_ptr<LinkScheduler>, 256> units_{};
-    Acceptor acceptor_;
-    Acceptor next_acceptor_;  // bound by prepare(), taken by apply()
+    Listener plain_;
+    Listener tls_;
     asio::steady_timer accept_retry_;
     std::unordered_set<Connection*> connections_;
     std::unordered_map<std::string, Clock::time_point> refused_logged_;

@@ -166,6 +166,8 @@ void modbus_families(Exposition& out, const ModbusServer& server) {
                stats.refused_not_allowed);
     out.sample("ioportd_modbus_connections_refused_total", {{"reason", "too_many"}},
                stats.refused_too_many);
+    out.sample("ioportd_modbus_connections_refused_total", {{"reason", "tls_handshake"}},
+               stats.refused_tls_handshake);
     out.family("ioportd_modbus_requests_total", "counter",
                "Modbus requests answered, by unit id and function code");
     for (const auto& [key, count] : stats.requests)
@@ -332,7 +334,8 @@ void modbus_json(Json& json, const ModbusServer& server) {
     const auto& settings = server.settings();
     json.key("modbus")
         .begin_object()
-        .member("listen", describe(server.local_endpoint()))
+        .member("listen", settings.plain() ? describe(server.local_endpoint()) : std::string())
+        .member("tls_listen", settings.tls ? describe(server.tls_endpoint()) : std::string())
         .member("connections", static_cast<std::uint64_t>(server.connections()))
         .member("max_connections", settings.max_connections)
         .member("comm_loss", server.comm_lost());
@@ -340,6 +343,7 @@ void modbus_json(Json& json, const ModbusServer& server) {
         .begin_object()
         .member("not_allowed", server.stats().refused_not_allowed)
         .member("too_many", server.stats().refused_too_many)
+        .member("tls_handshake", server.stats().refused_tls_handshake)
         .end_object();
     json.key("clients").begin_array();
     for (const auto& client : server.clients())
@@ -347,6 +351,8 @@ void modbus_json(Json& json, const ModbusServer& server) {
             .member("address", client.address)
             .member("since", rfc3339(client.since))
             .member("requests", client.requests)
+            .member("transport", client.tls ? "tls" : "tcp")
+            .member("role", client.role)
             .end_object();
     json.end_array().end_object();
 }

@@ -1,0 +1,598 @@
+#!/usr/bin/env python3
+"""Modbus/TCP Security (gateway.md §5.6) against the real daemon on the simulators, with
+certificates made here by openssl, as the README tells a person to make them: a CA, a server
+certificate, clients with the roles operator, viewer and line2 (unit 2 only), one with a role no
+one configured, one without a role, one expired and one from another CA.
+
+Clients: pymodbus's TLS client (Debian's python3-pymodbus, with the socket framer: the MBAP
+header inside TLS, pymodbus #2014), raw Modbus frames over Python's ssl module where a test needs
+the bytes, and openssl s_client for what the server offers.
+
+Usage: modbus_tls_test.py IOPORTD IOPORT_SIM [unittest arguments]
+"""
+
+import asyncio
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import ssl
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import unittest
+import urllib.request
+
+IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+
+from rig import Rig, eventually  # noqa: E402
+from pymodbus.client import AsyncModbusTlsClient  # noqa: E402
+from pymodbus.framer.socket_framer import ModbusSocketFramer  # noqa: E402
+
+ROLE_OID = "1.3.6.1.4.1.50316.802.1"
+ILLEGAL_FUNCTION = 0x01
+GATEWAY_PATH_UNAVAILABLE = 0x0A
+
+
+def openssl(*args, cwd):
+    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=30)
+
+
+class Certificates:
+    """Made with the README's commands (EC P-256 keys)."""
+
+    def __init__(self, directory):
+        self.dir = directory
+        self.ca("ca", "Plant Modbus CA")
+        self.ca("other-ca", "Some Other CA")
+        self.server("server", "gateway1")
+        for name, role in [("operator", "operator"), ("viewer", "viewer"), ("line2", "line2"),
+                           ("admin", "admin")]:
+            self.client(name, role)
+        self.client("norole", None)
+        self.client("expired", "operator", days=-1)
+        self.client("foreign", "operator", ca="other-ca")
+        for name in os.listdir(directory):
+            if name.endswith(".key"):
+                os.chmod(os.path.join(directory, name), 0o640)
+
+    def path(self, name):
+        return os.path.join(self.dir, name)
+
+    def key(self, name):
+        openssl("genpkey", "-algorithm", "EC", "-pkeyopt", "ec_paramgen_curve:P-256",
+                "-out", f"{name}.key", cwd=self.dir)
+
+    def ca(self, name, cn):
+        self.key(name)
+        openssl("req", "-x509", "-new", "-key", f"{name}.key", "-subj", f"/CN={cn}",
+                "-days", "3650", "-out", f"{name}.pem", cwd=self.dir)
+
+    def signed(self, name, cn, extensions, days=825, ca="ca"):
+        self.key(name)
+        openssl("req", "-new", "-key", f"{name}.key", "-subj", cn, "-out", f"{name}.csr",
+                cwd=self.dir)
+        with open(self.path(f"{name}.ext"), "w") as f:
+            f.write(extensions)
+        openssl("x509", "-req", "-in", f"{name}.csr", "-CA", f"{ca}.pem", "-CAkey", f"{ca}.key",
+                "-CAcreateserial", "-days", str(days), "-extfile", f"{name}.ext",
+                "-out", f"{name}.pem", cwd=self.dir)
+
+    def server(self, name, cn):
+        self.signed(name, f"/CN={cn}",
+                    "subjectAltName=IP:127.0.0.1,DNS:localhost\nextendedKeyUsage=serverAuth\n")
+
+    def client(self, name, role, days=825, ca="ca"):
+        extensions = "extendedKeyUsage=clientAuth\n"
+        if role:
+            extensions += f"{ROLE_OID}=ASN1:UTF8String:{role}\n"
+        self.signed(name, f"/CN={name}-1/O=Plant", extensions, days, ca)
+
+    def context(self, client=None, **versions):
+        """A client context that trusts the plant CA and shows `client`'s certificate."""
+        context = ssl.create_default_context(cafile=self.path("ca.pem"))
+        if client:
+            context.load_cert_chain(self.path(f"{client}.pem"), self.path(f"{client}.key"))
+        for attribute, version in versions.items():
+            setattr(context, attribute, version)
+        return context
+
+
+def config(rig, certs, plain="127.0.0.1:0", tls_extra="", server="server"):
+    return f"""modbus:
+  listen: "{plain}"
+  max_connections: 64
+  tls:
+    listen: "127.0.0.1:0"
+    certificate: {certs.path(server + '.pem')}
+    key: {certs.path(server + '.key')}
+    client_ca: {certs.path('ca.pem')}
+{tls_extra}    roles:
+      operator: {{ units: all, access: read_write }}
+      viewer:   {{ units: all, access: read }}
+      line2:    {{ units: [2], access: read_write }}
+http:
+  listen: "127.0.0.1:0"
+links:
+  - name: hub0
+    protocol: ioport
+    device: {rig.hub_link}
+    unit_id: 1
+    modules:
+      - {{ type: dim16, number: 0 }}
+      - {{ type: dom16, number: 0 }}
+  - name: press
+    protocol: id2
+    device: {rig.id2_link}
+    unit_id: 2
+"""
+
+
+class TlsClient:
+    """Raw Modbus frames over TLS: the MBAP ADU unchanged inside TLS (the specification)."""
+
+    def __init__(self, port, context, timeout=5):
+        raw = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+        self.socket = context.wrap_socket(raw, server_hostname="127.0.0.1")
+        self.transaction = 0
+
+    def request(self, unit, pdu):
+        """The response PDU."""
+        self.transaction = (self.transaction + 1) & 0xFFFF
+        self.socket.sendall(struct.pack(">HHHB", self.transaction, 0, len(pdu) + 1, unit) + pdu)
+        header = self.read(7)
+        transaction, _, length, answered_unit = struct.unpack(">HHHB", header)
+        assert (transaction, answered_unit) == (self.transaction, unit), header
+        return self.read(length - 1)
+
+    def read(self, n):
+        data = b""
+        while len(data) < n:
+            chunk = self.socket.recv(n - len(data))
+            if not chunk:
+                raise ConnectionError("closed by the server")
+            data += chunk
+        return data
+
+    def exception(self, unit, pdu):
+        """The exception code of the response, or None for a normal response."""
+        response = self.request(unit, pdu)
+        return response[1] if response[0] & 0x80 else None
+
+    def close(self):
+        self.socket.close()
+
+
+def read_pdu(function, address, count):
+    return struct.pack(">BHH", function, address, count)
+
+
+WRITES = [struct.pack(">BHH", 0x05, 0, 0xFF00), struct.pack(">BHH", 0x06, 0, 0x0001),
+          struct.pack(">BHHBB", 0x0F, 0, 1, 1, 1), struct.pack(">BHHBH", 0x10, 0, 1, 2, 1),
+          struct.pack(">BHHHHBH", 0x17, 0, 1, 0, 1, 2, 1)]
+
+
+def refused(port, context, payload=None, timeout=8):
+    """What the server does with a client it must not serve: the handshake fails or the
+    connection closes; a Modbus answer is never read. Returns what happened, in words."""
+    raw = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    if payload is not None:  # not TLS at all
+        raw.sendall(payload)
+        data = raw.recv(1024)
+        raw.close()
+        assert not data.startswith(payload[:2]), f"a Modbus answer: {data!r}"
+        return "closed" if data == b"" else f"{len(data)} bytes that are no Modbus answer"
+    try:
+        tls = context.wrap_socket(raw, server_hostname="127.0.0.1")
+    except (ssl.SSLError, ConnectionError) as error:
+        raw.close()
+        return f"handshake failed: {error}"
+    # TLS 1.3: the client's certificate is checked after the client's Finished; the refusal
+    # arrives as the first read.
+    try:
+        tls.sendall(struct.pack(">HHHB", 1, 0, 6, 1) + read_pdu(0x03, 0, 1))
+        data = tls.recv(1024)
+    except (ssl.SSLError, ConnectionError) as error:
+        return f"refused after the handshake: {error}"
+    finally:
+        tls.close()
+    assert data == b"", f"a Modbus answer to a refused client: {data!r}"
+    return "closed"
+
+
+class ModbusTls(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.dir = tempfile.mkdtemp(prefix="ioportd-tls-")
+        cls.certs = Certificates(cls.dir)
+        cls.rig = Rig(cls.dir, IOPORTD, IOPORT_SIM)
+        try:
+            cls.rig.start_hub("dim16:0,dom16:0")
+            cls.rig.start_id2()
+            cls.rig.write_config(config(cls.rig, cls.certs))
+            cls.rig.start_daemon()
+            cls.port = cls.rig.listening_port("Modbus TCP")
+            cls.tls_port = cls.rig.listening_port("Modbus/TCP Security (TLS)")
+            cls.http_port = cls.rig.listening_port("HTTP")
+        except BaseException:
+            cls.rig.close()
+            raise
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.rig.close()
+        shutil.rmtree(cls.dir, ignore_errors=True)
+
+    def client(self, name, **versions):
+        return TlsClient(self.tls_port, self.certs.context(name, **versions))
+
+    def state(self):
+        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/api/v1/state",
+                                    timeout=5) as reply:
+            return json.load(reply)
+
+    def metric(self, line):
+        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/metrics",
+                                    timeout=5) as reply:
+            text = reply.read().decode()
+        found = re.search("^" + re.escape(line) + r" (\d+)$", text, re.M)
+        assert found, line
+        return int(found.group(1))
+
+    # --- Roles ---------------------------------------------------------------------------
+
+    def test_pymodbus_with_the_operator_certificate_reads_and_writes(self):
+        self.rig.ctl("set dim16:0 0x0005")
+        context = self.certs.context("operator")
+
+        async def session():
+            client = AsyncModbusTlsClient("127.0.0.1", port=self.tls_port, sslctx=context,
+                                          framer=ModbusSocketFramer,
+                                          server_hostname="127.0.0.1", timeout=5)
+            await client.connect()
+            self.assertTrue(client.connected)
+            try:
+                inputs = await client.read_discrete_inputs(0, 16, slave=1)
+                written = await client.write_register(0, 0x0102, slave=1)
+                coils = await client.read_coils(0, 16, slave=1)
+                return inputs, written, coils
+            finally:
+                await client.close()
+
+        inputs, written, coils = asyncio.run(session())
+        self.assertFalse(inputs.isError(), inputs)
+        self.assertEqual(inputs.bits[:4], [True, False, True, False])
+        self.assertFalse(written.isError(), written)
+        self.assertEqual(self.rig.ctl("get dom16:0"), str(0x0102))
+        self.assertEqual(coils.bits[:9], [False, True] + [False] * 6 + [True])
+        self.rig.wait_log(r"Modbus/TCP Security client 127\.0\.0\.1:\d+ \(O=Plant,CN=operator-1, "
+                          r"TLS TLSv1\.3\): role operator from the certificate, read_write")
+
+    def test_the_viewer_reads_and_gets_01_on_every_write(self):
+        client = self.client("viewer")
+        try:
+            for function in (0x01, 0x02, 0x03, 0x04):
+                self.assertIsNone(client.exception(1, read_pdu(function, 0, 1)), function)
+            self.assertIsNone(client.exception(2, read_pdu(0x02, 0, 1)))
+            for write in WRITES:
+                self.assertEqual(client.exception(1, write), ILLEGAL_FUNCTION, write.hex())
+            # Device identification is a read.
+            self.assertIsNone(client.exception(1, bytes([0x2B, 0x0E, 0x01, 0x00])))
+        finally:
+            client.close()
+        self.rig.wait_log(r"client 127\.0\.0\.1:\d+: FC 05 to unit 1 refused \(exception 01\): "
+                          r"role viewer may only read \(logged once per connection\)")
+
+    def test_a_certificate_without_a_role_gets_01_on_everything(self):
+        client = self.client("norole")
+        try:
+            self.assertEqual(client.exception(1, read_pdu(0x03, 0, 1)), ILLEGAL_FUNCTION)
+            self.assertEqual(client.exception(2, read_pdu(0x02, 0, 1)), ILLEGAL_FUNCTION)
+            self.assertEqual(client.exception(1, WRITES[0]), ILLEGAL_FUNCTION)
+            # An unknown unit is 0A first (gateway.md §4's precedence: 0A, then the role's 01).
+            self.assertEqual(client.exception(9, read_pdu(0x03, 0, 1)), GATEWAY_PATH_UNAVAILABLE)
+        finally:
+            client.close()
+        self.rig.wait_log(r"CN=norole-1, TLS TLSv1\.3\): no role in the certificate and no "
+                          r"default_role: no rights")
+
+    def test_a_role_no_one_configured_gets_nothing(self):
+        client = self.client("admin")
+        try:
+            self.assertEqual(client.exception(1, read_pdu(0x01, 0, 1)), ILLEGAL_FUNCTION)
+        finally:
+            client.close()
+        self.rig.wait_log(r"role admin from the certificate is not configured: no rights")
+
+    def test_a_unit_outside_the_role_gets_01(self):
+        client = self.client("line2")
+        try:
+            self.assertIsNone(client.exception(2, read_pdu(0x02, 0, 1)))
+            self.assertIsNone(client.exception(2, struct.pack(">BHH", 0x05, 0, 0x0000)))
+            self.assertEqual(client.exception(1, read_pdu(0x03, 0, 1)), ILLEGAL_FUNCTION)
+            self.assertEqual(client.exception(1, WRITES[1]), ILLEGAL_FUNCTION)
+        finally:
+            client.close()
+
+    def test_the_status_api_shows_tls_clients_with_their_role(self):
+        client = self.client("viewer")
+        try:
+            client.request(1, read_pdu(0x03, 0, 1))
+            modbus = self.state()["modbus"]
+            self.assertEqual(modbus["tls_listen"], f"127.0.0.1:{self.tls_port}")
+            mine = [c for c in modbus["clients"] if c["transport"] == "tls"]
+            self.assertEqual([c["role"] for c in mine], ["viewer"])
+        finally:
+            client.close()
+
+    # --- Who is refused ------------------------------------------------------------------
+
+    def assert_refused(self, context=None, payload=None, log=None):
+        keeper = self.client("operator")  # served before, during and after
+        try:
+            before = self.metric('ioportd_modbus_connections_refused_total{reason="tls_handshake"}')
+            started = time.monotonic()
+            what = refused(self.tls_port, context, payload)
+            self.assertLess(time.monotonic() - started, 2, what)
+            self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
+            if log:
+                # Logged once a minute per address and reason: maybe by an earlier test already.
+                self.rig.wait_log(log, 5)
+                eventually(lambda: self.metric(
+                    'ioportd_modbus_connections_refused_total{reason="tls_handshake"}') > before,
+                    5, "the refusal counted")
+            return what
+        finally:
+            keeper.close()
+
+    def test_no_client_certificate_is_refused(self):
+        self.assert_refused(self.certs.context(None),
+                            log=r"refused Modbus client 127\.0\.0\.1: TLS handshake failed: "
+                                r"peer did not return a certificate")
+
+    def test_an_expired_certificate_is_refused(self):
+        self.assert_refused(self.certs.context("expired"),
+                            log=r"TLS handshake failed: certificate verify failed.*: "
+                                r"certificate has expired")
+
+    def test_a_certificate_of_another_ca_is_refused(self):
+        self.assert_refused(self.certs.context("foreign"),
+                            log=r"TLS handshake failed: certificate verify failed.*: "
+                                r"unable to get local issuer certificate")
+
+    def test_tls_1_1_is_refused(self):
+        context = self.certs.context("operator")
+        context.set_ciphers("ALL:@SECLEVEL=0")
+        context.minimum_version = ssl.TLSVersion.TLSv1_1
+        context.maximum_version = ssl.TLSVersion.TLSv1_1
+        what = self.assert_refused(context, log=r"TLS handshake failed: unsupported protocol")
+        self.assertIn("handshake failed", what)
+
+    def test_a_plaintext_modbus_frame_on_the_tls_port_gets_no_answer(self):
+        what = self.assert_refused(payload=struct.pack(">HHHB", 7, 0, 6, 1) + read_pdu(3, 0, 1),
+                                   log=r"TLS handshake failed: (wrong version number|http request"
+                                       r"|packet length too long|record layer failure)")
+        self.assertIn(what, ("closed", "7 bytes that are no Modbus answer"))
+
+    # --- What the server offers ------------------------------------------------------------
+
+    def s_client(self, *options):
+        """Whether a handshake with openssl s_client and these options succeeds."""
+        out = subprocess.run(
+            ["openssl", "s_client", "-connect", f"127.0.0.1:{self.tls_port}", "-brief",
+             "-CAfile", self.certs.path("ca.pem"), "-cert", self.certs.path("operator.pem"),
+             "-key", self.certs.path("operator.key"), *options],
+            input="", capture_output=True, text=True, timeout=10)
+        return "CONNECTION ESTABLISHED" in out.stderr
+
+    def test_s_client_sees_only_tls_1_2_and_1_3_and_the_configured_ciphers(self):
+        self.assertTrue(self.s_client("-tls1_3"))
+        self.assertTrue(self.s_client("-tls1_2"))
+        for old in ("-tls1_1", "-tls1"):
+            self.assertFalse(self.s_client(old, "-cipher", "ALL:@SECLEVEL=0"), old)
+        # Every TLS 1.2 cipher this OpenSSL knows, one at a time: only ECDHE with an AEAD
+        # (the server's key is ECDSA, so the ECDSA ones).
+        listed = subprocess.run(["openssl", "ciphers", "-s", "-tls1_2",
+                                 "ALL:COMPLEMENTOFALL:@SECLEVEL=0"],
+                                capture_output=True, text=True, check=True).stdout.strip()
+        tls12 = [c for c in listed.split(":") if not c.startswith("TLS_")]
+        self.assertGreater(len(tls12), 20)
+        accepted = {c for c in tls12 if self.s_client("-tls1_2", "-cipher", c + ":@SECLEVEL=0")}
+        self.assertEqual(accepted, {"ECDHE-ECDSA-AES128-GCM-SHA256",
+                                    "ECDHE-ECDSA-AES256-GCM-SHA384",
+                                    "ECDHE-ECDSA-CHACHA20-POLY1305"})
+        suites = ["TLS_AES_128_GCM_SHA256", "TLS_AES_256_GCM_SHA384",
+                  "TLS_CHACHA20_POLY1305_SHA256", "TLS_AES_128_CCM_SHA256",
+                  "TLS_AES_128_CCM_8_SHA256"]
+        accepted = {s for s in suites if self.s_client("-tls1_3", "-ciphersuites", s)}
+        self.assertEqual(accepted, set(suites[:3]))
+
+    def test_a_client_that_reconnects_resumes_its_session_and_keeps_its_role(self):
+        for version in (ssl.TLSVersion.TLSv1_2, ssl.TLSVersion.TLSv1_3):
+            context = self.certs.context("viewer", maximum_version=version)
+            first = TlsClient(self.tls_port, context)
+            first.request(1, read_pdu(0x03, 0, 1))  # TLS 1.3: the ticket comes after the handshake
+            session = first.socket.session
+            first.close()
+            mark = self.rig.log_mark()
+            raw = socket.create_connection(("127.0.0.1", self.tls_port), timeout=5)
+            again = context.wrap_socket(raw, server_hostname="127.0.0.1", session=session)
+            try:
+                self.assertTrue(again.session_reused, version)
+                client = TlsClient.__new__(TlsClient)
+                client.socket, client.transaction = again, 0
+                self.assertIsNone(client.exception(1, read_pdu(0x03, 0, 1)))
+                self.assertEqual(client.exception(1, WRITES[1]), ILLEGAL_FUNCTION)
+            finally:
+                again.close()
+            self.rig.wait_log(r"CN=viewer-1, TLS TLSv1\.[23], resumed\): role viewer", 5, mark)
+
+    # --- Misbehaving clients ----------------------------------------------------------------
+
+    def test_a_slowloris_handshake_is_closed_while_others_are_served(self):
+        keeper = self.client("operator")
+        try:
+            hello = client_hello(self.certs)
+            raw = socket.create_connection(("127.0.0.1", self.tls_port), timeout=10)
+            started = time.monotonic()
+            closed = threading.Event()
+            worst = 0.0
+
+            def trickle():
+                try:
+                    for byte in hello:
+                        raw.sendall(bytes([byte]))
+                        if closed.wait(0.1):
+                            return
+                except OSError:
+                    pass
+
+            sender = threading.Thread(target=trickle)
+            sender.start()
+            try:
+                # The server says nothing and closes it at the handshake deadline (5 s).
+                self.assertEqual(raw.recv(1), b"")
+                elapsed = time.monotonic() - started
+            except ConnectionResetError:
+                elapsed = time.monotonic() - started
+            closed.set()
+            sender.join()
+            raw.close()
+            for _ in range(20):
+                t = time.monotonic()
+                self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
+                worst = max(worst, time.monotonic() - t)
+            self.assertGreater(elapsed, 4.5)
+            self.assertLess(elapsed, 7)
+            self.assertLess(worst, 0.5)
+            self.rig.wait_log(r"TLS handshake not complete within 5 s, closed|"
+                              r"refused Modbus client 127\.0\.0\.1: TLS handshake failed", 5)
+        finally:
+            keeper.close()
+
+    def test_a_thousand_half_open_tls_connections_cost_the_others_nothing(self):
+        keeper = self.client("operator")
+        hello = client_hello(self.certs)
+        half_open = []
+        try:
+            for _ in range(1000):
+                s = socket.create_connection(("127.0.0.1", self.tls_port), timeout=5)
+                s.sendall(hello[:len(hello) // 2])
+                half_open.append(s)
+            worst = 0.0
+            for _ in range(50):
+                t = time.monotonic()
+                self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
+                worst = max(worst, time.monotonic() - t)
+            self.assertLess(worst, 0.5)
+            self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: max_connections \(64\) reached")
+            # Each held a place until its handshake deadline; then a new client gets one.
+            def served():
+                try:
+                    fresh = self.client("viewer")
+                except (OSError, ssl.SSLError):
+                    return False
+                try:
+                    return fresh.exception(1, read_pdu(0x02, 0, 1)) is None
+                except (OSError, ssl.SSLError):
+                    return False
+                finally:
+                    fresh.close()
+            eventually(served, 10, "a new TLS client served after the handshake deadline",
+                       interval=0.2)
+        finally:
+            for s in half_open:
+                s.close()
+            keeper.close()
+
+
+def client_hello(certs):
+    """A real ClientHello's bytes, as a TLS client sends them first: captured from a memory BIO."""
+    context = certs.context("operator")
+    incoming, outgoing = ssl.MemoryBIO(), ssl.MemoryBIO()
+    tls = context.wrap_bio(incoming, outgoing, server_hostname="127.0.0.1")
+    try:
+        tls.do_handshake()
+    except ssl.SSLWantReadError:
+        pass
+    return outgoing.read()
+
+
+class Reload(unittest.TestCase):
+    """SIGHUP: certificates and roles read anew; open connections keep their role; the plain
+    listener turned off."""
+
+    def setUp(self):
+        self.dir = tempfile.mkdtemp(prefix="ioportd-tls-reload-")
+        self.certs = Certificates(self.dir)
+        self.rig = Rig(self.dir, IOPORTD, IOPORT_SIM)
+        self.addCleanup(self.rig.close)
+        self.rig.start_hub("dim16:0,dom16:0")
+        self.rig.start_id2()
+        self.rig.write_config(config(self.rig, self.certs))
+        self.rig.start_daemon()
+        self.port = self.rig.listening_port("Modbus TCP")
+        self.tls_port = self.rig.listening_port("Modbus/TCP Security (TLS)")
+
+    def tearDown(self):
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def client(self, name):
+        return TlsClient(self.tls_port, self.certs.context(name))
+
+    def test_roles_are_read_anew_and_open_connections_keep_theirs(self):
+        before = self.client("norole")
+        self.assertEqual(before.exception(1, read_pdu(0x03, 0, 1)), ILLEGAL_FUNCTION)
+        log = self.rig.reload(config(self.rig, self.certs, tls_extra="    default_role: viewer\n"))
+        self.assertIn("SIGHUP: reloaded", log)
+        after = self.client("norole")
+        self.assertIsNone(after.exception(1, read_pdu(0x03, 0, 1)))
+        self.assertEqual(after.exception(1, WRITES[0]), ILLEGAL_FUNCTION)
+        self.assertEqual(before.exception(1, read_pdu(0x03, 0, 1)), ILLEGAL_FUNCTION)
+        before.close()
+        after.close()
+        self.rig.wait_log(r"CN=norole-1, TLS TLSv1\.3\): role viewer default_role \(no role in "
+                          r"the certificate\), read")
+
+    def test_a_new_certificate_is_taken_and_a_wrong_key_refused(self):
+        open_client = self.client("operator")
+        certs = self.certs
+        certs.server("server2", "gateway1-renewed")
+        os.chmod(certs.path("server2.key"), 0o640)
+        log = self.rig.reload(config(self.rig, certs, server="server2"))
+        self.assertIn("SIGHUP: reloaded", log)
+        fresh = self.client("operator")
+        self.assertIn(("commonName", "gateway1-renewed"),
+                      [rdn[0] for rdn in fresh.socket.getpeercert()["subject"]])
+        fresh.close()
+        self.assertIsNone(open_client.exception(1, read_pdu(0x02, 0, 1)))
+        # A key that is not the certificate's: the reload is refused, nothing changes.
+        shutil.copy(certs.path("operator.key"), certs.path("mismatch.key"))
+        shutil.copy(certs.path("server2.pem"), certs.path("mismatch.pem"))
+        log = self.rig.reload(config(self.rig, certs, server="mismatch"))
+        self.assertIn("is not the key of the certificate", log)
+        self.assertIn("the running configuration is kept", log)
+        self.assertIsNone(open_client.exception(1, read_pdu(0x02, 0, 1)))
+        open_client.close()
+
+    def test_the_plain_listener_can_be_turned_off(self):
+        plain = socket.create_connection(("127.0.0.1", self.port), timeout=5)
+        plain.close()
+        log = self.rig.reload(config(self.rig, self.certs, plain=""))
+        self.assertIn("SIGHUP: reloaded", log)
+        self.assertIn("Modbus TCP listener closed", self.rig.log_text())
+        with self.assertRaises(ConnectionRefusedError):
+            socket.create_connection(("127.0.0.1", self.port), timeout=5)
+        client = self.client("operator")
+        self.assertIsNone(client.exception(1, read_pdu(0x02, 0, 1)))
+        client.close()
+
+
+if __name__ == "__main__":
+    unittest.main(argv=sys.argv[:1] + sys.argv[3:], verbosity=2)
