@@ -4,7 +4,6 @@
 
 #include <cerrno>
 #include <fstream>
-#include <iterator>
 #include <memory>
 #include <system_error>
 
@@ -41,6 +40,8 @@ std::string openssl_reason() {
     return reason != nullptr ? reason : "no PEM data";
 }
 
+constexpr std::size_t max_file_size = std::size_t{1024} * 1024;
+
 Expected<std::string, std::string> read_file(const std::string& path, bool secret) {
     struct stat status {};
     if (::stat(path.c_str(), &status) != 0)
@@ -51,7 +52,16 @@ Expected<std::string, std::string> read_file(const std::string& path, bool secre
             "{} is readable by every user: chmod o-r {} (group-readable is fine)", path, path));
     std::ifstream file(path);
     if (!file) return Unexpected(fmt::format("{}: cannot be read by this user", path));
-    return std::string{std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>()};
+    // Certificate chains are kilobytes; a file far larger is not one (nor read whole).
+    std::string text(max_file_size + 1, '\0');
+    file.read(text.data(), static_cast<std::streamsize>(text.size()));
+    text.resize(static_cast<std::size_t>(file.gcount()));
+    if (text.size() > max_file_size)
+        return Unexpected(
+            fmt::format("{} is larger than {} KiB: not a PEM file of certificates or "
+                        "a key",
+                        path, max_file_size / 1024));
+    return text;
 }
 
 }  // namespace

@@ -7,10 +7,8 @@
 
 #include <algorithm>
 #include <cstring>
-#include <ranges>
 
 #include <fmt/format.h>
-#include <fmt/ranges.h>
 #include <openssl/ssl.h>
 
 #include "config/duration.hpp"
@@ -286,7 +284,7 @@ void ModbusServer::accept_on(Transport transport, Acceptor acceptor) {
         case Transport::tls:
             log_.info({}, "Modbus/TCP Security (TLS) on {}, at most {} clients{}, roles {}", where,
                       settings_.max_connections, read_only,
-                      fmt::join(std::views::keys(settings_.tls->roles), ", "));
+                      modbus_security::names(settings_.tls->roles));
             break;
     }
     asio::co_spawn(executor_, accept_loop(transport, l.acceptor), asio::detached);

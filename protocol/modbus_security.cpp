@@ -37,6 +37,13 @@ std::string_view to_string(Access access) {
     return "?";
 }
 
+std::string names(const Roles& roles) {
+    std::string text;
+    for (const auto& [name, role] : roles)
+        text += fmt::format("{}{}", text.empty() ? "" : ", ", name);
+    return text;
+}
+
 Expected<std::string, std::string> parse_role(std::span<const std::uint8_t> der) {
     const unsigned char* cursor = der.data();
     // OpenSSL's DER decoder: the tag must be UTF8String's, the length within the bytes.
