@@ -45,7 +45,10 @@ def openssl(*args, cwd):
 
 
 class Certificates:
-    """Made with the README's commands (EC P-256 keys)."""
+    """Made with the README's commands ("Securing Modbus"), but the expired one, which
+    `openssl req` refuses to make (-days -1): that one is signed from a request by `openssl x509`."""
+
+    EC = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-noenc"]
 
     def __init__(self, directory):
         self.dir = directory
@@ -56,8 +59,8 @@ class Certificates:
                            ("admin", "admin")]:
             self.client(name, role)
         self.client("norole", None)
-        self.client("expired", "operator", days=-1)
         self.client("foreign", "operator", ca="other-ca")
+        self.expired("expired", "operator")
         for name in os.listdir(directory):
             if name.endswith(".key"):
                 os.chmod(os.path.join(directory, name), 0o640)
@@ -65,34 +68,36 @@ class Certificates:
     def path(self, name):
         return os.path.join(self.dir, name)
 
-    def key(self, name):
-        openssl("genpkey", "-algorithm", "EC", "-pkeyopt", "ec_paramgen_curve:P-256",
-                "-out", f"{name}.key", cwd=self.dir)
-
     def ca(self, name, cn):
-        self.key(name)
-        openssl("req", "-x509", "-new", "-key", f"{name}.key", "-subj", f"/CN={cn}",
-                "-days", "3650", "-out", f"{name}.pem", cwd=self.dir)
+        openssl("req", "-x509", *self.EC, "-keyout", f"{name}.key", "-out", f"{name}.pem",
+                "-days", "3650", "-subj", f"/CN={cn}", cwd=self.dir)
 
-    def signed(self, name, cn, extensions, days=825, ca="ca"):
-        self.key(name)
-        openssl("req", "-new", "-key", f"{name}.key", "-subj", cn, "-out", f"{name}.csr",
-                cwd=self.dir)
-        with open(self.path(f"{name}.ext"), "w") as f:
-            f.write(extensions)
-        openssl("x509", "-req", "-in", f"{name}.csr", "-CA", f"{ca}.pem", "-CAkey", f"{ca}.key",
-                "-CAcreateserial", "-days", str(days), "-extfile", f"{name}.ext",
-                "-out", f"{name}.pem", cwd=self.dir)
+    def signed(self, name, subject, extensions, ca="ca"):
+        addext = [a for e in ["basicConstraints=critical,CA:FALSE", *extensions]
+                  for a in ("-addext", e)]
+        openssl("req", "-x509", *self.EC, "-keyout", f"{name}.key", "-out", f"{name}.pem",
+                "-days", "825", "-subj", subject, "-CA", f"{ca}.pem", "-CAkey", f"{ca}.key",
+                *addext, cwd=self.dir)
 
     def server(self, name, cn):
-        self.signed(name, f"/CN={cn}",
-                    "subjectAltName=IP:127.0.0.1,DNS:localhost\nextendedKeyUsage=serverAuth\n")
+        self.signed(name, f"/CN={cn}", ["subjectAltName=DNS:localhost,IP:127.0.0.1",
+                                        "extendedKeyUsage=serverAuth"])
 
-    def client(self, name, role, days=825, ca="ca"):
-        extensions = "extendedKeyUsage=clientAuth\n"
-        if role:
-            extensions += f"{ROLE_OID}=ASN1:UTF8String:{role}\n"
-        self.signed(name, f"/CN={name}-1/O=Plant", extensions, days, ca)
+    @staticmethod
+    def role_extensions(role):
+        return ["extendedKeyUsage=clientAuth"] + (
+            [f"{ROLE_OID}=ASN1:UTF8String:{role}"] if role else [])
+
+    def client(self, name, role, ca="ca"):
+        self.signed(name, f"/CN={name}-1/O=Plant", self.role_extensions(role), ca)
+
+    def expired(self, name, role):
+        openssl("req", "-new", *self.EC, "-keyout", f"{name}.key", "-out", f"{name}.csr",
+                "-subj", f"/CN={name}-1/O=Plant", cwd=self.dir)
+        with open(self.path(f"{name}.ext"), "w") as f:
+            f.write("\n".join(self.role_extensions(role)) + "\n")
+        openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
+                "-days", "-1", "-extfile", f"{name}.ext", "-out", f"{name}.pem", cwd=self.dir)
 
     def context(self, client=None, **versions):
         """A client context that trusts the plant CA and shows `client`'s certificate."""
