@@ -526,13 +526,14 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
     co_await c.tls->async_handshake(asio::ssl::stream_base::server,
                                     redirect_error(use_awaitable, ec));
     c.handshaking = false;
-    if (!c.open) co_return false;  // the watchdog closed it: too slow
-    if (ec) {
-        // A client without a valid certificate retries, maybe every second: as a refusal, logged
-        // once a minute per address.
+    if (stopping_) co_return false;
+    // A client without a valid certificate retries, maybe every second, and a scanner holds
+    // places: refusals, logged once a minute per address and reason.
+    if (!c.open || ec) {
         ++stats_.refused_tls_handshake;
-        log_refusal(c.address,
-                    fmt::format("TLS handshake failed: {}", handshake_failure(ec, *c.tls)));
+        log_refusal(c.address, !c.open ? std::string("TLS handshake not complete within 5 s")
+                                       : fmt::format("TLS handshake failed: {}",
+                                                     handshake_failure(ec, *c.tls)));
         co_return false;
     }
     c.last_activity = Clock::now();

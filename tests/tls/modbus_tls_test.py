@@ -473,11 +473,13 @@ class ModbusTls(unittest.TestCase):
                 t = time.monotonic()
                 self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
                 worst = max(worst, time.monotonic() - t)
+            print(f"\n  slowloris handshake closed {elapsed:.2f} s after connecting; an operator's "
+                  f"reads meanwhile took at most {worst * 1000:.1f} ms", file=sys.stderr)
             self.assertGreater(elapsed, 4.5)
             self.assertLess(elapsed, 7)
             self.assertLess(worst, 0.5)
-            self.rig.wait_log(r"TLS handshake not complete within 5 s, closed|"
-                              r"refused Modbus client 127\.0\.0\.1: TLS handshake failed", 5)
+            self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: TLS handshake not complete "
+                              r"within 5 s", 5)
         finally:
             keeper.close()
 
@@ -497,6 +499,7 @@ class ModbusTls(unittest.TestCase):
                 worst = max(worst, time.monotonic() - t)
             self.assertLess(worst, 0.5)
             self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: max_connections \(64\) reached")
+            opened = time.monotonic()
             # Each held a place until its handshake deadline; then a new client gets one.
             def served():
                 try:
@@ -511,6 +514,9 @@ class ModbusTls(unittest.TestCase):
                     fresh.close()
             eventually(served, 10, "a new TLS client served after the handshake deadline",
                        interval=0.2)
+            print(f"\n  1000 half-open TLS connections: an operator's 50 reads took at most "
+                  f"{worst * 1000:.1f} ms; a new client served {time.monotonic() - opened:.1f} s "
+                  f"later", file=sys.stderr)
         finally:
             for s in half_open:
                 s.close()
