@@ -295,8 +295,10 @@ Result<> ModbusServer::prepare(const config::ModbusSettings& next) {
         l->next.reset();
         l->next_context.reset();
     }
-    if (auto prepared = prepare(next, Transport::tcp); !prepared) return prepared;
-    return prepare(next, Transport::tls);
+    auto prepared = prepare(next, Transport::tcp);
+    if (prepared) prepared = prepare(next, Transport::tls);
+    if (!prepared) plain_.next.reset();  // the new plain address is not kept bound either
+    return prepared;
 }
 
 Result<> ModbusServer::prepare(const config::ModbusSettings& next, Transport transport) {
