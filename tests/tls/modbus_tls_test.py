@@ -109,10 +109,10 @@ class Certificates:
         return context
 
 
-def config(rig, certs, plain="127.0.0.1:0", tls_extra="", server="server"):
+def config(rig, certs, plain="127.0.0.1:0", tls_extra="", server="server", max_connections=64):
     return f"""modbus:
   listen: "{plain}"
-  max_connections: 64
+  max_connections: {max_connections}
   tls:
     listen: "127.0.0.1:0"
     certificate: {certs.path(server + '.pem')}
@@ -591,6 +591,24 @@ class Reload(unittest.TestCase):
         self.assertIn("the running configuration is kept", log)
         self.assertIsNone(open_client.exception(1, read_pdu(0x02, 0, 1)))
         open_client.close()
+
+    def test_max_connections_counts_both_listeners(self):
+        self.assertIn("SIGHUP: reloaded",
+                      self.rig.reload(config(self.rig, self.certs, max_connections=2)))
+        plain = socket.create_connection(("127.0.0.1", self.port), timeout=5)
+        tls = self.client("operator")
+        mark = self.rig.log_mark()
+        with self.assertRaises((ssl.SSLError, ConnectionError)):
+            third = self.client("operator")  # closed at accept: the handshake cannot complete
+            third.request(1, read_pdu(0x02, 0, 1))
+        refused_plain = socket.create_connection(("127.0.0.1", self.port), timeout=5)
+        self.assertEqual(refused_plain.recv(1), b"")
+        refused_plain.close()
+        self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: max_connections \(2\) reached",
+                          5, mark)
+        self.assertIsNone(tls.exception(1, read_pdu(0x02, 0, 1)))
+        plain.close()
+        tls.close()
 
     def test_the_plain_listener_can_be_turned_off(self):
         plain = socket.create_connection(("127.0.0.1", self.port), timeout=5)
