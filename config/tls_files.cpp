@@ -14,23 +14,10 @@
 #include <openssl/pem.h>
 #include <openssl/x509.h>
 
+#include "protocol/openssl.hpp"
+
 namespace ioport::config {
 namespace {
-
-template <auto Free>
-struct Deleter {
-    template <class T>
-    void operator()(T* p) const {
-        Free(p);
-    }
-};
-using BioPtr = std::unique_ptr<BIO, Deleter<BIO_free>>;
-using X509Ptr = std::unique_ptr<X509, Deleter<X509_free>>;
-using KeyPtr = std::unique_ptr<EVP_PKEY, Deleter<EVP_PKEY_free>>;
-
-BioPtr memory(const std::string& text) {
-    return BioPtr(BIO_new_mem_buf(text.data(), static_cast<int>(text.size())));
-}
 
 // OpenSSL's reason for the last failure, which it queued, and the queue emptied.
 std::string openssl_reason() {
@@ -69,9 +56,10 @@ Expected<std::string, std::string> read_file(const std::string& path, bool secre
 Expected<std::string, std::string> read_certificates(const std::string& path) {
     auto text = read_file(path, false);
     if (!text) return text;
-    const auto bio = memory(*text);
+    const auto bio = openssl::memory(*text);
     int count = 0;
-    while (X509Ptr certificate{PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)})
+    while (
+        openssl::Certificate certificate{PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)})
         ++count;
     // The loop ends at the end of the text (PEM_R_NO_START_LINE) or at a certificate that does
     // not parse.
@@ -94,9 +82,9 @@ Expected<std::string, std::string> read_certificates(const std::string& path) {
 Expected<std::string, std::string> read_private_key(const std::string& path) {
     auto text = read_file(path, true);
     if (!text) return text;
-    const auto bio = memory(*text);
+    const auto bio = openssl::memory(*text);
     // An encrypted key would need its passphrase at every start: no callback, so it fails here.
-    const KeyPtr key(PEM_read_bio_PrivateKey(bio.get(), nullptr, nullptr, nullptr));
+    const openssl::Key key(PEM_read_bio_PrivateKey(bio.get(), nullptr, nullptr, nullptr));
     if (!key)
         return Unexpected(fmt::format(
             "{} is not an unencrypted PEM private key ({}): write one with openssl pkey -in "
@@ -108,10 +96,11 @@ Expected<std::string, std::string> read_private_key(const std::string& path) {
 Expected<void, std::string> check_key_pair(const std::string& certificate_pem,
                                            const std::string& key_pem,
                                            const std::string& key_path) {
-    const auto certificate_bio = memory(certificate_pem);
-    const auto key_bio = memory(key_pem);
-    const X509Ptr certificate(PEM_read_bio_X509(certificate_bio.get(), nullptr, nullptr, nullptr));
-    const KeyPtr key(PEM_read_bio_PrivateKey(key_bio.get(), nullptr, nullptr, nullptr));
+    const auto certificate_bio = openssl::memory(certificate_pem);
+    const auto key_bio = openssl::memory(key_pem);
+    const openssl::Certificate certificate(
+        PEM_read_bio_X509(certificate_bio.get(), nullptr, nullptr, nullptr));
+    const openssl::Key key(PEM_read_bio_PrivateKey(key_bio.get(), nullptr, nullptr, nullptr));
     if (!certificate || !key) {
         ERR_clear_error();
         return Unexpected(fmt::format("{} or its certificate does not parse", key_path));
