@@ -25,14 +25,16 @@ def free_port():
 
 
 def eventually(condition, deadline=5.0, what="condition", interval=0.01):
-    """condition()'s first true result, polled every `interval` until `deadline` seconds."""
+    """condition()'s first true result, polled every `interval` until `deadline` seconds.
+    `what` names the condition in the failure; a callable is asked for it at the failure, so
+    that it can tell what things were like then (a log, a server's answer)."""
     until = time.monotonic() + deadline
     while True:
         result = condition()
         if result:
             return result
         if time.monotonic() >= until:
-            raise AssertionError(f"not within {deadline} s: {what}")
+            raise AssertionError(f"not within {deadline} s: {what() if callable(what) else what}")
         time.sleep(interval)
 
 
@@ -93,7 +95,8 @@ class Rig:
         def found():
             assert self.daemon.poll() is None, self.log_text()
             return re.search(pattern, self.log_text()[since:])
-        return eventually(found, timeout, f"/{pattern}/ in the log:\n{self.log_text()[-3000:]}")
+        return eventually(found, timeout,
+                          lambda: f"/{pattern}/ in the log:\n{self.log_text()[-3000:]}")
 
     def reload(self, yaml):
         """Rewrites the configuration, SIGHUP, and waits for the outcome; the reload's log."""
