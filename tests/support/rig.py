@@ -7,6 +7,7 @@ on a configuration of the test's, its log, and polling with a deadline (never a 
     rig.write_config(yaml)        # may name rig.hub_link and rig.id2_link
     rig.start_daemon()            # waits for "ioportd ... started"
     rig.wait_log(r"...")
+    rig.stop_daemon()             # SIGTERM: (seconds to the exit, exit status)
     rig.close()
 """
 
@@ -105,6 +106,14 @@ class Rig:
         self.daemon.send_signal(signal.SIGHUP)
         self.wait_log(r"SIGHUP: (reloaded|.*the running configuration is kept)", 10, mark)
         return self.log_text()[mark:]
+
+    def stop_daemon(self, sig=signal.SIGTERM, timeout=10):
+        """Seconds from the signal to the exit, and the exit status; subprocess.TimeoutExpired
+        if it is still running after `timeout` (close() kills it then)."""
+        started = time.monotonic()
+        self.daemon.send_signal(sig)
+        code = self.daemon.wait(timeout)
+        return time.monotonic() - started, code
 
     def ctl(self, command, socket_path=None):
         out = subprocess.run([self.ioport_sim, "ctl", socket_path or self.hub_ctl,
