@@ -9,8 +9,12 @@ on a configuration of the test's, its log, and polling with a deadline (never a 
     rig.wait_log(r"...")
     rig.stop_daemon()             # SIGTERM: (seconds to the exit, exit status)
     rig.close()
+
+Rig(..., preexec_fn=die_with_parent): the simulators and the daemon are killed when the test
+process dies, even by SIGKILL (a CTest timeout); a process of the test's own can have it too.
 """
 
+import ctypes
 import os
 import re
 import signal
@@ -39,8 +43,16 @@ def eventually(condition, deadline=5.0, what="condition", interval=0.01):
         time.sleep(interval)
 
 
+def die_with_parent():
+    """In the child before exec (preexec_fn): SIGKILL when the test process dies, even by
+    SIGKILL (a CTest timeout), so that nothing it started outlives it."""
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
 class Rig:
-    def __init__(self, directory, ioportd, ioport_sim):
+    def __init__(self, directory, ioportd, ioport_sim, preexec_fn=None):
+        """preexec_fn: run in each simulator and the daemon before exec (see die_with_parent)."""
         self.dir = directory
         self.ioportd = ioportd
         self.ioport_sim = ioport_sim
@@ -53,10 +65,11 @@ class Rig:
         self.log_start = 0
         self.sims = []
         self.daemon = None
+        self.preexec_fn = preexec_fn
 
     def start_sim(self, *args, link):
         sim = subprocess.Popen([self.ioport_sim, "--link", link, "--no-line-timing", *args],
-                               stdout=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, text=True, preexec_fn=self.preexec_fn)
         self.sims.append(sim)
         banner = sim.stdout.readline()
         assert banner.startswith("ioport-sim: "), banner
@@ -75,7 +88,7 @@ class Rig:
         with open(self.log, "a") as log:
             self.log_start = log.tell()
             self.daemon = subprocess.Popen([self.ioportd, "--config", self.config], stdout=log,
-                                           stderr=log)
+                                           stderr=log, preexec_fn=self.preexec_fn)
         self.wait_log(r"ioportd \S+ started: ", 10)
 
     def listening_port(self, what, since=0):
