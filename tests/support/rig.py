@@ -107,7 +107,8 @@ class Rig:
 
     def wait_log(self, pattern, timeout=5, since=0):
         def found():
-            assert self.daemon.poll() is None, self.log_text()
+            assert self.daemon.poll() is None, \
+                f"ioportd exited {self.daemon.returncode}:\n{self.log_text()}"
             return re.search(pattern, self.log_text()[since:])
         return eventually(found, timeout,
                           lambda: f"/{pattern}/ in the log:\n{self.log_text()[-3000:]}")
