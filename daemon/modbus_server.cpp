@@ -85,6 +85,9 @@ struct ModbusServer::Connection {
     void close() {
         if (!open) return;
         open = false;
+        // Closed without a close_notify, OpenSSL would take the session for a broken one and
+        // drop it from the cache: the client could not resume it.
+        if (tls) SSL_set_shutdown(tls->native_handle(), SSL_SENT_SHUTDOWN);
         boost::system::error_code ignored;
         socket().shutdown(tcp::socket::shutdown_both, ignored);
         socket().close(ignored);
@@ -480,7 +483,9 @@ asio::awaitable<void> ModbusServer::accept_loop(Transport transport, Acceptor ac
 
 asio::awaitable<void> ModbusServer::watch(ConnectionPtr c) {
     while (c->open) {
-        c->armed = c->deadline(settings_.idle_timeout);
+        // At most send_timeout ahead, so that a response that begins to wait is always watched
+        // in time without re-arming the timer for each one.
+        c->armed = std::min(c->deadline(settings_.idle_timeout), Clock::now() + send_timeout);
         c->timer.expires_at(c->armed);
         boost::system::error_code ec;
         co_await c->timer.async_wait(redirect_error(use_awaitable, ec));
@@ -506,7 +511,7 @@ asio::awaitable<boost::system::error_code> ModbusServer::send_rest(
     c.sending = true;
     c.drained = Clock::now();
     c.client_took_data();  // the baseline the watchdog compares with
-    if (c.drained + send_timeout < c.armed) c.timer.cancel();
+    // The watchdog wakes by drained + send_timeout: it is never armed further ahead.
     boost::system::error_code ec;
     const auto buffer = asio::buffer(rest.data(), rest.size());
     if (c.tls)
@@ -539,7 +544,6 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
         co_return false;
     }
     c.last_activity = Clock::now();
-    c.timer.cancel();  // re-armed for the idle timeout
     const auto peer = tls_peer(*c.tls);
     c.rights =
         modbus_security::rights_of(peer.role, settings_.tls ? settings_.tls->default_role : "",

@@ -17,8 +17,10 @@ namespace {
 // verifies clients and has none.
 constexpr unsigned char session_id_context[] = "ioportd-modbus-tls";
 // A client that reconnects within this time resumes its session instead of a full handshake.
+// A plant has tens of Modbus clients, not hundreds; a session with its client certificate is a
+// few KiB.
 constexpr long session_lifetime_seconds = 3600;
-constexpr long session_cache_size = 1024;
+constexpr long session_cache_size = 256;
 
 Unexpected<Error> failed(const config::TlsSettings& settings, std::string_view what) {
     const unsigned long code = ERR_get_error();
@@ -53,8 +55,12 @@ Result<TlsContext> make_tls_context(const config::TlsSettings& settings) {
     auto tls = std::make_shared<asio::ssl::context>(asio::ssl::context::tls_server);
     SSL_CTX* context = tls->native_handle();
     SSL_CTX_set_min_proto_version(context, TLS1_2_VERSION);
-    SSL_CTX_set_options(
-        context, SSL_OP_NO_COMPRESSION | SSL_OP_NO_RENEGOTIATION | SSL_OP_CIPHER_SERVER_PREFERENCE);
+    // Sessions stay in the server's cache, and a ticket only names one (SSL_OP_NO_TICKET): a
+    // stateless ticket carries the whole session, client certificate included, which OpenSSL 3.0
+    // encodes for every full handshake and decodes for every resumption (benchmark 8b: 1,435
+    // against 1,154 µs of CPU a full handshake, 886 against 311 µs a resumed one).
+    SSL_CTX_set_options(context, SSL_OP_NO_COMPRESSION | SSL_OP_NO_RENEGOTIATION |
+                                     SSL_OP_CIPHER_SERVER_PREFERENCE | SSL_OP_NO_TICKET);
     if (SSL_CTX_set_cipher_list(context, tls12_ciphers) != 1 ||
         SSL_CTX_set_ciphersuites(context, tls13_ciphersuites) != 1)
         return failed(settings, "setting the ciphers");
@@ -70,7 +76,7 @@ Result<TlsContext> make_tls_context(const config::TlsSettings& settings) {
     SSL_CTX_set_session_cache_mode(context, SSL_SESS_CACHE_SERVER);
     SSL_CTX_sess_set_cache_size(context, session_cache_size);
     SSL_CTX_set_timeout(context, session_lifetime_seconds);
-    SSL_CTX_set_num_tickets(context, 1);  // TLS 1.3: one ticket per handshake is enough to resume
+    SSL_CTX_set_num_tickets(context, 1);  // TLS 1.3: one per handshake is enough to resume
     return tls;
 }
 
