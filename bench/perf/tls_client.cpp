@@ -8,8 +8,11 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
+#include <cstdlib>
 
 #include <fmt/format.h>
+#include <openssl/crypto.h>
 #include <openssl/err.h>
 #include <openssl/x509v3.h>
 
@@ -25,7 +28,71 @@ std::string openssl_error(std::string_view what) {
 
 constexpr std::size_t mbap_length = 7;
 
+// Every block OpenSSL allocates carries its size and whether it counts, ahead of the bytes it
+// asked for (16 bytes keep malloc's alignment).
+struct Header {
+    std::size_t size;
+    std::size_t counted;
+};
+static_assert(sizeof(Header) == 16);
+std::atomic<std::int64_t> live_bytes{0};
+std::atomic<bool> allocations_installed{false};
+thread_local bool counting = false;
+
+void* counted_malloc(std::size_t size, const char*, int) {
+    auto* header = static_cast<Header*>(std::malloc(sizeof(Header) + size));
+    if (header == nullptr) return nullptr;
+    *header = {size, counting ? 1U : 0U};
+    if (counting) live_bytes += static_cast<std::int64_t>(size);
+    return header + 1;
+}
+
+void counted_free(void* p, const char*, int) {
+    if (p == nullptr) return;
+    auto* header = static_cast<Header*>(p) - 1;
+    if (header->counted != 0) live_bytes -= static_cast<std::int64_t>(header->size);
+    std::free(header);
+}
+
+void* counted_realloc(void* p, std::size_t size, const char* file, int line) {
+    if (p == nullptr) return counted_malloc(size, file, line);
+    if (size == 0) {
+        counted_free(p, file, line);
+        return nullptr;
+    }
+    const Header old = *(static_cast<Header*>(p) - 1);
+    auto* header =
+        static_cast<Header*>(std::realloc(static_cast<Header*>(p) - 1, sizeof(Header) + size));
+    if (header == nullptr) return nullptr;
+    if (old.counted != 0) live_bytes -= static_cast<std::int64_t>(old.size);
+    *header = {size, old.counted != 0 || counting ? 1U : 0U};
+    if (header->counted != 0) live_bytes += static_cast<std::int64_t>(size);
+    return header + 1;
+}
+
 }  // namespace
+
+bool OpenSslAllocations::install() {
+    if (CRYPTO_set_mem_functions(counted_malloc, counted_realloc, counted_free) == 1)
+        allocations_installed = true;
+    return allocations_installed;
+}
+
+bool OpenSslAllocations::installed() {
+    return allocations_installed;
+}
+
+OpenSslAllocations::Counting::Counting() {
+    counting = true;
+}
+
+OpenSslAllocations::Counting::~Counting() {
+    counting = false;
+}
+
+std::int64_t OpenSslAllocations::live() {
+    return live_bytes;
+}
 
 TlsClientContext::TlsClientContext(const TlsClientSettings& settings) {
     std::unique_ptr<SSL_CTX, Free> context(SSL_CTX_new(TLS_client_method()));

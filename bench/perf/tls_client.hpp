@@ -86,4 +86,24 @@ class TlsConnection {
     std::vector<std::uint8_t> buffer_;
 };
 
+// What OpenSSL allocates on the threads that count (benchmark 8c: a server connection's need).
+// Its allocation functions must be replaced before its first allocation: main() installs them
+// first thing; false when that was too late, and nothing is counted.
+class OpenSslAllocations {
+  public:
+    static bool install();
+    static bool installed();
+    // While it lives, what OpenSSL allocates on this thread counts, until it is freed (on any
+    // thread).
+    class Counting {
+      public:
+        Counting();
+        ~Counting();
+        Counting(const Counting&) = delete;
+        Counting& operator=(const Counting&) = delete;
+    };
+    // The bytes counted and not yet freed.
+    static std::int64_t live();
+};
+
 }  // namespace ioport::bench
