@@ -169,6 +169,22 @@ std::chrono::nanoseconds cpu_time(pid_t pid) {
     return schedstat ? total : stat_cpu_time(pid);
 }
 
+std::uint64_t sleeps(pid_t pid) {
+    std::uint64_t total = 0;
+    std::error_code ec;
+    for (const auto& task :
+         std::filesystem::directory_iterator(fmt::format("/proc/{}/task", pid), ec)) {
+        std::ifstream in(task.path() / "status");
+        std::string line;
+        while (std::getline(in, line)) {
+            unsigned long long count = 0;
+            if (std::sscanf(line.c_str(), "voluntary_ctxt_switches: %llu", &count) == 1)
+                total += count;
+        }
+    }
+    return total;
+}
+
 std::chrono::nanoseconds stat_cpu_time(pid_t pid) {
     // utime and stime, fields 14 and 15, in clock ticks; the command name may hold spaces.
     const auto stat = read_file(fmt::format("/proc/{}/stat", pid));

@@ -127,6 +127,9 @@ class Process {
 // Run time of every thread of a process, from /proc/PID/task/*/schedstat (nanoseconds, as the
 // scheduler accounts it), or /proc/PID/stat utime + stime where schedstat is missing.
 std::chrono::nanoseconds cpu_time(pid_t pid);
+// How often the threads of a process went to sleep waiting (voluntary context switches, from
+// /proc/PID/task/*/status): a server woken for every request sleeps once per request.
+std::uint64_t sleeps(pid_t pid);
 // utime + stime of a process from /proc/PID/stat, in clock ticks (10 ms here): the coarse
 // figure `top` and process_cpu_seconds_total use, as a check on the schedstat figures.
 std::chrono::nanoseconds stat_cpu_time(pid_t pid);

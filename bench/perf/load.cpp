@@ -147,6 +147,7 @@ void LoadResult::add(LoadResult other) {
     resumed += other.resumed;
     seconds += other.seconds;
     server_cpu += other.server_cpu;
+    server_sleeps += other.server_sleeps;
     latency_us.insert(latency_us.end(), other.latency_us.begin(), other.latency_us.end());
 }
 
@@ -209,17 +210,20 @@ LoadResult run_load(const LoadSpec& spec) {
         });
     std::this_thread::sleep_until(from);
     const auto cpu_before = cpu_time(spec.server);
+    const auto sleeps_before = sleeps(spec.server);
     if (spec.midway) {
         std::this_thread::sleep_until(from + spec.window / 2);
         spec.midway();
     }
     std::this_thread::sleep_until(to);
     const auto cpu_after = cpu_time(spec.server);
+    const auto sleeps_after = sleeps(spec.server);
     for (auto& thread : threads)
         thread.join();
     if (beside.joinable()) beside.join();
     result.seconds = seconds(to - from);
     result.server_cpu = cpu_after - cpu_before;
+    result.server_sleeps = sleeps_after - sleeps_before;
     for (auto& mine : results) {
         result.requests += mine.requests;
         result.errors += mine.errors;

@@ -55,6 +55,7 @@ struct LoadResult {
     std::uint64_t resumed = 0;
     double seconds = 0;
     std::chrono::nanoseconds server_cpu{};
+    std::uint64_t server_sleeps = 0;  // the server's voluntary context switches in the window
     std::vector<float> latency_us;
 
     double per_second() const { return static_cast<double>(requests) / seconds; }
@@ -62,6 +63,10 @@ struct LoadResult {
         return microseconds(server_cpu) / static_cast<double>(std::max<std::uint64_t>(requests, 1));
     }
     double cpu_percent() const { return microseconds(server_cpu) / 1e4 / seconds; }
+    double sleeps_per_request() const {
+        return static_cast<double>(server_sleeps) /
+               static_cast<double>(std::max<std::uint64_t>(requests, 1));
+    }
     // Adds another run of the same load.
     void add(LoadResult other);
 };
