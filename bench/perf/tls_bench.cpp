@@ -139,7 +139,7 @@ std::string listed(const std::vector<double>& ratios) {
 std::vector<Verdict> long_lived(const Environment& env, const Setup& setup,
                                 const TlsClientContext& client) {
     const std::vector<int> counts = env.quick ? std::vector{1, 8} : std::vector{1, 8, 64};
-    const int pairs = env.quick ? 1 : 5;  // odd: the median of the pairs' ratios is one of them
+    const int pairs = env.quick ? 1 : 7;  // odd: the median of the pairs' ratios is one of them
     const auto window = env.window(3s);
     const auto warmup = env.quick ? 100ms : 500ms;
     std::string version = "?";
@@ -154,11 +154,13 @@ std::vector<Verdict> long_lived(const Environment& env, const Setup& setup,
         "its plain listener (libmodbus, as benchmark 4) and on its TLS listener ({}, the "
         "OpenSSL client of bench/perf/tls_client.cpp with an operator's certificate). The "
         "connections are made before each round, so no handshake is in a window. Server CPU "
-        "per request: ioportd's run time over the window ÷ the requests answered in it.\n",
+        "per request: ioportd's run time over the window ÷ the requests answered in it; its "
+        "sleeps per request (voluntary context switches) tell how many requests a wake-up "
+        "served: a slower client leaves it more of them to pay.\n",
         pairs, window.count(), version);
     std::vector<Verdict> verdicts;
     const Table rounds_table({"connections", "pair", "transport", "req/s", "p50 µs", "p99 µs",
-                              "server CPU µs/req", "errors"});
+                              "server CPU µs/req", "server sleeps/req", "errors"});
     struct Totals {
         int connections = 0;
         std::array<LoadResult, 2> sides;  // [tls?]
@@ -186,6 +188,7 @@ std::vector<Verdict> long_lived(const Environment& env, const Setup& setup,
                                   fmt::format("{:.0f}", latency.p50),
                                   fmt::format("{:.0f}", latency.p99),
                                   fmt::format("{:.2f}", result.cpu_us_per_request()),
+                                  fmt::format("{:.2f}", result.sleeps_per_request()),
                                   fmt::format("{}", result.errors)});
                 cpu_us[tls] = result.cpu_us_per_request();
                 p99_us[tls] = latency.p99;
@@ -205,7 +208,7 @@ std::vector<Verdict> long_lived(const Environment& env, const Setup& setup,
 
     fmt::print("\nAll rounds together:\n");
     const Table table({"connections", "transport", "req/s", "p50 µs", "p99 µs", "p99.9 µs",
-                       "server CPU µs/req", "server CPU", "errors"});
+                       "server CPU µs/req", "server CPU", "server sleeps/req", "errors"});
     for (auto& t : all) {
         auto& plain = t.sides[0];
         auto& tls = t.sides[1];
@@ -216,7 +219,8 @@ std::vector<Verdict> long_lived(const Environment& env, const Setup& setup,
                        fmt::format("{:.0f}", r.per_second()), fmt::format("{:.0f}", l.p50),
                        fmt::format("{:.0f}", l.p99), fmt::format("{:.0f}", l.p999),
                        fmt::format("{:.2f}", r.cpu_us_per_request()),
-                       fmt::format("{:.0f} %", r.cpu_percent()), fmt::format("{}", r.errors)});
+                       fmt::format("{:.0f} %", r.cpu_percent()),
+                       fmt::format("{:.2f}", r.sleeps_per_request()), fmt::format("{}", r.errors)});
         };
         row("plain", plain, plain_latency);
         row("TLS", tls, tls_latency);
@@ -228,18 +232,18 @@ std::vector<Verdict> long_lived(const Environment& env, const Setup& setup,
                    fmt::format("{:.2f}", tls_latency.p50 / plain_latency.p50),
                    fmt::format("{:.2f}", tls_latency.p99 / plain_latency.p99),
                    fmt::format("{:.2f}", tls_latency.p999 / plain_latency.p999),
-                   fmt::format("**{:.3f}**", cpu), "", ""});
+                   fmt::format("**{:.3f}**", cpu), "", "", ""});
         fmt::print(
             "\n{} connections, pairs' ratios TLS ÷ plain: CPU per request {}, median **{:.3f}**; "
             "p99 {}, median {:.3f}.\n",
             t.connections, listed(t.cpu_ratios), cpu_median, listed(t.p99_ratios), p99_median);
         const bool ok = plain.connected && tls.connected && plain.errors == 0 && tls.errors == 0;
         machine_line(fmt::format(
-            R"({{"bench":"tls_modbus","connections":{},"pairs":{},"tls_version":"{}","plain_rps":{:.0f},"tls_rps":{:.0f},"plain_cpu_us":{:.3f},"tls_cpu_us":{:.3f},"cpu_ratio_total":{:.4f},"cpu_ratio_median":{:.4f},"plain_p50_us":{:.0f},"tls_p50_us":{:.0f},"plain_p99_us":{:.0f},"tls_p99_us":{:.0f},"p99_ratio_median":{:.4f},"plain_errors":{},"tls_errors":{}}})",
+            R"({{"bench":"tls_modbus","connections":{},"pairs":{},"tls_version":"{}","plain_rps":{:.0f},"tls_rps":{:.0f},"plain_cpu_us":{:.3f},"tls_cpu_us":{:.3f},"cpu_ratio_total":{:.4f},"cpu_ratio_median":{:.4f},"plain_p50_us":{:.0f},"tls_p50_us":{:.0f},"plain_p99_us":{:.0f},"tls_p99_us":{:.0f},"p99_ratio_median":{:.4f},"plain_sleeps_per_req":{:.3f},"tls_sleeps_per_req":{:.3f},"plain_errors":{},"tls_errors":{}}})",
             t.connections, pairs, version, plain.per_second(), tls.per_second(),
             plain.cpu_us_per_request(), tls.cpu_us_per_request(), cpu, cpu_median,
             plain_latency.p50, tls_latency.p50, plain_latency.p99, tls_latency.p99, p99_median,
-            plain.errors, tls.errors));
+            plain.sleeps_per_request(), tls.sleeps_per_request(), plain.errors, tls.errors));
         verdicts.push_back(
             {fmt::format("8a. CPU/request TLS ÷ plain, {} conn.", t.connections),
              fmt::format("median of {} pairs {:.3f}× (all rounds: {:.2f} vs {:.2f} µs = {:.3f}×; "
