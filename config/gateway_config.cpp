@@ -11,7 +11,6 @@
 #include <iterator>
 #include <limits>
 #include <map>
-#include <ranges>
 #include <span>
 #include <sstream>
 #include <system_error>
@@ -642,7 +641,7 @@ void Loader::read_tls(const Entry& entry, std::optional<TlsSettings>& tls) {
     if (!t.default_role.empty() && !t.roles.contains(t.default_role) && f.find("roles") != nullptr)
         add(f.line_of("default_role"), f.key("default_role"),
             fmt::format("'{}' is not one of the roles: give one of {}, or \"\" for none",
-                        t.default_role, fmt::join(std::views::keys(t.roles), ", ")));
+                        t.default_role, modbus_security::names(t.roles)));
     tls = std::move(t);
 }
 

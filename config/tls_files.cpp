@@ -4,7 +4,6 @@
 
 #include <cerrno>
 #include <fstream>
-#include <iterator>
 #include <memory>
 #include <system_error>
 
@@ -15,23 +14,10 @@
 #include <openssl/pem.h>
 #include <openssl/x509.h>
 
+#include "protocol/openssl.hpp"
+
 namespace ioport::config {
 namespace {
-
-template <auto Free>
-struct Deleter {
-    template <class T>
-    void operator()(T* p) const {
-        Free(p);
-    }
-};
-using BioPtr = std::unique_ptr<BIO, Deleter<BIO_free>>;
-using X509Ptr = std::unique_ptr<X509, Deleter<X509_free>>;
-using KeyPtr = std::unique_ptr<EVP_PKEY, Deleter<EVP_PKEY_free>>;
-
-BioPtr memory(const std::string& text) {
-    return BioPtr(BIO_new_mem_buf(text.data(), static_cast<int>(text.size())));
-}
 
 // OpenSSL's reason for the last failure, which it queued, and the queue emptied.
 std::string openssl_reason() {
@@ -40,6 +26,8 @@ std::string openssl_reason() {
     const char* reason = code != 0 ? ERR_reason_error_string(code) : nullptr;
     return reason != nullptr ? reason : "no PEM data";
 }
+
+constexpr std::size_t max_file_size = std::size_t{1024} * 1024;
 
 Expected<std::string, std::string> read_file(const std::string& path, bool secret) {
     struct stat status {};
@@ -51,7 +39,16 @@ Expected<std::string, std::string> read_file(const std::string& path, bool secre
             "{} is readable by every user: chmod o-r {} (group-readable is fine)", path, path));
     std::ifstream file(path);
     if (!file) return Unexpected(fmt::format("{}: cannot be read by this user", path));
-    return std::string{std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>()};
+    // Certificate chains are kilobytes; a file far larger is not one (nor read whole).
+    std::string text(max_file_size + 1, '\0');
+    file.read(text.data(), static_cast<std::streamsize>(text.size()));
+    text.resize(static_cast<std::size_t>(file.gcount()));
+    if (text.size() > max_file_size)
+        return Unexpected(
+            fmt::format("{} is larger than {} KiB: not a PEM file of certificates or "
+                        "a key",
+                        path, max_file_size / 1024));
+    return text;
 }
 
 }  // namespace
@@ -59,9 +56,10 @@ Expected<std::string, std::string> read_file(const std::string& path, bool secre
 Expected<std::string, std::string> read_certificates(const std::string& path) {
     auto text = read_file(path, false);
     if (!text) return text;
-    const auto bio = memory(*text);
+    const auto bio = openssl::memory(*text);
     int count = 0;
-    while (X509Ptr certificate{PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)})
+    while (
+        openssl::Certificate certificate{PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)})
         ++count;
     // The loop ends at the end of the text (PEM_R_NO_START_LINE) or at a certificate that does
     // not parse.
@@ -84,9 +82,9 @@ Expected<std::string, std::string> read_certificates(const std::string& path) {
 Expected<std::string, std::string> read_private_key(const std::string& path) {
     auto text = read_file(path, true);
     if (!text) return text;
-    const auto bio = memory(*text);
+    const auto bio = openssl::memory(*text);
     // An encrypted key would need its passphrase at every start: no callback, so it fails here.
-    const KeyPtr key(PEM_read_bio_PrivateKey(bio.get(), nullptr, nullptr, nullptr));
+    const openssl::Key key(PEM_read_bio_PrivateKey(bio.get(), nullptr, nullptr, nullptr));
     if (!key)
         return Unexpected(fmt::format(
             "{} is not an unencrypted PEM private key ({}): write one with openssl pkey -in "
@@ -98,10 +96,11 @@ Expected<std::string, std::string> read_private_key(const std::string& path) {
 Expected<void, std::string> check_key_pair(const std::string& certificate_pem,
                                            const std::string& key_pem,
                                            const std::string& key_path) {
-    const auto certificate_bio = memory(certificate_pem);
-    const auto key_bio = memory(key_pem);
-    const X509Ptr certificate(PEM_read_bio_X509(certificate_bio.get(), nullptr, nullptr, nullptr));
-    const KeyPtr key(PEM_read_bio_PrivateKey(key_bio.get(), nullptr, nullptr, nullptr));
+    const auto certificate_bio = openssl::memory(certificate_pem);
+    const auto key_bio = openssl::memory(key_pem);
+    const openssl::Certificate certificate(
+        PEM_read_bio_X509(certificate_bio.get(), nullptr, nullptr, nullptr));
+    const openssl::Key key(PEM_read_bio_PrivateKey(key_bio.get(), nullptr, nullptr, nullptr));
     if (!certificate || !key) {
         ERR_clear_error();
         return Unexpected(fmt::format("{} or its certificate does not parse", key_path));

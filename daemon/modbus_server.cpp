@@ -7,10 +7,8 @@
 
 #include <algorithm>
 #include <cstring>
-#include <ranges>
 
 #include <fmt/format.h>
-#include <fmt/ranges.h>
 #include <openssl/ssl.h>
 
 #include "config/duration.hpp"
@@ -286,7 +284,7 @@ void ModbusServer::accept_on(Transport transport, Acceptor acceptor) {
         case Transport::tls:
             log_.info({}, "Modbus/TCP Security (TLS) on {}, at most {} clients{}, roles {}", where,
                       settings_.max_connections, read_only,
-                      fmt::join(std::views::keys(settings_.tls->roles), ", "));
+                      modbus_security::names(settings_.tls->roles));
             break;
     }
     asio::co_spawn(executor_, accept_loop(transport, l.acceptor), asio::detached);
@@ -297,8 +295,10 @@ Result<> ModbusServer::prepare(const config::ModbusSettings& next) {
         l->next.reset();
         l->next_context.reset();
     }
-    if (auto prepared = prepare(next, Transport::tcp); !prepared) return prepared;
-    return prepare(next, Transport::tls);
+    auto prepared = prepare(next, Transport::tcp);
+    if (prepared) prepared = prepare(next, Transport::tls);
+    if (!prepared) plain_.next.reset();  // the new plain address is not kept bound either
+    return prepared;
 }
 
 Result<> ModbusServer::prepare(const config::ModbusSettings& next, Transport transport) {
@@ -528,13 +528,14 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
     co_await c.tls->async_handshake(asio::ssl::stream_base::server,
                                     redirect_error(use_awaitable, ec));
     c.handshaking = false;
-    if (!c.open) co_return false;  // the watchdog closed it: too slow
-    if (ec) {
-        // A client without a valid certificate retries, maybe every second: as a refusal, logged
-        // once a minute per address.
+    if (stopping_) co_return false;
+    // A client without a valid certificate retries, maybe every second, and a scanner holds
+    // places: refusals, logged once a minute per address and reason.
+    if (!c.open || ec) {
         ++stats_.refused_tls_handshake;
-        log_refusal(c.address,
-                    fmt::format("TLS handshake failed: {}", handshake_failure(ec, *c.tls)));
+        log_refusal(c.address, !c.open ? std::string("TLS handshake not complete within 5 s")
+                                       : fmt::format("TLS handshake failed: {}",
+                                                     handshake_failure(ec, *c.tls)));
         co_return false;
     }
     c.last_activity = Clock::now();

@@ -8,16 +8,10 @@
 #include <openssl/ssl.h>
 #include <openssl/x509v3.h>
 
+#include "protocol/openssl.hpp"
+
 namespace ioport::daemon {
 namespace {
-
-template <auto Free>
-struct Deleter {
-    template <class T>
-    void operator()(T* p) const {
-        Free(p);
-    }
-};
 
 // Sessions are found again by this id: OpenSSL refuses to resume a session of a context that
 // verifies clients and has none.
@@ -38,12 +32,11 @@ Unexpected<Error> failed(const config::TlsSettings& settings, std::string_view w
 // The CA's certificates, also named to clients in the certificate request so that a client
 // with several certificates picks the right one.
 Result<> trust_client_ca(SSL_CTX* context, const config::TlsSettings& settings) {
-    const std::unique_ptr<BIO, Deleter<BIO_free>> bio(BIO_new_mem_buf(
-        settings.client_ca_pem.data(), static_cast<int>(settings.client_ca_pem.size())));
+    const openssl::Bio bio(BIO_new_mem_buf(settings.client_ca_pem.data(),
+                                           static_cast<int>(settings.client_ca_pem.size())));
     X509_STORE* store = SSL_CTX_get_cert_store(context);
     int count = 0;
-    while (const std::unique_ptr<X509, Deleter<X509_free>> ca{
-        PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)}) {
+    while (const openssl::Certificate ca{PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)}) {
         if (X509_STORE_add_cert(store, ca.get()) != 1 ||
             SSL_CTX_add_client_CA(context, ca.get()) != 1)
             return failed(settings, "adding client_ca");
@@ -83,17 +76,15 @@ Result<TlsContext> make_tls_context(const config::TlsSettings& settings) {
 
 TlsPeer tls_peer(TlsStream& stream) {
     TlsPeer peer;
-    const std::unique_ptr<X509, Deleter<X509_free>> certificate(
-        SSL_get1_peer_certificate(stream.native_handle()));
+    const openssl::Certificate certificate(SSL_get1_peer_certificate(stream.native_handle()));
     if (!certificate) return peer;  // not after a verified handshake: verification requires one
-    const std::unique_ptr<BIO, Deleter<BIO_free>> text(BIO_new(BIO_s_mem()));
+    const openssl::Bio text(BIO_new(BIO_s_mem()));
     X509_NAME_print_ex(text.get(), X509_get_subject_name(certificate.get()), 0, XN_FLAG_RFC2253);
     char* data = nullptr;
     const long length = BIO_get_mem_data(text.get(), &data);
     if (data != nullptr && length > 0) peer.subject.assign(data, static_cast<std::size_t>(length));
 
-    const std::unique_ptr<ASN1_OBJECT, Deleter<ASN1_OBJECT_free>> oid(
-        OBJ_txt2obj(std::string(modbus_security::role_oid).c_str(), 1));
+    const openssl::Object oid(OBJ_txt2obj(std::string(modbus_security::role_oid).c_str(), 1));
     using Kind = modbus_security::CertificateRole::Kind;
     const int at = X509_get_ext_by_OBJ(certificate.get(), oid.get(), -1);
     if (at < 0) return peer;  // absent

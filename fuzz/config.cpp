@@ -48,8 +48,24 @@ void check_duration(std::chrono::microseconds duration) {
     check(again.has_value() && *again == duration, "a duration formats to text that parses back");
 }
 
+// A TLS section is only there when its files were read and checked, and its roles name units.
+void check_tls(const config::TlsSettings& tls) {
+    check(is_ip(tls.listen_host), "tls.listen is an IP address");
+    check(!tls.certificate_pem.empty() && !tls.key_pem.empty() && !tls.client_ca_pem.empty(),
+          "the TLS files were read");
+    check(!tls.roles.empty(), "at least one role");
+    check(tls.default_role.empty() || tls.roles.contains(tls.default_role),
+          "default_role is a role");
+    for (const auto& [name, role] : tls.roles)
+        check(!name.empty() && role.units.any() && !role.units.test(0) &&
+                  (role.units.all() || !role.units.test(255)),
+              "a role has a name and units 1..247, or all");
+}
+
 void check_modbus(const config::ModbusSettings& modbus) {
-    check(is_ip(modbus.listen_host), "listen is an IP address");
+    check(modbus.plain() ? is_ip(modbus.listen_host) : modbus.listen_port == 0,
+          "listen is an IP address, or off");
+    if (modbus.tls) check_tls(*modbus.tls);
     check(modbus.max_connections >= 1 && modbus.max_connections <= 65535, "max_connections");
     check(modbus.idle_timeout >= 0us, "idle_timeout");
     check(modbus.keepalive >= 0us && modbus.keepalive <= 2h, "keepalive");

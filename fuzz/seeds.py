@@ -70,6 +70,22 @@ example = gateway_md.split("```yaml\n", 1)[1].split("```", 1)[0]
 write("config", "gateway-md-example.yaml", example.encode())
 for path in sorted((REPO / "config").glob("*.yaml")):
     write("config", path.name, path.read_bytes())
+write("config", "tls.yaml", b"""\
+modbus:
+  listen: ""
+  tls:
+    listen: "[::]:802"
+    certificate: /etc/ioportd/tls/server.pem
+    key: /etc/ioportd/tls/server.key
+    client_ca: /etc/ioportd/tls/client-ca.pem
+    default_role: viewer
+    roles:
+      operator: { units: all, access: read_write }
+      viewer:   { units: [1, 2], access: read }
+links:
+  - { name: hub0, protocol: ioport, device: /dev/ttyUSB0, unit_id: 1, modules: [{ type: dim16, number: 0 }] }
+  - { name: press, protocol: id2, device: /dev/ttyUSB1, unit_id: 2 }
+""")
 write("config", "every-setting.yaml", b"""\
 modbus:
   listen: "[::]:1502"

@@ -4,18 +4,11 @@
 #include <memory>
 
 #include <fmt/format.h>
-#include <openssl/asn1.h>
-#include <openssl/crypto.h>
+
+#include "protocol/openssl.hpp"
 
 namespace ioport::modbus_security {
 namespace {
-
-struct Asn1StringFree {
-    void operator()(ASN1_STRING* s) const { ASN1_STRING_free(s); }
-};
-struct OpensslFree {
-    void operator()(unsigned char* p) const { OPENSSL_free(p); }
-};
 
 // A role is written into the journal and the status page: no control characters.
 bool printable(std::string_view text) {
@@ -37,10 +30,17 @@ std::string_view to_string(Access access) {
     return "?";
 }
 
+std::string names(const Roles& roles) {
+    std::string text;
+    for (const auto& [name, role] : roles)
+        text += fmt::format("{}{}", text.empty() ? "" : ", ", name);
+    return text;
+}
+
 Expected<std::string, std::string> parse_role(std::span<const std::uint8_t> der) {
     const unsigned char* cursor = der.data();
     // OpenSSL's DER decoder: the tag must be UTF8String's, the length within the bytes.
-    std::unique_ptr<ASN1_STRING, Asn1StringFree> value(
+    const openssl::String value(
         d2i_ASN1_UTF8STRING(nullptr, &cursor, static_cast<long>(der.size())));
     if (!value) return Unexpected(std::string("not a DER-encoded ASN.1 UTF8String"));
     if (cursor != der.data() + der.size())
@@ -49,7 +49,7 @@ Expected<std::string, std::string> parse_role(std::span<const std::uint8_t> der)
     // Converting to UTF-8 checks that it is UTF-8.
     unsigned char* utf8 = nullptr;
     const int length = ASN1_STRING_to_UTF8(&utf8, value.get());
-    const std::unique_ptr<unsigned char, OpensslFree> owned(utf8);
+    const openssl::Buffer owned(utf8);
     if (length < 0) return Unexpected(std::string("the UTF8String is not valid UTF-8"));
     std::string role(reinterpret_cast<const char*>(utf8), static_cast<std::size_t>(length));
     if (role.empty()) return Unexpected(std::string("the role is empty"));

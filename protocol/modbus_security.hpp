@@ -30,6 +30,8 @@ struct Role {
     friend bool operator==(const Role&, const Role&) = default;
 };
 using Roles = std::map<std::string, Role, std::less<>>;
+// "operator, viewer": for messages.
+std::string names(const Roles& roles);
 
 // The role in the extension's value (the DER of a UTF8String, nothing after it), or why there is
 // none: not DER, another type, not UTF-8, control characters, empty or too long.

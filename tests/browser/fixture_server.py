@@ -126,9 +126,11 @@ class Fixture:
              'modules': [Module('dim16', 1, 0, word=None, status=4),
                          Module('dom16', 1, 1, word=None, status=4)]},
         ]
-        self.clients = [{'address': '10.0.0.5:50123', 'since': time.time() - 3725, 'requests': 0},
-                        {'address': '10.0.0.17:41002', 'since': time.time() - 42, 'requests': 0}]
-        self.refused = {'not_allowed': 0, 'too_many': 1}
+        self.clients = [{'address': '10.0.0.5:50123', 'since': time.time() - 3725, 'requests': 0,
+                         'transport': 'tcp', 'role': ''},
+                        {'address': '10.0.0.17:41002', 'since': time.time() - 42, 'requests': 0,
+                         'transport': 'tls', 'role': 'operator'}]
+        self.refused = {'not_allowed': 0, 'too_many': 1, 'tls_handshake': 2}
         self.comm_loss = False
         self.last_tick = time.time()
         self.event('reload', '', '', '', 'ioportd 0.1.0 started with 3 links, 12 modules')
@@ -213,11 +215,13 @@ class Fixture:
         return {
             'version': '0.1.0', 'time': rfc3339(now), 'started': rfc3339(self.started),
             'health': {'ok': ok, 'reason': '' if ok else 'a link is down'},
-            'modbus': {'listen': '0.0.0.0:502', 'connections': len(self.clients),
+            'modbus': {'listen': '0.0.0.0:502', 'tls_listen': '0.0.0.0:802',
+                       'connections': len(self.clients),
                        'max_connections': 32, 'comm_loss': self.comm_loss,
                        'refused': dict(self.refused),
                        'clients': [{'address': c['address'], 'since': rfc3339(c['since']),
-                                    'requests': c['requests']} for c in self.clients]},
+                                    'requests': c['requests'], 'transport': c['transport'],
+                                    'role': c['role']} for c in self.clients]},
             'links': links,
             'events': list(self.events)}
 

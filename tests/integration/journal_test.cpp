@@ -15,9 +15,11 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <memory>
 #include <regex>
 
 #include <fmt/format.h>
+#include <openssl/ssl.h>
 
 #include "tests/support/datagram_socket.hpp"
 #include "tests/support/gateway.hpp"
@@ -249,6 +251,102 @@ links:
     }
     // No answer comes after two tries of 30 ms each at least.
     EXPECT_GE(std::stoll(audits[2]["LATENCY_US"]), 60'000);
+}
+
+// A CA, the server's certificate and a client's with `role` (none when empty), made in `dir` with
+// the README's openssl commands.
+void make_certificates(const TempDir& dir, const std::string& role) {
+    const std::vector<std::string> ec{
+        "openssl", "req",   "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256",
+        "-noenc",  "-days", "30"};
+    const auto req = [&](std::vector<std::string> rest) {
+        auto argv = ec;
+        argv.insert(argv.end(), rest.begin(), rest.end());
+        ASSERT_EQ(run(argv).exit_code, 0) << fmt::format("{}", fmt::join(argv, " "));
+    };
+    req({"-keyout", dir / "ca.key", "-out", dir / "ca.pem", "-subj", "/CN=Journal CA"});
+    req({"-keyout", dir / "server.key", "-out", dir / "server.pem", "-subj", "/CN=localhost", "-CA",
+         dir / "ca.pem", "-CAkey", dir / "ca.key"});
+    std::vector<std::string> client{"-keyout", dir / "client.key", "-out", dir / "client.pem",
+                                    "-subj",   "/O=Plant/CN=hmi1", "-CA",  dir / "ca.pem",
+                                    "-CAkey",  dir / "ca.key"};
+    if (!role.empty()) {
+        client.emplace_back("-addext");
+        client.push_back("1.3.6.1.4.1.50316.802.1=ASN1:UTF8String:" + role);
+    }
+    req(client);
+    ::chmod((dir / "server.key").c_str(), 0600);
+}
+
+// A TLS handshake with the client certificate of make_certificates(), then close: the server
+// logs the client at connect. Returns the client's "127.0.0.1:port", or "" when it failed.
+std::string tls_connect(const TempDir& dir, std::uint16_t port) {
+    const std::unique_ptr<SSL_CTX, decltype(&SSL_CTX_free)> context(
+        SSL_CTX_new(TLS_client_method()), SSL_CTX_free);
+    if (SSL_CTX_use_certificate_file(context.get(), (dir / "client.pem").c_str(),
+                                     SSL_FILETYPE_PEM) != 1 ||
+        SSL_CTX_use_PrivateKey_file(context.get(), (dir / "client.key").c_str(),
+                                    SSL_FILETYPE_PEM) != 1)
+        return {};
+    const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    const timeval deadline{5, 0};  // a server that never answers fails the test, not hangs it
+    ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &deadline, sizeof deadline);
+    sockaddr_in server{};
+    server.sin_family = AF_INET;
+    server.sin_port = htons(port);
+    server.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    std::string me;
+    if (::connect(fd, reinterpret_cast<const sockaddr*>(&server), sizeof server) == 0) {
+        const std::unique_ptr<SSL, decltype(&SSL_free)> tls(SSL_new(context.get()), SSL_free);
+        SSL_set_fd(tls.get(), fd);
+        sockaddr_in self{};
+        socklen_t length = sizeof self;
+        ::getsockname(fd, reinterpret_cast<sockaddr*>(&self), &length);
+        // The server logs the client once it has the client's Finished, which SSL_connect
+        // sent before it returns.
+        if (SSL_connect(tls.get()) == 1) me = fmt::format("127.0.0.1:{}", ntohs(self.sin_port));
+        SSL_shutdown(tls.get());
+    }
+    ::close(fd);
+    return me;
+}
+
+// Modbus/TCP Security (gateway.md §5.6): who connected, by certificate and role, in journal
+// fields an operator can search for.
+TEST(Journal, ATlsClientIsLoggedWithItsSubjectAndRole) {
+    if (!can_make_mount_namespaces()) GTEST_SKIP() << "unshare --mount is not permitted here";
+    SimProcess hub("--hub", "dim16:0", {"--no-line-timing"});
+    TempDir certificates;
+    make_certificates(certificates, "operator");
+    TempDir journal;
+    DatagramSocket socket(journal / "socket");
+    JournaledGateway gateway(journal.path(),
+                             fmt::format(R"(modbus:
+  listen: ""
+  tls:
+    listen: "127.0.0.1:0"
+    certificate: {0}
+    key: {1}
+    client_ca: {2}
+    roles: {{ operator: {{ units: all, access: read_write }} }}
+links:
+  - {{ name: hub0, protocol: ioport, device: {3}, modules: [{{ type: dim16, number: 0 }}] }}
+)",
+                                         certificates / "server.pem", certificates / "server.key",
+                                         certificates / "ca.pem", hub.link()),
+                             {"--log", "journal"}, no_environment);
+    const auto listening = wait_for_entry(socket, "Modbus/TCP Security (TLS) on");
+    std::smatch port;
+    ASSERT_TRUE(std::regex_search(listening.at("MESSAGE"), port, std::regex(R"(:(\d+),)")))
+        << gateway.stderr_text();
+    const auto me = tls_connect(certificates, static_cast<std::uint16_t>(std::stoi(port[1])));
+    ASSERT_FALSE(me.empty());
+    auto entry = wait_for_entry(socket, "Modbus/TCP Security client");
+    SCOPED_TRACE(entry["MESSAGE"]);
+    EXPECT_EQ(entry["PRIORITY"], "6");
+    EXPECT_EQ(entry["CLIENT"], me);
+    EXPECT_EQ(entry["TLS_SUBJECT"], "CN=hmi1,O=Plant");
+    EXPECT_EQ(entry["ROLE"], "operator");
 }
 
 TEST(Journal, UnderSystemdStderrIsRecognisedAsTheJournalStream) {

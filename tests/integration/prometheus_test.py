@@ -8,13 +8,9 @@ Every wait has a deadline; Prometheus, ioportd and the simulator are killed at t
 
 Usage: prometheus_test.py IOPORTD IOPORT_SIM [PROMETHEUS]
 """
-import ctypes
 import json
 import os
-import re
 import shutil
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -26,99 +22,31 @@ import urllib.request
 
 IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
 PROMETHEUS = sys.argv[3] if len(sys.argv) > 3 else "/usr/bin/prometheus"
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 
+from rig import Rig, die_with_parent, eventually, free_port  # noqa: E402
 
-def eventually(condition, deadline=5.0, interval=0.005):
-    until = time.monotonic() + deadline
-    while True:
-        if condition():
-            return True
-        if time.monotonic() >= until:
-            return False
-        time.sleep(interval)
-
-
-def die_with_parent():
-    """In the child before exec: SIGKILL when the test process dies, even by SIGKILL (a CTest
-    timeout), so that no Prometheus outlives the test."""
-    PR_SET_PDEATHSIG = 1
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def stop(process, deadline=5):
-    """SIGTERM, then SIGKILL if it is still there after `deadline`; its exit status."""
-    if process is None or process.poll() is not None:
-        return None if process is None else process.returncode
-    process.terminate()
-    try:
-        return process.wait(deadline)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        return process.wait(deadline)
-
-
-class Rig:
-    """The simulator, ioportd and Prometheus, in a temporary directory."""
-
-    def __init__(self):
-        self.dir = tempfile.mkdtemp(prefix="ioportd-prom-")
-        self.sim = self.daemon = self.prometheus = None
-        try:
-            self.start_sim()
-            self.start_daemon()
-            self.start_prometheus()
-        except BaseException:
-            self.close()
-            raise
-
-    def start_sim(self):
-        self.link = os.path.join(self.dir, "ttyHUB")
-        self.control = os.path.join(self.dir, "hub.ctl")
-        self.sim = subprocess.Popen([IOPORT_SIM, "--link", self.link, "--control", self.control,
-                                     "--no-line-timing", "--hub", "dim16:0,dom16:0"],
-                                    stdout=subprocess.PIPE, text=True,
-                                    preexec_fn=die_with_parent)
-        banner = self.sim.stdout.readline()
-        assert banner.startswith("ioport-sim: "), banner
-
-    def start_daemon(self):
-        config = os.path.join(self.dir, "ioportd.yaml")
-        with open(config, "w") as f:
-            f.write(f"""modbus: {{ listen: "127.0.0.1:0" }}
+CONFIG = """modbus: {{ listen: "127.0.0.1:0" }}
 http: {{ listen: "127.0.0.1:0" }}
 links:
   - name: hub0
     protocol: ioport
-    device: {self.link}
+    device: {hub_link}
     unit_id: 1
     timeout: 30ms
     modules:
       - {{ type: dim16, number: 0 }}
       - {{ type: dom16, number: 0 }}
-""")
-        self.daemon_log = os.path.join(self.dir, "ioportd.log")
-        with open(self.daemon_log, "w") as log:
-            self.daemon = subprocess.Popen([IOPORTD, "--config", config], stdout=log, stderr=log,
-                                           preexec_fn=die_with_parent)
-        match = None
+"""
 
-        def announced():
-            nonlocal match
-            with open(self.daemon_log) as f:
-                match = re.search(r"HTTP on http://127\.0\.0\.1:(\d+)/", f.read())
-            return match is not None or self.daemon.poll() is not None
-        assert eventually(announced, 10) and match, self.log()
-        self.http_port = int(match.group(1))
 
-    def start_prometheus(self):
-        self.prometheus_port = free_port()
-        config = os.path.join(self.dir, "prometheus.yml")
+class Prometheus:
+    """Prometheus on a free loopback port scraping one target every second, its TSDB in
+    `directory`; killed with the test process."""
+
+    def __init__(self, directory, target_port):
+        self.port = free_port()
+        config = os.path.join(directory, "prometheus.yml")
         with open(config, "w") as f:
             f.write(f"""global:
   scrape_interval: 1s
@@ -127,21 +55,21 @@ links:
 scrape_configs:
   - job_name: ioportd
     static_configs:
-      - targets: ["127.0.0.1:{self.http_port}"]
+      - targets: ["127.0.0.1:{target_port}"]
 """)
-        self.prometheus_log = os.path.join(self.dir, "prometheus.log")
-        with open(self.prometheus_log, "w") as log:
-            self.prometheus = subprocess.Popen(
+        self.log = os.path.join(directory, "prometheus.log")
+        with open(self.log, "w") as log:
+            self.process = subprocess.Popen(
                 [PROMETHEUS, f"--config.file={config}",
-                 f"--storage.tsdb.path={os.path.join(self.dir, 'tsdb')}",
-                 f"--web.listen-address=127.0.0.1:{self.prometheus_port}",
+                 f"--storage.tsdb.path={os.path.join(directory, 'tsdb')}",
+                 f"--web.listen-address=127.0.0.1:{self.port}",
                  "--log.level=warn"],
                 stdout=log, stderr=log, preexec_fn=die_with_parent)
 
     def query(self, expression):
         """The instant vector of a PromQL query: [(labels, value)], or None if Prometheus is
         not answering (yet)."""
-        url = (f"http://127.0.0.1:{self.prometheus_port}/api/v1/query?"
+        url = (f"http://127.0.0.1:{self.port}/api/v1/query?"
                + urllib.parse.urlencode({"query": expression}))
         try:
             with urllib.request.urlopen(url, timeout=2) as response:
@@ -156,67 +84,90 @@ scrape_configs:
         """Prometheus' last scrape error of each target, for a failure's message."""
         try:
             with urllib.request.urlopen(
-                    f"http://127.0.0.1:{self.prometheus_port}/api/v1/targets", timeout=2) as r:
+                    f"http://127.0.0.1:{self.port}/api/v1/targets", timeout=2) as r:
                 targets = json.load(r)["data"]["activeTargets"]
         except (urllib.error.URLError, ConnectionError, TimeoutError, KeyError) as e:
             return f"targets: {e}"
         return "; ".join(f"{t['scrapeUrl']}: health {t['health']}, last error "
                          f"'{t['lastError']}'" for t in targets)
 
-    def ctl(self, command):
-        out = subprocess.run([IOPORT_SIM, "ctl", self.control, *command.split()],
-                             capture_output=True, text=True, timeout=10)
-        assert out.returncode == 0, out.stderr
-        return out.stdout.strip()
+    def stop(self, deadline=5):
+        """SIGTERM, then SIGKILL if it is still there after `deadline`."""
+        if self.process.poll() is not None:
+            return
+        self.process.terminate()
+        try:
+            self.process.wait(deadline)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait(deadline)
 
-    def log(self):
+
+class ScrapedByPrometheus(unittest.TestCase):
+    def setUp(self):
+        """The simulator, ioportd and Prometheus, in a temporary directory."""
+        self.dir = tempfile.mkdtemp(prefix="ioportd-prom-")
+        self.rig = Rig(self.dir, IOPORTD, IOPORT_SIM, preexec_fn=die_with_parent)
+        self.prometheus = None
+        try:
+            self.rig.start_hub("dim16:0,dom16:0")
+            self.rig.write_config(CONFIG.format(hub_link=self.rig.hub_link))
+            self.rig.start_daemon()
+            self.prometheus = Prometheus(self.dir, self.rig.listening_port("HTTP"))
+        except BaseException:
+            self.stop_all()
+            raise
+        self.addCleanup(self.close)
+
+    def stop_all(self):
+        """Everything stopped, Prometheus first, and removed; ioportd's exit status on SIGTERM,
+        or why there is none."""
+        try:
+            if self.prometheus:
+                self.prometheus.stop()
+            if self.rig.daemon:
+                try:
+                    return self.rig.stop_daemon(timeout=5)[1]
+                except subprocess.TimeoutExpired:
+                    return "still running 5 s after SIGTERM"
+        finally:
+            self.rig.close()
+            shutil.rmtree(self.dir, ignore_errors=True)
+
+    def close(self):
+        log = self.logs()
+        code = self.stop_all()
+        self.assertEqual(code, 0, log)
+
+    def logs(self):
         text = ""
-        for name in ("daemon_log", "prometheus_log"):
-            path = getattr(self, name, None)
+        for path in (self.rig.log, self.prometheus.log if self.prometheus else None):
             if path and os.path.exists(path):
                 with open(path) as f:
                     text += f"--- {os.path.basename(path)} ---\n{f.read()}"
         return text
 
-    def close(self):
-        """Everything stopped, Prometheus first; ioportd's exit status."""
-        stop(self.prometheus)
-        code = stop(self.daemon)
-        stop(self.sim)
-        shutil.rmtree(self.dir, ignore_errors=True)
-        return code
-
-
-class ScrapedByPrometheus(unittest.TestCase):
-    def setUp(self):
-        self.rig = Rig()
-        self.addCleanup(self.close)
-
-    def close(self):
-        log = self.rig.log()
-        code = self.rig.close()
-        self.assertEqual(code, 0, log)
-
     def value(self, expression):
         """The value of a query that has exactly one series, or None."""
-        result = self.rig.query(expression)
+        result = self.prometheus.query(expression)
         return result[0][1] if result and len(result) == 1 else None
 
     def test_prometheus_scrapes_ioportd_and_sees_an_input_change(self):
-        rig = self.rig
+        rig, prometheus = self.rig, self.prometheus
         rig.ctl("set dim16:0 0x0000")
         # up is 1 only when every sample line parsed (Prometheus' scrape parser is lenient
         # about HELP and TYPE lines: http_test's promtool check covers those).
-        self.assertTrue(eventually(lambda: self.value('up{job="ioportd"}') == 1, 15, 0.2),
-                        rig.scrape_errors() + "\n" + rig.log())
+        eventually(lambda: self.value('up{job="ioportd"}') == 1, 15,
+                   lambda: 'up{job="ioportd"} == 1: ' + prometheus.scrape_errors() + "\n"
+                   + self.logs(), interval=0.2)
         self.assertGreater(self.value('scrape_samples_scraped{job="ioportd"}') or 0, 50)
         channel = 'ioportd_input_value{module="dim16 0",channel="3"}'
-        self.assertTrue(eventually(lambda: self.value(channel) == 0, 10, 0.2),
-                        rig.query(channel))
+        eventually(lambda: self.value(channel) == 0, 10,
+                   lambda: f"{channel} == 0: {prometheus.query(channel)}", interval=0.2)
         changed = time.monotonic()
         rig.ctl("set dim16:0 0x0008")
-        self.assertTrue(eventually(lambda: self.value(channel) == 1, 10, 0.2),
-                        rig.query(channel))
+        eventually(lambda: self.value(channel) == 1, 10,
+                   lambda: f"{channel} == 1: {prometheus.query(channel)}", interval=0.2)
         print(f"[ figure   ] the change was in Prometheus after "
               f"{time.monotonic() - changed:.1f} s (scrape interval 1 s)")
         self.assertEqual(self.value('ioportd_input_value{module="dim16 0",channel="2"}'), 0)
@@ -224,7 +175,7 @@ class ScrapedByPrometheus(unittest.TestCase):
         self.assertEqual(self.value('ioportd_module_status{link="hub0",module="dom16 0"}'), 1)
         self.assertEqual(self.value('ioportd_link_up{link="hub0"}'), 1)
         # A histogram Prometheus understands as one: a quantile can be computed from it.
-        quantile = rig.query(
+        quantile = prometheus.query(
             "histogram_quantile(0.5, ioportd_modbus_request_duration_seconds_bucket)")
         self.assertIsNotNone(quantile)
         self.assertEqual(self.value('count(ioportd_build_info{job="ioportd"})'), 1)

@@ -14,62 +14,24 @@ import struct
 import subprocess
 import sys
 import tempfile
-import time
 import unittest
 
-from pymodbus.client import ModbusTcpClient
-from pymodbus.constants import DeviceInformation
-from pymodbus.mei_message import ReadDeviceInformationRequest
-
 IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+
+from rig import Rig, eventually  # noqa: E402
+from pymodbus.client import ModbusTcpClient  # noqa: E402
+from pymodbus.constants import DeviceInformation  # noqa: E402
+from pymodbus.mei_message import ReadDeviceInformationRequest  # noqa: E402
 
 
-def eventually(condition, deadline=5.0):
-    until = time.monotonic() + deadline
-    while True:
-        if condition():
-            return True
-        if time.monotonic() >= until:
-            return False
-        time.sleep(0.005)
-
-
-class Rig:
-    """ioport-sim with a hub (unit 1) and one with an ID-2 (unit 2), and ioportd on them, in a
-    temporary directory."""
-
-    def __init__(self):
-        self.dir = tempfile.mkdtemp(prefix="ioportd-3p-")
-        self.link = os.path.join(self.dir, "ttyHUB")
-        self.id2_link = os.path.join(self.dir, "ttyID2")
-        self.control = os.path.join(self.dir, "hub.ctl")
-        self.sims = []
-        self.daemon = None
-        try:
-            self.start_sim("--control", self.control, "--hub", "dim16:0,dom16:0,acm3p:0,rgbdm:0",
-                           link=self.link)
-            self.start_sim("--id2", link=self.id2_link)
-            self.start_daemon()
-        except BaseException:
-            self.close()
-            raise
-
-    def start_sim(self, *args, link):
-        sim = subprocess.Popen([IOPORT_SIM, "--link", link, "--no-line-timing", *args],
-                               stdout=subprocess.PIPE, text=True)
-        self.sims.append(sim)
-        banner = sim.stdout.readline()
-        assert banner.startswith("ioport-sim: "), banner
-
-    def start_daemon(self):
-        config = os.path.join(self.dir, "ioportd.yaml")
-        with open(config, "w") as f:
-            f.write(f"""modbus:
+def config(rig):
+    return f"""modbus:
   listen: "127.0.0.1:0"
 links:
   - name: hub0
     protocol: ioport
-    device: {self.link}
+    device: {rig.hub_link}
     unit_id: 1
     timeout: 30ms
     modules:
@@ -79,59 +41,59 @@ links:
       - {{ type: rgbdm, number: 0 }}
   - name: press
     protocol: id2
-    device: {self.id2_link}
+    device: {rig.id2_link}
     unit_id: 2
-""")
-        self.log = os.path.join(self.dir, "ioportd.log")
-        with open(self.log, "w") as log:
-            self.daemon = subprocess.Popen([IOPORTD, "--config", config], stdout=log, stderr=log)
-        match = None
-
-        def listening():
-            nonlocal match
-            with open(self.log) as f:
-                match = re.search(r"Modbus TCP on 127\.0\.0\.1:(\d+)", f.read())
-            return match is not None or self.daemon.poll() is not None
-        assert eventually(listening, 10) and match, open(self.log).read()
-        self.port = int(match.group(1))
-
-    def ctl(self, command):
-        out = subprocess.run([IOPORT_SIM, "ctl", self.control, *command.split()],
-                             capture_output=True, text=True, timeout=10)
-        assert out.returncode == 0, out.stderr
-        return out.stdout.splitlines()[0] if out.stdout else ""
-
-    def close(self):
-        code = None
-        if self.daemon:
-            self.daemon.terminate()
-            code = self.daemon.wait(5)
-        for sim in self.sims:
-            sim.terminate()
-            sim.wait(5)
-        shutil.rmtree(self.dir, ignore_errors=True)
-        return code
+"""
 
 
 class ThirdPartyClients(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        cls.rig = Rig()
-        cls.client = ModbusTcpClient("127.0.0.1", port=cls.rig.port, timeout=3)
-        assert cls.client.connect()
+        """ioport-sim with a hub (unit 1) and one with an ID-2 (unit 2), and ioportd on them, in
+        a temporary directory."""
+        cls.dir = tempfile.mkdtemp(prefix="ioportd-3p-")
+        cls.rig = Rig(cls.dir, IOPORTD, IOPORT_SIM)
+        cls.client = None
+        try:
+            cls.rig.start_hub("dim16:0,dom16:0,acm3p:0,rgbdm:0")
+            cls.rig.start_id2()
+            cls.rig.write_config(config(cls.rig))
+            cls.rig.start_daemon()
+            cls.port = cls.rig.listening_port("Modbus TCP")
+            cls.client = ModbusTcpClient("127.0.0.1", port=cls.port, timeout=3)
+            assert cls.client.connect()
 
-        def online():
-            r = cls.client.read_input_registers(1000, 1, slave=1)
-            return not r.isError() and r.registers[0] == 1
-        assert eventually(online), open(cls.rig.log).read()
+            def online():
+                r = cls.client.read_input_registers(1000, 1, slave=1)
+                return not r.isError() and r.registers[0] == 1
+            eventually(online, 5, lambda: "hub0 online:\n" + cls.rig.log_text())
+        except BaseException:
+            cls.close()
+            raise
 
     @classmethod
     def tearDownClass(cls):
-        cls.client.close()
-        assert cls.rig.close() == 0
+        code, log = cls.close()
+        assert code == 0, f"ioportd exited {code} on SIGTERM:\n{log}"
+
+    @classmethod
+    def close(cls):
+        """Everything stopped and removed; ioportd's exit status on SIGTERM (None if it never
+        started) and its log."""
+        code = log = None
+        try:
+            if cls.client:
+                cls.client.close()
+            if cls.rig.daemon:
+                code = cls.rig.stop_daemon(timeout=5)[1]
+                log = cls.rig.log_text()
+        finally:
+            cls.rig.close()
+            shutil.rmtree(cls.dir, ignore_errors=True)
+        return code, log
 
     def mbpoll(self, *args):
-        out = subprocess.run(["mbpoll", "-1", "-m", "tcp", "-p", str(self.rig.port), *args],
+        out = subprocess.run(["mbpoll", "-1", "-m", "tcp", "-p", str(self.port), *args],
                              capture_output=True, text=True, timeout=20)
         self.assertEqual(out.returncode, 0, out.stdout + out.stderr)
         return out.stdout
@@ -143,11 +105,11 @@ class ThirdPartyClients(unittest.TestCase):
         def updated():
             r = self.client.read_input_registers(0, 1, slave=1)
             return not r.isError() and r.registers[0] == 0x8001
-        self.assertTrue(eventually(updated))
+        eventually(updated, what="dim16 0 is 0x8001")
         bits = self.client.read_discrete_inputs(0, 16, slave=1)
         self.assertEqual(bits.bits[:16], [True] + [False] * 14 + [True])
-        self.assertTrue(eventually(lambda: self.client.read_input_registers(
-            16, 1, slave=1).registers[0] == 13208))
+        eventually(lambda: self.client.read_input_registers(16, 1, slave=1).registers[0] == 13208,
+                   what="acm3p 0 channel 0 is 13208")
         r = self.client.read_input_registers(200, 2, slave=1)
         value = struct.unpack(">f", struct.pack(">HH", *r.registers))[0]
         self.assertEqual(value, struct.unpack(">f", struct.pack(">f", 13208 / 65535 * 100))[0])
@@ -233,10 +195,10 @@ class ThirdPartyClients(unittest.TestCase):
     def test_mbpoll_reads_and_writes(self):
         self.rig.ctl("set dim16:0 0x00F0")
         self.rig.ctl("set acm3p:0 13208 0 0")
-        self.assertTrue(eventually(lambda: self.client.read_input_registers(
-            0, 1, slave=1).registers[0] == 0x00F0))
-        self.assertTrue(eventually(lambda: self.client.read_input_registers(
-            16, 1, slave=1).registers[0] == 13208))
+        eventually(lambda: self.client.read_input_registers(0, 1, slave=1).registers[0] == 0x00F0,
+                   what="dim16 0 is 0x00F0")
+        eventually(lambda: self.client.read_input_registers(16, 1, slave=1).registers[0] == 13208,
+                   what="acm3p 0 channel 0 is 13208")
         out = self.mbpoll("-a", "1", "-t", "3:hex", "-r", "1", "-c", "1", "127.0.0.1")
         self.assertRegex(out, r"\[1\]:\s+0x00F0")
         self.mbpoll("-a", "1", "-t", "4", "-r", "1", "127.0.0.1", "4660")
@@ -245,7 +207,7 @@ class ThirdPartyClients(unittest.TestCase):
         self.assertRegex(out, r"\[201\]:\s+20\.15")
 
     def test_malformed_frame_closes_only_its_own_connection(self):
-        with socket.create_connection(("127.0.0.1", self.rig.port), timeout=3) as bad:
+        with socket.create_connection(("127.0.0.1", self.port), timeout=3) as bad:
             # transaction 1, protocol id 1 (must be 0), length 6, unit 1, FC04 0 1
             bad.sendall(bytes.fromhex("0001 0001 0006 01 04 0000 0001"))
             self.assertEqual(bad.recv(100), b"")  # closed, not answered

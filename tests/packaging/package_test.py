@@ -76,6 +76,8 @@ EXPECTED_FILES = {
     "./usr/lib/": "drwxr-xr-x",
     "./usr/lib/modules-load.d/": "drwxr-xr-x",
     "./usr/lib/modules-load.d/ioportd.conf": "-rw-r--r--",
+    "./usr/lib/sysusers.d/": "drwxr-xr-x",
+    "./usr/lib/sysusers.d/ioportd.conf": "-rw-r--r--",
     "./usr/sbin/": "drwxr-xr-x",
     "./usr/sbin/ioportd": "-rwxr-xr-x",
     "./usr/share/": "drwxr-xr-x",
@@ -207,7 +209,7 @@ def extract_control(deb: Path, into: Path) -> None:
 
 # ---- What the maintainer scripts do ----------------------------------------------------------
 
-STUBBED = ["systemctl", "deb-systemd-invoke", "udevadm", "modprobe"]
+STUBBED = ["systemctl", "deb-systemd-invoke", "udevadm", "modprobe", "systemd-sysusers"]
 
 
 def make_stubs(directory: Path, log: Path, without: tuple[str, ...] = ()) -> None:
@@ -257,17 +259,19 @@ def check_script_behaviour(control: Path) -> None:
     udev_reload = "udevadm control --reload-rules"
     udev_trigger = "udevadm trigger --action=change --subsystem-match=usb-serial " \
                    "--subsystem-match=tty"
+    group = "systemd-sysusers ioportd.conf"
 
     result, calls = run_script(postinst, ["configure"], systemd=True, udev=True)
     check(result.returncode == 0, f"postinst configure: exit {result.returncode} {result.stderr}")
-    check(calls == [reload_, modules, udev_reload, udev_trigger],
-          f"postinst configure (fresh install) called {calls}: it must reload systemd and udev, "
-          f"load the serial drivers, and neither enable nor start the service")
+    check(calls == [group, reload_, modules, udev_reload, udev_trigger],
+          f"postinst configure (fresh install) called {calls}: it must make the group ioportd, "
+          f"reload systemd and udev, load the serial drivers, and neither enable nor start the "
+          f"service")
     check("systemctl enable --now ioportd" in result.stdout,
           f"postinst configure does not tell how to start the service: {result.stdout!r}")
 
     result, calls = run_script(postinst, ["configure", "0.0.9"], systemd=True, udev=True)
-    check(result.returncode == 0 and calls == [reload_, modules, udev_reload, udev_trigger,
+    check(result.returncode == 0 and calls == [group, reload_, modules, udev_reload, udev_trigger,
                                                f"deb-systemd-invoke try-restart {UNIT}"],
           f"postinst configure 0.0.9 (upgrade) called {calls}: it must try-restart the service")
     check(result.stdout == "", f"postinst on upgrade prints {result.stdout!r}")
@@ -278,13 +282,20 @@ def check_script_behaviour(control: Path) -> None:
           f"postinst upgrade without deb-systemd-invoke called {calls}")
 
     result, calls = run_script(postinst, ["configure"], systemd=False, udev=False)
-    check(result.returncode == 0 and calls == [],
-          f"postinst configure without a running systemd and udev (a chroot) called {calls}")
+    check(result.returncode == 0 and calls == [group],
+          f"postinst configure without a running systemd and udev (a chroot) called {calls}: "
+          f"only the group is made there")
 
     result, calls = run_script(postinst, ["configure", "0.0.9"], systemd=True, udev=True,
                                dpkg_root="/srv/image")
-    check(result.returncode == 0 and calls == [],
-          f"postinst with DPKG_ROOT set must leave the host's systemd and udev alone: {calls}")
+    check(result.returncode == 0 and calls == ["systemd-sysusers --root=/srv/image ioportd.conf"],
+          f"postinst with DPKG_ROOT set must leave the host's systemd and udev alone and make "
+          f"the group in the image: {calls}")
+
+    result, calls = run_script(postinst, ["configure"], systemd=True, udev=True,
+                               without=("systemd-sysusers",))
+    check(result.returncode == 0 and calls[:1] == [reload_],
+          f"postinst without systemd-sysusers (no systemd installed) called {calls}")
 
     result, calls = run_script(prerm, ["remove"], systemd=True, udev=True)
     check(result.returncode == 0 and calls == [f"deb-systemd-invoke stop {UNIT}"],
@@ -358,7 +369,16 @@ def check_installation(deb: Path, scratch: Path) -> Path | None:
     check(result.returncode == 0, f"dpkg -i over a changed configuration: {result.stderr}")
     check(config.read_text().endswith("# changed by the integrator\n"),
           "reinstalling the package replaced the changed configuration")
-    check(log.read_text() == "", f"the scripts called {log.read_text()!r} with DPKG_ROOT set")
+    check(set(log.read_text().splitlines()) <= {f"systemd-sysusers --root={root} ioportd.conf"},
+          f"the scripts called {log.read_text()!r} with DPKG_ROOT set: only the group may be "
+          f"made, in the image")
+    log.write_text("")  # removal and purge must call nothing at all
+    # What the stub stood for, for real in the image: the unit's SupplementaryGroups= exists.
+    made = run("systemd-sysusers", f"--root={root}", root / "usr/lib/sysusers.d/ioportd.conf")
+    check(made.returncode == 0 and re.search(r"^ioportd:x:\d+:$",
+                                             (root / "etc/group").read_text(), re.M) is not None,
+          f"systemd-sysusers with the package's ioportd.conf made no group ioportd: "
+          f"{made.stderr}")
     return root
 
 
@@ -502,7 +522,7 @@ def check_unit(root: Path, scratch: Path) -> None:
         "Type": ["notify"], "NotifyAccess": ["main"], "Restart": ["on-failure"],
         "ExecStart": ["/usr/sbin/ioportd --config /etc/ioportd/ioportd.yaml"],
         "ExecReload": ["/bin/kill -HUP $MAINPID"],
-        "DynamicUser": ["yes"], "SupplementaryGroups": ["dialout"],
+        "DynamicUser": ["yes"], "SupplementaryGroups": ["dialout ioportd"],
         "AmbientCapabilities": ["CAP_NET_BIND_SERVICE"],
         "CapabilityBoundingSet": ["CAP_NET_BIND_SERVICE"],
         "NoNewPrivileges": ["yes"], "ProtectSystem": ["strict"], "ProtectHome": ["yes"],

@@ -5,8 +5,9 @@ The unit's SystemCallFilter= answers EPERM to any call outside the set, and
 RestrictAddressFamilies= refuses other socket families; ProtectSystem=strict makes every file
 read-only. A change to the daemon that needs more would pass every other test and fail only in
 production. So this test runs the real daemon against the simulator under strace, as systemd
-would run it (NOTIFY_SOCKET, WATCHDOG_USEC): start-up, Modbus reads and writes on two units, a
-port unplugged and back, the watchdog, and SIGTERM; and checks every system call it made
+would run it (NOTIFY_SOCKET, WATCHDOG_USEC): start-up, Modbus reads and writes on two units,
+Modbus/TCP Security (TLS handshakes, full and resumed, and a request), a port unplugged and back,
+the watchdog, and SIGTERM; and checks every system call it made
 against the unit's filter, as systemd-analyze expands it, every socket family against the
 unit's list, that it opened nothing for writing but its serial ports, and that it looked at
 nothing that ProcSubset=pid and ProtectHome=yes hide.
@@ -18,6 +19,7 @@ import os
 import re
 import signal
 import socket
+import ssl
 import struct
 import subprocess
 import sys
@@ -80,6 +82,37 @@ def modbus(port: int, unit: int, pdu: bytes, transaction: int) -> bytes:
         return s.recv(length - 1, socket.MSG_WAITALL)
 
 
+def make_certificates(directory: str) -> None:
+    """A CA, the server's certificate and a client's with the role operator (README commands)."""
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-noenc"]
+    leaf = ["-days", "30", "-CA", "ca.pem", "-CAkey", "ca.key", "-addext",
+            "basicConstraints=critical,CA:FALSE"]
+    for command in (
+            ["-keyout", "ca.key", "-out", "ca.pem", "-days", "30", "-subj", "/CN=Sandbox CA"],
+            ["-keyout", "server.key", "-out", "server.pem", "-subj", "/CN=localhost", *leaf,
+             "-addext", "subjectAltName=IP:127.0.0.1"],
+            ["-keyout", "client.key", "-out", "client.pem", "-subj", "/CN=sandbox", *leaf,
+             "-addext", "1.3.6.1.4.1.50316.802.1=ASN1:UTF8String:operator"]):
+        subprocess.run(["openssl", "req", "-x509", *ec, *command], cwd=directory, check=True,
+                       capture_output=True)
+    for key in ("ca.key", "server.key", "client.key"):
+        os.chmod(os.path.join(directory, key), 0o640)
+
+
+def modbus_tls(port: int, context: ssl.SSLContext, session=None):
+    """A read of unit 1 over TLS: the answer, whether the session was resumed, the session."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as raw:
+        with context.wrap_socket(raw, server_hostname="127.0.0.1", session=session) as s:
+            s.sendall(struct.pack(">HHHB", 9, 0, 6, 1) + struct.pack(">BHH", 4, 0, 1))
+            answer = b""
+            while len(answer) < 11:
+                chunk = s.recv(11 - len(answer))
+                if not chunk:
+                    break
+                answer += chunk
+            return answer[7:], s.session_reused, s.session
+
+
 class Notifications:
     """The NOTIFY_SOCKET that systemd would give the service."""
 
@@ -122,9 +155,17 @@ def main() -> int:
             for sim in sims:
                 banner = sim.stdout.readline()
                 assert banner.startswith("ioport-sim: "), banner
+            make_certificates(scratch)
             config = Path(scratch, "ioportd.yaml")
             config.write_text(f"""modbus:
   listen: "127.0.0.1:0"
+  tls:
+    listen: "127.0.0.1:0"
+    certificate: {scratch}/server.pem
+    key: {scratch}/server.key
+    client_ca: {scratch}/ca.pem
+    roles:
+      operator: {{ units: all, access: read_write }}
 http:
   listen: "127.0.0.1:0"
 links:
@@ -168,6 +209,16 @@ links:
             ]
             for answer in answers:
                 check(answer[0] < 0x80, f"Modbus exception {answer.hex()}")
+            # Modbus/TCP Security: OpenSSL's reads of its configuration, its random numbers.
+            tls_port = int(re.search(r"Modbus/TCP Security \(TLS\) on 127\.0\.0\.1:(\d+)",
+                                     Path(log).read_text()).group(1))
+            context = ssl.create_default_context(cafile=f"{scratch}/ca.pem")
+            context.load_cert_chain(f"{scratch}/client.pem", f"{scratch}/client.key")
+            answer, _, session = modbus_tls(tls_port, context)
+            check(answer[:1] == b"\x04", f"Modbus/TCP Security read: {answer.hex()}")
+            answer, resumed, _ = modbus_tls(tls_port, context, session)
+            check(answer[:1] == b"\x04" and resumed,
+                  f"resumed Modbus/TCP Security read: {answer.hex()}, resumed {resumed}")
             # The HTTP side's pages read /proc/self: what the unit lets it see.
             http_port = int(re.search(r"HTTP on http://127\.0\.0\.1:(\d+)/",
                                       Path(log).read_text()).group(1))

@@ -8,7 +8,6 @@ Usage: edge_node_test.py IOPORTD IOPORT_SIM PYTHON_DIR   (PYTHON_DIR holds spark
 """
 import json
 import os
-import re
 import shutil
 import signal
 import socket
@@ -23,10 +22,12 @@ import urllib.request
 IOPORTD, IOPORT_SIM, PYTHON_DIR = sys.argv[1], sys.argv[2], sys.argv[3]
 sys.path.insert(0, PYTHON_DIR)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 
 from pymodbus.client import ModbusTcpClient  # noqa: E402
 
 from host_app import HostApp  # noqa: E402
+from rig import Rig, eventually, free_port  # noqa: E402
 
 GROUP, NODE = "plant1", "box7"
 HUB_MODULES = ["dim16:0", "dom16:0", "acm3p:0", "rgbdm:0"]
@@ -47,23 +48,6 @@ METRICS = {
     "press.id2": [("stop", "Boolean"), ("count", "UInt16"), ("reset", "Boolean")],
 }
 TYPE_NUMBERS = {"Int64": 4, "UInt8": 5, "UInt16": 6, "UInt64": 8, "Float": 9, "Boolean": 11}
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def eventually(condition, deadline=5.0, what="condition"):
-    until = time.monotonic() + deadline
-    while True:
-        result = condition()
-        if result:
-            return result
-        if time.monotonic() >= until:
-            raise AssertionError(f"not within {deadline} s: {what}")
-        time.sleep(0.01)
 
 
 class Broker:
@@ -99,47 +83,34 @@ class Broker:
         self.process = None
 
 
-class Rig:
+class EdgeNodeRig(Rig):
     """ioport-sim with a hub and one with an ID-2, and ioportd on them as edge node plant1/box7,
     in a temporary directory."""
 
     def __init__(self, directory, broker_port, hub_modules=HUB_MODULES, mqtt_extra="",
                  broker_url=None):
-        self.dir = directory
-        self.link = os.path.join(self.dir, "ttyHUB")
-        self.id2_link = os.path.join(self.dir, "ttyID2")
-        self.hub_ctl = os.path.join(self.dir, "hub.ctl")
-        self.id2_ctl = os.path.join(self.dir, "id2.ctl")
-        self.config = os.path.join(self.dir, "ioportd.yaml")
-        self.log = os.path.join(self.dir, "ioportd.log")
-        self.broker_port = broker_port
+        super().__init__(directory, IOPORTD, IOPORT_SIM)
         self.broker_url = broker_url or f"mqtt://127.0.0.1:{broker_port}"
-        self.sims = []
-        self.daemon = None
-        self.start_sim("--control", self.hub_ctl, "--hub",
-                       "dim16:0,dom16:0,acm3p:0,rgbdm:0,mux8m:0", link=self.link)
-        self.start_sim("--control", self.id2_ctl, "--id2", link=self.id2_link)
-        self.write_config(hub_modules, mqtt_extra)
+        try:
+            self.start_hub("dim16:0,dom16:0,acm3p:0,rgbdm:0,mux8m:0")
+            self.start_id2()
+        except BaseException:
+            self.close()
+            raise
+        self.configure(hub_modules, mqtt_extra)
 
-    def start_sim(self, *args, link):
-        sim = subprocess.Popen([IOPORT_SIM, "--link", link, "--no-line-timing", *args],
-                               stdout=subprocess.PIPE, text=True)
-        self.sims.append(sim)
-        banner = sim.stdout.readline()
-        assert banner.startswith("ioport-sim: "), banner
-
-    def write_config(self, hub_modules, mqtt_extra=""):
+    def configure(self, hub_modules, mqtt_extra=""):
+        """Writes the configuration: these modules of the hub, and lines to add under mqtt:."""
         modules = "\n".join(f"      - {{ type: {m.split(':')[0]}, number: {m.split(':')[1]} }}"
                             for m in hub_modules)
-        with open(self.config, "w") as f:
-            f.write(f"""modbus:
+        self.write_config(f"""modbus:
   listen: "127.0.0.1:0"
 http:
   listen: "127.0.0.1:0"
 links:
   - name: hub0
     protocol: ioport
-    device: {self.link}
+    device: {self.hub_link}
     unit_id: 1
     timeout: 100ms
     modules:
@@ -156,13 +127,9 @@ mqtt:
 {mqtt_extra}""")
 
     def start_daemon(self):
-        with open(self.log, "a") as log:
-            self.log_start = log.tell()
-            self.daemon = subprocess.Popen([IOPORTD, "--config", self.config], stdout=log,
-                                           stderr=log)
-        found = self.wait_log(r"Modbus TCP on 127\.0\.0\.1:(\d+)", 10)
-        self.port = int(found.group(1))
-        self.http_port = int(self.wait_log(r"HTTP on http://127\.0\.0\.1:(\d+)/", 10).group(1))
+        super().start_daemon()
+        self.port = self.listening_port("Modbus TCP")
+        self.http_port = self.listening_port("HTTP")
 
     def state(self):
         """/api/v1/state, decoded."""
@@ -170,44 +137,8 @@ mqtt:
                                     timeout=5) as reply:
             return json.load(reply)
 
-    def log_text(self):
-        with open(self.log) as f:
-            f.seek(self.log_start)
-            return f.read()
-
-    def log_mark(self):
-        return len(self.log_text())
-
-    def wait_log(self, pattern, timeout=5, since=0):
-        def found():
-            assert self.daemon.poll() is None or since < 0, self.log_text()
-            return re.search(pattern, self.log_text()[since:])
-        return eventually(found, timeout, f"/{pattern}/ in the log:\n{self.log_text()[-3000:]}")
-
-    def stop_daemon(self, sig=signal.SIGTERM):
-        """Seconds from the signal to the exit, and the exit code."""
-        started = time.monotonic()
-        self.daemon.send_signal(sig)
-        code = self.daemon.wait(10)
-        return time.monotonic() - started, code
-
-    def ctl(self, command, socket_path=None):
-        out = subprocess.run([IOPORT_SIM, "ctl", socket_path or self.hub_ctl, *command.split()],
-                             capture_output=True, text=True, timeout=10)
-        assert out.returncode == 0, out.stderr
-        return out.stdout.splitlines()[0] if out.stdout else ""
-
     def id2(self, command):
         return self.ctl(command, self.id2_ctl)
-
-    def close(self):
-        if self.daemon and self.daemon.poll() is None:
-            self.daemon.kill()
-            self.daemon.wait(5)
-        for sim in self.sims:
-            sim.terminate()
-            sim.wait(5)
-            sim.stdout.close()
 
 
 class SparkplugCase(unittest.TestCase):
@@ -236,7 +167,7 @@ class SparkplugCase(unittest.TestCase):
 
     def new_rig(self, **kwargs):
         directory = tempfile.mkdtemp(dir=self.dir)
-        rig = Rig(directory, self.broker.port, **kwargs)
+        rig = EdgeNodeRig(directory, self.broker.port, **kwargs)
         return rig
 
     def modbus(self, rig):
@@ -285,8 +216,8 @@ class EdgeNode(SparkplugCase):
     @classmethod
     def setUpClass(cls):
         super().setUpClass()
-        cls.rig = Rig(tempfile.mkdtemp(dir=cls.dir), cls.broker.port,
-                      mqtt_extra="  deadband: 1.0\n")
+        cls.rig = EdgeNodeRig(tempfile.mkdtemp(dir=cls.dir), cls.broker.port,
+                              mqtt_extra="  deadband: 1.0\n")
         cls.rig.ctl("set dim16:0 0x0005")
         cls.rig.ctl("set acm3p:0 1000 2000 100")
         cls.rig.id2("set count 7")
@@ -642,7 +573,7 @@ class Lifecycle(SparkplugCase):
 
     def test_primary_host_gates_births(self):
         self.host.state("scada", False)  # a retained STATE offline from before
-        self.rig.write_config(HUB_MODULES, "  primary_host_id: scada\n")
+        self.rig.configure(HUB_MODULES, "  primary_host_id: scada\n")
         mark = self.host.mark()
         self.rig.start_daemon()
         self.rig.wait_log(r"mqtt: connected to")
@@ -670,7 +601,7 @@ class Lifecycle(SparkplugCase):
         self.host.wait_metric("hub0.dim16.0", "word", 0x0042, since=mark)
         self.assertEqual(self.host.since(mark, "NBIRTH"), [], "unchanged: the session is kept")
         self.assertEqual(self.rebirths(mark), [])
-        self.rig.write_config(HUB_MODULES + ["mux8m:0"])
+        self.rig.configure(HUB_MODULES + ["mux8m:0"])
         mark, log = self.host.mark(), self.rig.log_mark()
         self.rig.daemon.send_signal(signal.SIGHUP)
         self.rig.wait_log(r"SIGHUP: reloaded", since=log)
@@ -742,9 +673,9 @@ password_file {d}/passwd
         def mqtt_extra(password):
             return (f"  username: box7\n  password_file: {self.dir}/{password}\n"
                     f"  ca_file: {self.dir}/ca.pem\n")
-        rig = Rig(tempfile.mkdtemp(dir=self.dir), self.broker.port,
-                  mqtt_extra=mqtt_extra("wrong"),
-                  broker_url=f"mqtts://127.0.0.1:{self.tls_port}")
+        rig = EdgeNodeRig(tempfile.mkdtemp(dir=self.dir), self.broker.port,
+                          mqtt_extra=mqtt_extra("wrong"),
+                          broker_url=f"mqtts://127.0.0.1:{self.tls_port}")
         try:
             rig.start_daemon()
             # a wrong password: refused, said once, retried; Modbus as ever
@@ -755,7 +686,7 @@ password_file {d}/passwd
             client.close()
             # the right one, by SIGHUP: the new settings begin a session over TLS
             mark = self.host.mark()
-            rig.write_config(HUB_MODULES, mqtt_extra("password"))
+            rig.configure(HUB_MODULES, mqtt_extra("password"))
             rig.daemon.send_signal(signal.SIGHUP)
             rig.wait_log(r"mqtt: connected to mqtts://127\.0\.0\.1:\d+ as ioportd-plant1-box7",
                          15)

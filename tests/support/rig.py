@@ -7,9 +7,14 @@ on a configuration of the test's, its log, and polling with a deadline (never a 
     rig.write_config(yaml)        # may name rig.hub_link and rig.id2_link
     rig.start_daemon()            # waits for "ioportd ... started"
     rig.wait_log(r"...")
+    rig.stop_daemon()             # SIGTERM: (seconds to the exit, exit status)
     rig.close()
+
+Rig(..., preexec_fn=die_with_parent): the simulators and the daemon are killed when the test
+process dies, even by SIGKILL (a CTest timeout); a process of the test's own can have it too.
 """
 
+import ctypes
 import os
 import re
 import signal
@@ -25,19 +30,29 @@ def free_port():
 
 
 def eventually(condition, deadline=5.0, what="condition", interval=0.01):
-    """condition()'s first true result, polled every `interval` until `deadline` seconds."""
+    """condition()'s first true result, polled every `interval` until `deadline` seconds.
+    `what` names the condition in the failure; a callable is asked for it at the failure, so
+    that it can tell what things were like then (a log, a server's answer)."""
     until = time.monotonic() + deadline
     while True:
         result = condition()
         if result:
             return result
         if time.monotonic() >= until:
-            raise AssertionError(f"not within {deadline} s: {what}")
+            raise AssertionError(f"not within {deadline} s: {what() if callable(what) else what}")
         time.sleep(interval)
 
 
+def die_with_parent():
+    """In the child before exec (preexec_fn): SIGKILL when the test process dies, even by
+    SIGKILL (a CTest timeout), so that nothing it started outlives it."""
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
 class Rig:
-    def __init__(self, directory, ioportd, ioport_sim):
+    def __init__(self, directory, ioportd, ioport_sim, preexec_fn=None):
+        """preexec_fn: run in each simulator and the daemon before exec (see die_with_parent)."""
         self.dir = directory
         self.ioportd = ioportd
         self.ioport_sim = ioport_sim
@@ -50,10 +65,11 @@ class Rig:
         self.log_start = 0
         self.sims = []
         self.daemon = None
+        self.preexec_fn = preexec_fn
 
     def start_sim(self, *args, link):
         sim = subprocess.Popen([self.ioport_sim, "--link", link, "--no-line-timing", *args],
-                               stdout=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, text=True, preexec_fn=self.preexec_fn)
         self.sims.append(sim)
         banner = sim.stdout.readline()
         assert banner.startswith("ioport-sim: "), banner
@@ -72,7 +88,7 @@ class Rig:
         with open(self.log, "a") as log:
             self.log_start = log.tell()
             self.daemon = subprocess.Popen([self.ioportd, "--config", self.config], stdout=log,
-                                           stderr=log)
+                                           stderr=log, preexec_fn=self.preexec_fn)
         self.wait_log(r"ioportd \S+ started: ", 10)
 
     def listening_port(self, what, since=0):
@@ -91,9 +107,11 @@ class Rig:
 
     def wait_log(self, pattern, timeout=5, since=0):
         def found():
-            assert self.daemon.poll() is None, self.log_text()
+            assert self.daemon.poll() is None, \
+                f"ioportd exited {self.daemon.returncode}:\n{self.log_text()}"
             return re.search(pattern, self.log_text()[since:])
-        return eventually(found, timeout, f"/{pattern}/ in the log:\n{self.log_text()[-3000:]}")
+        return eventually(found, timeout,
+                          lambda: f"/{pattern}/ in the log:\n{self.log_text()[-3000:]}")
 
     def reload(self, yaml):
         """Rewrites the configuration, SIGHUP, and waits for the outcome; the reload's log."""
@@ -102,6 +120,14 @@ class Rig:
         self.daemon.send_signal(signal.SIGHUP)
         self.wait_log(r"SIGHUP: (reloaded|.*the running configuration is kept)", 10, mark)
         return self.log_text()[mark:]
+
+    def stop_daemon(self, sig=signal.SIGTERM, timeout=10):
+        """Seconds from the signal to the exit, and the exit status; subprocess.TimeoutExpired
+        if it is still running after `timeout` (close() kills it then)."""
+        started = time.monotonic()
+        self.daemon.send_signal(sig)
+        code = self.daemon.wait(timeout)
+        return time.monotonic() - started, code
 
     def ctl(self, command, socket_path=None):
         out = subprocess.run([self.ioport_sim, "ctl", socket_path or self.hub_ctl,

@@ -17,6 +17,23 @@ TEST(JournalEntry, CarriesPriorityIdentifierAndTheFieldsThatAreSet) {
     EXPECT_EQ(entry, expected);
 }
 
+// Modbus/TCP Security (gateway.md §5.6): who connected, by certificate and role; ROLE is there
+// when empty too, so that "no role" can be searched for (journalctl ROLE=).
+TEST(JournalEntry, ATlsClientHasItsSubjectAndRole) {
+    const TlsIdentity operator_1{"O=Plant,CN=operator-1", "operator"};
+    const auto entry =
+        journal_entry(LogLevel::info, {.client = "10.0.0.5:50123", .tls = &operator_1}, "x");
+    const std::vector<std::string> expected{"MESSAGE=x",
+                                            "PRIORITY=6",
+                                            "SYSLOG_IDENTIFIER=ioportd",
+                                            "CLIENT=10.0.0.5:50123",
+                                            "TLS_SUBJECT=O=Plant,CN=operator-1",
+                                            "ROLE=operator"};
+    EXPECT_EQ(entry, expected);
+    const TlsIdentity nobody{"CN=norole-1", ""};
+    EXPECT_EQ(journal_entry(LogLevel::info, {.tls = &nobody}, "x").back(), "ROLE=");
+}
+
 TEST(JournalEntry, LevelsMapToSyslogPriorities) {
     const auto priority = [](LogLevel level) { return journal_entry(level, {}, "x").at(1); };
     EXPECT_EQ(priority(LogLevel::debug), "PRIORITY=7");
