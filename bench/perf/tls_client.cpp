@@ -95,7 +95,7 @@ std::int64_t OpenSslAllocations::live() {
 }
 
 TlsClientContext::TlsClientContext(const TlsClientSettings& settings) {
-    std::unique_ptr<SSL_CTX, Free> context(SSL_CTX_new(TLS_client_method()));
+    decltype(context_) context(SSL_CTX_new(TLS_client_method()));
     if (!context) {
         failure_ = openssl_error("SSL_CTX_new");
         return;

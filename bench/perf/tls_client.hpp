@@ -13,6 +13,8 @@
 
 #include <openssl/ssl.h>
 
+#include "protocol/openssl.hpp"
+
 namespace ioport::bench {
 
 struct TlsClientSettings {
@@ -37,17 +39,11 @@ class TlsClientContext {
     const std::string& failure() const { return failure_; }
 
   private:
-    struct Free {
-        void operator()(SSL_CTX* context) const { SSL_CTX_free(context); }
-    };
-    std::unique_ptr<SSL_CTX, Free> context_;
+    std::unique_ptr<SSL_CTX, openssl::Deleter<SSL_CTX_free>> context_;
     std::string failure_;
 };
 
-struct SessionFree {
-    void operator()(SSL_SESSION* session) const { SSL_SESSION_free(session); }
-};
-using TlsSession = std::unique_ptr<SSL_SESSION, SessionFree>;
+using TlsSession = std::unique_ptr<SSL_SESSION, openssl::Deleter<SSL_SESSION_free>>;
 
 // One connection: TCP connect and the TLS handshake in the constructor, then Modbus requests;
 // close_notify and close in the destructor.
