@@ -1,6 +1,6 @@
-// The benchmarks of issue 6, of issue 16's HTTP side and of issue 17's Sparkplug edge node
-// (bench/README.md). Each prints its tables and one machine-readable line per figure, and returns
-// its figures against their targets.
+// The benchmarks of issue 6, of issue 16's HTTP side, of issue 17's Sparkplug edge node and of
+// issue 18's Modbus/TCP Security (bench/README.md). Each prints its tables and one
+// machine-readable line per figure, and returns its figures against their targets.
 #pragma once
 
 #include <vector>
@@ -27,5 +27,8 @@ std::vector<Verdict> http_cost(const Environment& env);
 std::vector<Verdict> sparkplug_cost(const Environment& env);
 // 7c. A fleet of edge nodes (Environment::fleet) on one broker; nothing in a --quick run.
 std::vector<Verdict> sparkplug_fleet(const Environment& env);
+// 8. Modbus/TCP Security (issue 18): ioportd's CPU per request over TLS against plain TCP,
+// full and resumed handshakes per second, the memory of 256 TLS clients.
+std::vector<Verdict> tls_cost(const Environment& env);
 
 }  // namespace ioport::bench

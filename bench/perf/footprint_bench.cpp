@@ -11,10 +11,6 @@
 namespace ioport::bench {
 namespace {
 
-double mib(std::size_t kib) {
-    return static_cast<double>(kib) / 1024.0;
-}
-
 struct Idle {
     double cpu_percent = 0;
     double cpu_us_per_tx = 0;

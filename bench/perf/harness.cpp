@@ -25,13 +25,6 @@
 namespace ioport::bench {
 namespace {
 
-std::string read_file(const std::string& path) {
-    std::ifstream in(path);
-    std::stringstream text;
-    text << in.rdbuf();
-    return text.str();
-}
-
 // The number after `prefix` in `text`, if it is there.
 std::optional<std::uint16_t> port_after(const std::string& text, std::string_view prefix) {
     const auto at = text.find(prefix);
@@ -47,6 +40,13 @@ std::optional<std::uint16_t> port_after(const std::string& text, std::string_vie
 }
 
 }  // namespace
+
+std::string read_file(const std::string& path) {
+    std::ifstream in(path);
+    std::stringstream text;
+    text << in.rdbuf();
+    return text.str();
+}
 
 std::chrono::milliseconds Environment::window(std::chrono::milliseconds full) const {
     if (quick) return std::min(full, std::chrono::milliseconds(200));
@@ -129,6 +129,11 @@ bool Process::running() const {
 int Process::stop(std::chrono::milliseconds deadline) {
     if (pid_ <= 0) return -1;
     ::kill(pid_, SIGTERM);
+    return wait(deadline);
+}
+
+int Process::wait(std::chrono::milliseconds deadline) {
+    if (pid_ <= 0) return -1;
     int status = 0;
     const bool exited = wait_for(
         [&] {
@@ -164,6 +169,22 @@ std::chrono::nanoseconds cpu_time(pid_t pid) {
     return schedstat ? total : stat_cpu_time(pid);
 }
 
+std::uint64_t sleeps(pid_t pid) {
+    std::uint64_t total = 0;
+    std::error_code ec;
+    for (const auto& task :
+         std::filesystem::directory_iterator(fmt::format("/proc/{}/task", pid), ec)) {
+        std::ifstream in(task.path() / "status");
+        std::string line;
+        while (std::getline(in, line)) {
+            unsigned long long count = 0;
+            if (std::sscanf(line.c_str(), "voluntary_ctxt_switches: %llu", &count) == 1)
+                total += count;
+        }
+    }
+    return total;
+}
+
 std::chrono::nanoseconds stat_cpu_time(pid_t pid) {
     // utime and stime, fields 14 and 15, in clock ticks; the command name may hold spaces.
     const auto stat = read_file(fmt::format("/proc/{}/stat", pid));
@@ -187,6 +208,10 @@ Memory memory(pid_t pid) {
         if (std::sscanf(line.c_str(), "VmHWM: %zu kB", &kib) == 1) m.peak_kib = kib;
     }
     return m;
+}
+
+double mib(std::size_t kib) {
+    return static_cast<double>(kib) / 1024.0;
 }
 
 std::vector<ModuleAddress> modules_of(ModuleType type, int count) {
@@ -236,9 +261,10 @@ std::chrono::nanoseconds wire_time(std::size_t bytes, int baud) {
 }
 
 std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections, bool http,
-                         std::string_view more) {
+                         std::string_view more, std::string_view modbus_more) {
     std::string yaml =
         fmt::format("modbus:\n  listen: \"127.0.0.1:0\"\n  max_connections: {}\n", max_connections);
+    yaml += modbus_more;
     if (http) yaml += "http:\n  listen: \"127.0.0.1:0\"\n";
     yaml += "links:\n";
     for (std::size_t i = 0; i < links.size(); ++i) {
@@ -314,6 +340,18 @@ std::uint16_t Gateway::http_port() const {
     wait_for(
         [&] {
             port = port_after(process_.output(), "HTTP on http://127.0.0.1:").value_or(0);
+            return port != 0 || !process_.running();
+        },
+        5s);
+    return port;
+}
+
+std::uint16_t Gateway::tls_port() const {
+    std::uint16_t port = 0;
+    wait_for(
+        [&] {
+            port = port_after(process_.output(), "Modbus/TCP Security (TLS) on 127.0.0.1:")
+                       .value_or(0);
             return port != 0 || !process_.running();
         },
         5s);

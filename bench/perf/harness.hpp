@@ -36,6 +36,8 @@ struct Binaries {
     std::string baseline;  // --baseline: an earlier ioportd, measured beside it in benchmark 4
     // The MQTT broker of benchmark 7 (--mosquitto); without it benchmark 7 says so and skips.
     std::string mosquitto = "/usr/sbin/mosquitto";
+    // Benchmark 8 makes its certificates with it, as the README tells an operator to.
+    std::string openssl = "/usr/bin/openssl";
 };
 
 // Where things run. The server under test (ioportd or the plain server) gets a CPU to itself;
@@ -83,6 +85,9 @@ class WakeupLatencyHold {
     std::string failure_;
 };
 
+// A file's contents ("" if it cannot be read).
+std::string read_file(const std::string& path);
+
 // A temporary directory, removed with its contents.
 class TempDir {
   public:
@@ -109,6 +114,9 @@ class Process {
     bool running() const;
     // SIGTERM, and the exit status (-1: had to be killed).
     int stop(std::chrono::milliseconds deadline = 5s);
+    // Waits for the process to end by itself (a command run to its end), and its exit status
+    // (-1: not within `deadline`, then killed).
+    int wait(std::chrono::milliseconds deadline);
     std::string output() const;
 
   private:
@@ -119,6 +127,9 @@ class Process {
 // Run time of every thread of a process, from /proc/PID/task/*/schedstat (nanoseconds, as the
 // scheduler accounts it), or /proc/PID/stat utime + stime where schedstat is missing.
 std::chrono::nanoseconds cpu_time(pid_t pid);
+// How often the threads of a process went to sleep waiting (voluntary context switches, from
+// /proc/PID/task/*/status): a server woken for every request sleeps once per request.
+std::uint64_t sleeps(pid_t pid);
 // utime + stime of a process from /proc/PID/stat, in clock ticks (10 ms here): the coarse
 // figure `top` and process_cpu_seconds_total use, as a check on the schedstat figures.
 std::chrono::nanoseconds stat_cpu_time(pid_t pid);
@@ -138,6 +149,7 @@ struct Memory {
     std::size_t peak_kib = 0;  // VmHWM: the peak resident set since the process started
 };
 Memory memory(pid_t pid);
+double mib(std::size_t kib);
 
 // --- Buses and configurations ---------------------------------------------------------------
 
@@ -162,8 +174,11 @@ struct LinkSpec {
 };
 // `http`: the HTTP side on as well (gateway.md §5.4), on a port of its own choosing. `more`:
 // further top-level sections, YAML as it goes into the file (the `mqtt:` of benchmark 7).
+// `modbus_more`: further keys of the `modbus:` section, indented by two (the `tls:` of
+// benchmark 8).
 std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections = 32,
-                         bool http = false, std::string_view more = {});
+                         bool http = false, std::string_view more = {},
+                         std::string_view modbus_more = {});
 
 // --- Modbus ---------------------------------------------------------------------------------
 
@@ -206,6 +221,8 @@ class Gateway {
     std::uint16_t port() const { return port_; }
     // The HTTP side's port, from the log (0: not started, or no http: section).
     std::uint16_t http_port() const;
+    // The Modbus/TCP Security listener's port, from the log (0: not started, or no modbus.tls).
+    std::uint16_t tls_port() const;
     pid_t pid() const { return process_.pid(); }
     bool started() const { return port_ != 0; }
     std::string log() const { return process_.output(); }

@@ -141,10 +141,6 @@ class HttpClient {
     int fd_ = -1;
 };
 
-double mib(std::size_t kib) {
-    return static_cast<double>(kib) / 1024.0;
-}
-
 std::string kib_text(std::size_t bytes) {
     return fmt::format("{:.1f} KiB", static_cast<double>(bytes) / 1024.0);
 }

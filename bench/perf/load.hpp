@@ -1,5 +1,7 @@
 // The Modbus load client of benchmarks 4 and 5: libmodbus, one thread and one connection each,
-// every thread sending its next request as soon as it has the response to the last one.
+// every thread sending its next request as soon as it has the response to the last one. Over
+// Modbus/TCP Security (benchmark 8) the same requests go through the OpenSSL client of
+// tls_client.hpp instead, on long-lived connections or on a new connection each.
 #pragma once
 
 #include <sys/types.h>
@@ -8,6 +10,7 @@
 #include <cstdint>
 
 #include "bench/perf/harness.hpp"
+#include "bench/perf/tls_client.hpp"
 
 namespace ioport::bench {
 
@@ -27,10 +30,18 @@ struct LoadSpec {
     std::chrono::milliseconds warmup = 500ms;
     std::chrono::milliseconds window = 3s;
     // Called once in the middle of the window (to sample a server's memory, say).
-    std::function<void()> midway;
+    std::function<void()> midway{};
     // Run on a thread of its own from the window's start; it should return by `to`, the window's
     // end (the HTTP scrapers of benchmark 6, beside the Modbus load).
-    std::function<void(Clock::time_point to)> beside;
+    std::function<void(Clock::time_point to)> beside{};
+    // Modbus/TCP Security: `port` is the TLS listener's, and the connections are this client's.
+    const TlsClientContext* tls = nullptr;
+    // Every request on a connection of its own: connect (and the TLS handshake), one request,
+    // close. The latency is all of it.
+    bool connection_per_request = false;
+    // With tls and connection_per_request: each connection offers the session its thread's last
+    // one was given, as a client that reconnects does.
+    bool resume = false;
 };
 
 struct LoadResult {
@@ -38,8 +49,13 @@ struct LoadResult {
     std::uint64_t requests = 0;    // answered normally within the window
     std::uint64_t errors = 0;      // exceptions and transport failures within the window
     std::uint64_t exceptions = 0;  // of which Modbus exception responses
+    // connection_per_request: connections made within the window, and of them how many resumed
+    // a TLS session (SSL_session_reused).
+    std::uint64_t connections = 0;
+    std::uint64_t resumed = 0;
     double seconds = 0;
     std::chrono::nanoseconds server_cpu{};
+    std::uint64_t server_sleeps = 0;  // the server's voluntary context switches in the window
     std::vector<float> latency_us;
 
     double per_second() const { return static_cast<double>(requests) / seconds; }
@@ -47,6 +63,10 @@ struct LoadResult {
         return microseconds(server_cpu) / static_cast<double>(std::max<std::uint64_t>(requests, 1));
     }
     double cpu_percent() const { return microseconds(server_cpu) / 1e4 / seconds; }
+    double sleeps_per_request() const {
+        return static_cast<double>(server_sleeps) /
+               static_cast<double>(std::max<std::uint64_t>(requests, 1));
+    }
     // Adds another run of the same load.
     void add(LoadResult other);
 };

@@ -1,7 +1,8 @@
-// ioportd-bench: the benchmarks of issues 6, 16 and 17, described with their results in
+// ioportd-bench: the benchmarks of issues 6, 16, 17 and 18, described with their results in
 // bench/README.md. bench/perf/run builds and runs them all; this program runs one or all of them.
 #include <unistd.h>
 
+#include <csignal>
 #include <cstdlib>
 #include <iostream>
 #include <optional>
@@ -11,13 +12,14 @@
 
 #include "bench/perf/benchmarks.hpp"
 #include "bench/perf/load.hpp"
+#include "bench/perf/tls_client.hpp"
 
 namespace {
 
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, sparkplug (7a-c), fleet (7c alone), or all (the default).
+write, modbus, footprint, http, sparkplug (7a-c), fleet (7c alone), tls, or all (the default).
 Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
 its target. Asserts nothing: exit status 0 unless a program could not be started.
 
@@ -37,9 +39,16 @@ its target. Asserts nothing: exit status 0 unless a program could not be started
   --mosquitto PATH  the MQTT broker of benchmark 7 (default /usr/sbin/mosquitto; without
                     one, benchmark 7 says so and is skipped)
 
-       ioportd-bench load PORT CONNECTIONS SECONDS [reads|writes|mixed]
+       ioportd-bench load PORT CONNECTIONS SECONDS [reads|writes|mixed] [TLS OPTIONS]
 The load client of benchmark 4 alone, against a server started by hand (for profiling it
-with perf, strace or callgrind): requests/s and latency percentiles.
+with perf, strace or callgrind): requests/s and latency percentiles. Over Modbus/TCP Security,
+as benchmark 8's client:
+
+  --tls CA CERT KEY the server's CA, the client's certificate and key (PEM files); PORT is
+                    then the TLS listener's
+  --tls1.2          TLS 1.2 only, without tickets (session ids); otherwise TLS 1.3
+  --reconnect       a new connection for every request (connect, handshake, one request, close)
+  --resume          with --reconnect: each connection resumes its thread's last session
 )";
 
 int load(int argc, char** argv) {
@@ -48,8 +57,35 @@ int load(int argc, char** argv) {
         std::cerr << usage;
         return 2;
     }
-    const std::string_view mix = argc > 5 ? argv[5] : "reads";
+    const std::string_view mix = argc > 5 && argv[5][0] != '-' ? argv[5] : "reads";
     LoadSpec spec;
+    std::optional<TlsClientSettings> tls;
+    for (int i = 5; i < argc; ++i) {
+        const std::string_view arg = argv[i];
+        if (arg == "--tls" && i + 3 < argc) {
+            tls = TlsClientSettings{argv[i + 1], argv[i + 2], argv[i + 3]};
+            i += 3;
+        } else if (arg == "--tls1.2" && tls) {
+            tls->version = TLS1_2_VERSION;
+            tls->no_tickets = true;
+        } else if (arg == "--reconnect") {
+            spec.connection_per_request = true;
+        } else if (arg == "--resume") {
+            spec.resume = true;
+        } else if (arg != mix) {
+            std::cerr << "ioportd-bench load: unknown argument '" << arg << "'\n" << usage;
+            return 2;
+        }
+    }
+    std::optional<TlsClientContext> client;
+    if (tls) {
+        client.emplace(*tls);
+        if (!client->ok()) {
+            std::cerr << "ioportd-bench load: " << client->failure() << "\n";
+            return 1;
+        }
+        spec.tls = &*client;
+    }
     spec.port = static_cast<std::uint16_t>(std::atoi(argv[2]));
     spec.connections = std::atoi(argv[3]);
     spec.window = std::chrono::milliseconds(static_cast<long>(std::atof(argv[4]) * 1000));
@@ -62,6 +98,8 @@ int load(int argc, char** argv) {
     fmt::print(
         "{:.0f} req/s, {} errors, latency µs p50 {:.0f} p99 {:.0f} p99.9 {:.0f} max {:.0f}\n",
         result.per_second(), result.errors, s.p50, s.p99, s.p999, s.max);
+    if (spec.connection_per_request)
+        fmt::print("{} connections, {} of them resumed\n", result.connections, result.resumed);
     return 0;
 }
 
@@ -69,6 +107,11 @@ int load(int argc, char** argv) {
 
 int main(int argc, char** argv) {
     using namespace ioport::bench;
+    // Before anything else uses OpenSSL: benchmark 8c counts what it allocates.
+    (void)OpenSslAllocations::install();
+    // A server that closes a TLS connection must fail the client's next write, not kill this
+    // program: OpenSSL writes to its sockets with write(), which raises SIGPIPE.
+    (void)std::signal(SIGPIPE, SIG_IGN);
     if (argc > 1 && std::string_view(argv[1]) == "load") return load(argc, argv);
     Environment env;
     std::vector<std::string_view> chosen;
@@ -99,7 +142,7 @@ int main(int argc, char** argv) {
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
                    arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "fleet" ||
-                   arg == "all") {
+                   arg == "tls" || arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -123,7 +166,7 @@ int main(int argc, char** argv) {
     {
         std::optional<WakeupLatencyHold> latency;
         if (hold && !env.quick) latency.emplace();
-        fmt::print("\nBenchmarks 1-4, 6 and 7a-b {}.\n",
+        fmt::print("\nBenchmarks 1-4, 6, 7a-b and 8 {}.\n",
                    !latency ? "with idle CPUs free to halt"
                    : latency->failure().empty()
                        ? "with idle CPUs polling (/dev/cpu_dma_latency held at 0)"
@@ -137,6 +180,8 @@ int main(int argc, char** argv) {
         if (wanted("http")) add(http_cost(env));
         // Latency and the Modbus load of benchmark 4 again, under the same conditions.
         if (wanted("sparkplug")) add(sparkplug_cost(env));
+        // Benchmark 4's load again, over TLS and plain.
+        if (wanted("tls")) add(tls_cost(env));
     }
     if (wanted("footprint")) add(footprint(env));
     // The fleet's CPU is the CPU of nodes that mostly wait, as benchmark 5's idle figure.
