@@ -43,6 +43,7 @@ Expected<std::string, std::string> read_file(const std::string& path, bool secre
     std::string text(max_file_size + 1, '\0');
     file.read(text.data(), static_cast<std::streamsize>(text.size()));
     text.resize(static_cast<std::size_t>(file.gcount()));
+    text.shrink_to_fit();  // kept with the settings: the file's size, not the read's limit
     if (text.size() > max_file_size)
         return Unexpected(
             fmt::format("{} is larger than {} KiB: not a PEM file of certificates or "
