@@ -46,7 +46,7 @@ struct ModbusServer::Connection {
           peer(describe(from)),
           tls_context(std::move(context)),
           handshaking(tls_context != nullptr) {
-        if (tls_context) tls = std::make_unique<TlsStream>(std::move(plain), *tls_context);
+        if (tls_context) tls = make_tls_stream(std::move(plain), *tls_context);
     }
 
     tcp::socket& socket() { return tls ? tls->next_layer() : plain; }
@@ -68,12 +68,26 @@ struct ModbusServer::Connection {
     bool client_took_data() {
         int bytes = 0;
         if (::ioctl(socket().native_handle(), SIOCOUTQ, &bytes) != 0) return true;
+        if (unacknowledged < 0) {  // no baseline yet (a TLS response): this is it
+            unacknowledged = bytes;
+            drained = Clock::now();
+            return true;
+        }
         const bool took = bytes == 0 || bytes + reading_evidence <= unacknowledged;
         if (took || bytes > unacknowledged) unacknowledged = bytes;
         if (took) drained = Clock::now();
         return took;
     }
     static constexpr int reading_evidence = 4096;
+
+    // Whether the socket holds no byte the client has not acknowledged. Asio's TLS engine writes
+    // a record synchronously only whole (a would_block part way would lose the rest of it), and
+    // the kernel takes a record of a few hundred bytes whole into an empty socket buffer: so a
+    // TLS response is written at once only then, else by an asynchronous operation.
+    bool nothing_queued() {
+        int bytes = 0;
+        return ::ioctl(socket().native_handle(), SIOCOUTQ, &bytes) == 0 && bytes == 0;
+    }
 
     // Moves the start of a pipelined or partial request to the front of the buffer.
     void compact() {
@@ -113,7 +127,7 @@ struct ModbusServer::Connection {
     Clock::time_point last_activity = Clock::now();
     Clock::time_point frame_started{};
     Clock::time_point drained = Clock::now();  // the client was last seen taking data
-    int unacknowledged = 0;
+    int unacknowledged = 0;  // SIOCOUTQ at the last look; -1: none taken yet (TLS)
     Clock::time_point armed = Clock::time_point::max();  // the watchdog's current expiry
     bool partial = false;
     bool busy = false;     // a request is being decided (a write waits for the device)
@@ -503,15 +517,21 @@ asio::awaitable<void> ModbusServer::watch(ConnectionPtr c) {
     }
 }
 
-// The rest of a response the socket did not take at once, whole, at the client's pace: while it
-// does not read, nothing more is read from it either, and the watchdog closes it once it has
-// taken no data for send_timeout.
+// The rest of a response the socket did not take at once (every TLS response), whole, at the
+// client's pace: while it does not read, nothing more is read from it either, and the watchdog
+// closes it once it has taken no data for send_timeout. The watchdog wakes by drained +
+// send_timeout, as it is never armed further ahead.
 asio::awaitable<boost::system::error_code> ModbusServer::send_rest(
     Connection& c, std::span<const std::uint8_t> rest) {
     c.sending = true;
     c.drained = Clock::now();
-    c.client_took_data();  // the baseline the watchdog compares with
-    // The watchdog wakes by drained + send_timeout: it is never armed further ahead.
+    // The baseline the watchdog compares with. A TLS response nearly always goes out at once,
+    // so its baseline is taken by the watchdog's first look, should the response still wait
+    // then: a client that stopped reading is closed 5 to 10 s into the wait, not 5.
+    if (c.tls)
+        c.unacknowledged = -1;
+    else
+        c.client_took_data();
     boost::system::error_code ec;
     const auto buffer = asio::buffer(rest.data(), rest.size());
     if (c.tls)
@@ -598,11 +618,13 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             }
             if (response && c->open) {
                 // Nearly always the socket takes a response at once: written then and there,
-                // without an asynchronous operation and its completion. TLS writes records
-                // through Asio's engine, which needs its own operation.
+                // without an asynchronous operation and its completion.
                 boost::system::error_code ec;
                 std::size_t written = 0;
-                if (!c->tls) written = c->plain.write_some(asio::buffer(*response), ec);
+                if (!c->tls)
+                    written = c->plain.write_some(asio::buffer(*response), ec);
+                else if (c->nothing_queued())
+                    written = c->tls->write_some(asio::buffer(*response), ec);
                 if (ec == asio::error::would_block) ec = {};
                 if (!ec && written < response->size())
                     ec = co_await send_rest(*c, std::span(*response).subspan(written));

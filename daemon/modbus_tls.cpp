@@ -80,6 +80,13 @@ Result<TlsContext> make_tls_context(const config::TlsSettings& settings) {
     return tls;
 }
 
+std::unique_ptr<TlsStream> make_tls_stream(asio::ip::tcp::socket socket,
+                                           asio::ssl::context& context) {
+    auto stream = std::make_unique<TlsStream>(std::move(socket), context);
+    SSL_clear_mode(stream->native_handle(), SSL_MODE_RELEASE_BUFFERS);
+    return stream;
+}
+
 TlsPeer tls_peer(TlsStream& stream) {
     TlsPeer peer;
     const openssl::Certificate certificate(SSL_get1_peer_certificate(stream.native_handle()));

@@ -408,10 +408,11 @@ Held hold_clients(const Environment& env, const Certificates& certificates,
 
 // What a connection of ioportd's TLS listener holds beyond a plain one, measured here on
 // ioportd's own code: a thread of this process plays the server with make_tls_context() and
-// daemon::TlsStream (Asio's ssl::stream), hands `count` clients the handshake and one response,
-// and keeps their streams. OpenSSL's part is what it allocated on that thread and still holds
-// (OpenSslAllocations), less what the first connection left behind once for all (the thread's
-// error queue, OpenSSL's caches); Asio's, the two record buffers of every stream.
+// daemon::make_tls_stream() (Asio's ssl::stream, as the listener makes it), hands `count` clients
+// the handshake and one response, and keeps their streams. OpenSSL's part is what it allocated on
+// that thread and still holds (OpenSslAllocations), less what the first connection left behind once
+// for all (the thread's error queue, OpenSSL's caches); Asio's, the two record buffers of every
+// stream.
 struct TlsNeed {
     bool ok = false;
     double openssl_kib = 0;  // per connection
@@ -444,7 +445,7 @@ TlsNeed tls_need(const Certificates& certificates, const TlsClientContext& clien
             boost::system::error_code ec;
             acceptor.accept(socket, ec);
             if (ec) return;
-            auto stream = std::make_unique<daemon::TlsStream>(std::move(socket), **context);
+            auto stream = daemon::make_tls_stream(std::move(socket), **context);
             stream->handshake(asio::ssl::stream_base::server, ec);
             // FC 04, 16 registers, and its response.
             std::array<std::uint8_t, 12> request{};

@@ -483,6 +483,51 @@ class ModbusTls(unittest.TestCase):
         finally:
             keeper.close()
 
+    def test_a_client_that_never_reads_its_responses_is_closed(self):
+        """Requests for 125 registers, pipelined without reading a response: once the socket
+        buffers are full, the server stops reading and closes the connection 5 to 10 s into the
+        wait (a TLS response's baseline is taken at the watchdog's first look)."""
+        keeper = self.client("operator")
+        greedy = self.client("operator")
+        request = struct.pack(">HHHB", 1, 0, 6, 1) + read_pdu(0x03, 0, 125)
+        try:
+            greedy.socket.setblocking(False)
+            sent, stuck_since = 0, None
+            while True:
+                try:
+                    greedy.socket.send(request * 64)
+                    sent += 64
+                    stuck_since = None
+                except ssl.SSLWantWriteError:
+                    stuck_since = stuck_since or time.monotonic()
+                    if time.monotonic() - stuck_since > 0.5:
+                        break  # the server stopped reading: its buffers are full of responses
+                    time.sleep(0.01)
+                except (ConnectionError, ssl.SSLError):
+                    self.fail(f"closed after {sent} requests, before the buffers were full")
+            worst = 0.0
+            closed_after = None
+            started = stuck_since
+            while time.monotonic() - started < 12:
+                t = time.monotonic()
+                self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
+                worst = max(worst, time.monotonic() - t)
+                state = [c for c in self.state()["modbus"]["clients"]
+                         if c["address"].endswith(f":{greedy.socket.getsockname()[1]}")]
+                if not state:
+                    closed_after = time.monotonic() - started
+                    break
+                time.sleep(0.1)
+            self.assertIsNotNone(closed_after, "the greedy client was not closed within 12 s")
+            print(f"\n  a TLS client that never reads: {sent} requests sent, closed "
+                  f"{closed_after:.1f} s into the wait; another client's reads took at most "
+                  f"{worst * 1000:.1f} ms", file=sys.stderr)
+            self.assertGreater(closed_after, 4)
+            self.assertLess(worst, 0.5)
+        finally:
+            greedy.close()
+            keeper.close()
+
     def test_a_thousand_half_open_tls_connections_cost_the_others_nothing(self):
         keeper = self.client("operator")
         hello = client_hello(self.certs)
