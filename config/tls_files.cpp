@@ -2,6 +2,7 @@
 
 #include <sys/stat.h>
 
+#include <array>
 #include <cerrno>
 #include <fstream>
 #include <memory>
@@ -39,16 +40,17 @@ Expected<std::string, std::string> read_file(const std::string& path, bool secre
             "{} is readable by every user: chmod o-r {} (group-readable is fine)", path, path));
     std::ifstream file(path);
     if (!file) return Unexpected(fmt::format("{}: cannot be read by this user", path));
-    // Certificate chains are kilobytes; a file far larger is not one (nor read whole).
-    std::string text(max_file_size + 1, '\0');
-    file.read(text.data(), static_cast<std::streamsize>(text.size()));
-    text.resize(static_cast<std::size_t>(file.gcount()));
-    text.shrink_to_fit();  // kept with the settings: the file's size, not the read's limit
-    if (text.size() > max_file_size)
-        return Unexpected(
-            fmt::format("{} is larger than {} KiB: not a PEM file of certificates or "
-                        "a key",
-                        path, max_file_size / 1024));
+    // Certificate chains are kilobytes; a file far larger is not one (nor read whole). Read in
+    // pieces: a buffer of the limit's size, even freed, would stay in the daemon's heap.
+    std::string text;
+    std::array<char, 16384> piece{};
+    while (file.read(piece.data(), piece.size()) || file.gcount() > 0) {
+        text.append(piece.data(), static_cast<std::size_t>(file.gcount()));
+        if (text.size() > max_file_size)
+            return Unexpected(
+                fmt::format("{} is larger than {} KiB: not a PEM file of certificates or a key",
+                            path, max_file_size / 1024));
+    }
     return text;
 }
 
