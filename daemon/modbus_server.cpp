@@ -565,9 +565,12 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
     }
     c.last_activity = Clock::now();
     const auto peer = tls_peer(*c.tls);
-    c.rights =
-        modbus_security::rights_of(peer.role, settings_.tls ? settings_.tls->default_role : "",
-                                   settings_.tls ? settings_.tls->roles : modbus_security::Roles{});
+    // Taken from the settings in place: a ternary with an empty Roles{} copied the map per
+    // handshake. A reload that removed modbus.tls during the handshake leaves no roles to give.
+    c.rights = settings_.tls
+                   ? modbus_security::rights_of(peer.role, settings_.tls->default_role,
+                                                settings_.tls->roles)
+                   : modbus_security::Rights{{}, std::nullopt, "modbus.tls is off: no rights"};
     const TlsIdentity identity{peer.subject, c.rights.role};
     log_.info({.client = c.peer, .tls = &identity},
               "Modbus/TCP Security client {} ({}, TLS {}{}): {}", c.peer, peer.subject,
