@@ -16,7 +16,6 @@ import json
 import os
 import re
 import shutil
-import signal
 import socket
 import ssl
 import struct
@@ -31,82 +30,26 @@ import urllib.request
 IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 
+from certificates import Certificates  # noqa: E402
 from rig import Rig, eventually  # noqa: E402
 from pymodbus.client import AsyncModbusTlsClient  # noqa: E402
 from pymodbus.framer.socket_framer import ModbusSocketFramer  # noqa: E402
 
-ROLE_OID = "1.3.6.1.4.1.50316.802.1"
 ILLEGAL_FUNCTION = 0x01
 GATEWAY_PATH_UNAVAILABLE = 0x0A
 
 
-def openssl(*args, cwd):
-    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=30)
-
-
-class Certificates:
-    """Made with the README's commands ("Securing Modbus"), but the expired one, which
-    `openssl req` refuses to make (-days -1): that one is signed from a request by `openssl x509`."""
-
-    EC = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-noenc"]
-
-    def __init__(self, directory):
-        self.dir = directory
-        self.ca("ca", "Plant Modbus CA")
-        self.ca("other-ca", "Some Other CA")
-        self.server("server", "gateway1")
-        for name, role in [("operator", "operator"), ("viewer", "viewer"), ("line2", "line2"),
-                           ("admin", "admin")]:
-            self.client(name, role)
-        self.client("norole", None)
-        self.client("foreign", "operator", ca="other-ca")
-        self.expired("expired", "operator")
-        for name in os.listdir(directory):
-            if name.endswith(".key"):
-                os.chmod(os.path.join(directory, name), 0o640)
-
-    def path(self, name):
-        return os.path.join(self.dir, name)
-
-    def ca(self, name, cn):
-        openssl("req", "-x509", *self.EC, "-keyout", f"{name}.key", "-out", f"{name}.pem",
-                "-days", "3650", "-subj", f"/CN={cn}", cwd=self.dir)
-
-    def signed(self, name, subject, extensions, ca="ca"):
-        addext = [a for e in ["basicConstraints=critical,CA:FALSE", *extensions]
-                  for a in ("-addext", e)]
-        openssl("req", "-x509", *self.EC, "-keyout", f"{name}.key", "-out", f"{name}.pem",
-                "-days", "825", "-subj", subject, "-CA", f"{ca}.pem", "-CAkey", f"{ca}.key",
-                *addext, cwd=self.dir)
-
-    def server(self, name, cn):
-        self.signed(name, f"/CN={cn}", ["subjectAltName=DNS:localhost,IP:127.0.0.1",
-                                        "extendedKeyUsage=serverAuth"])
-
-    @staticmethod
-    def role_extensions(role):
-        return ["extendedKeyUsage=clientAuth"] + (
-            [f"{ROLE_OID}=ASN1:UTF8String:{role}"] if role else [])
-
-    def client(self, name, role, ca="ca"):
-        self.signed(name, f"/CN={name}-1/O=Plant", self.role_extensions(role), ca)
-
-    def expired(self, name, role):
-        openssl("req", "-new", *self.EC, "-keyout", f"{name}.key", "-out", f"{name}.csr",
-                "-subj", f"/CN={name}-1/O=Plant", cwd=self.dir)
-        with open(self.path(f"{name}.ext"), "w") as f:
-            f.write("\n".join(self.role_extensions(role)) + "\n")
-        openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
-                "-days", "-1", "-extfile", f"{name}.ext", "-out", f"{name}.pem", cwd=self.dir)
-
-    def context(self, client=None, **versions):
-        """A client context that trusts the plant CA and shows `client`'s certificate."""
-        context = ssl.create_default_context(cafile=self.path("ca.pem"))
-        if client:
-            context.load_cert_chain(self.path(f"{client}.pem"), self.path(f"{client}.key"))
-        for attribute, version in versions.items():
-            setattr(context, attribute, version)
-        return context
+def make_certificates(directory):
+    """The CA and the server's certificate; clients with the roles operator, viewer, line2 (unit
+    2 only) and admin (configured nowhere), one without a role, one of another CA, one expired."""
+    certs = Certificates(directory)
+    certs.ca("other-ca", "Some Other CA")
+    for name in ("operator", "viewer", "line2", "admin"):
+        certs.client(name, name)
+    certs.client("norole", None)
+    certs.client("foreign", "operator", ca="other-ca")
+    certs.expired("expired", "operator")
+    return certs
 
 
 def config(rig, certs, plain="127.0.0.1:0", tls_extra="", server="server", max_connections=64):
@@ -219,7 +162,7 @@ class ModbusTls(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.dir = tempfile.mkdtemp(prefix="ioportd-tls-")
-        cls.certs = Certificates(cls.dir)
+        cls.certs = make_certificates(cls.dir)
         cls.rig = Rig(cls.dir, IOPORTD, IOPORT_SIM)
         try:
             cls.rig.start_hub("dim16:0,dom16:0")
@@ -596,7 +539,7 @@ class Reload(unittest.TestCase):
 
     def setUp(self):
         self.dir = tempfile.mkdtemp(prefix="ioportd-tls-reload-")
-        self.certs = Certificates(self.dir)
+        self.certs = make_certificates(self.dir)
         self.rig = Rig(self.dir, IOPORTD, IOPORT_SIM)
         self.addCleanup(self.rig.close)
         self.rig.start_hub("dim16:0,dom16:0")
@@ -630,7 +573,6 @@ class Reload(unittest.TestCase):
         open_client = self.client("operator")
         certs = self.certs
         certs.server("server2", "gateway1-renewed")
-        os.chmod(certs.path("server2.key"), 0o640)
         log = self.rig.reload(config(self.rig, certs, server="server2"))
         self.assertIn("SIGHUP: reloaded", log)
         fresh = self.client("operator")
