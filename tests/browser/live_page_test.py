@@ -1,12 +1,16 @@
 #!/usr/bin/python3
 """The status page of the real ioportd, on the real simulator, in headless Chromium (issue 16
 §3): an input changed in the simulator shows on the page without a reload, a faulted module
-shows as not online, the console has no errors. Saves the screenshots to OUTDIR.
+shows as not online, the Modbus clients connected show with their transport and TLS role, a
+refused TLS handshake is counted, the console has no errors. Saves the screenshots to OUTDIR.
 
 Usage: live_page_test.py IOPORTD IOPORT_SIM OUTDIR
 """
 import os
 import shutil
+import socket
+import ssl
+import struct
 import subprocess
 import sys
 import tempfile
@@ -15,16 +19,25 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
 import status_page_test  # noqa: E402  (beside this file)
+from certificates import Certificates  # noqa: E402
 from rig import Rig  # noqa: E402
 
 IOPORTD, IOPORT_SIM, OUTDIR = sys.argv[1], sys.argv[2], sys.argv[3]
 HUB = "dim16:0,dom16:0,acm3p:0,lim16:0,rgbdm:0,mux8m:0,dccim:0,dcvim:0"
 
 
-def config(rig):
-    """ioportd on a simulated hub with every module type but acm3c and a simulated ID-2."""
+def config(rig, certs):
+    """ioportd on a simulated hub with every module type but acm3c and a simulated ID-2, plain
+    Modbus TCP and Modbus/TCP Security."""
     return f"""modbus:
   listen: "127.0.0.1:0"
+  tls:
+    listen: "127.0.0.1:0"
+    certificate: {certs.path('server.pem')}
+    key: {certs.path('server.key')}
+    client_ca: {certs.path('ca.pem')}
+    roles:
+      operator: {{ units: all, access: read_write }}
 http:
   listen: "127.0.0.1:0"
 links:
@@ -43,16 +56,46 @@ links:
 """
 
 
+READ = struct.pack(">HHHBBHH", 1, 0, 6, 1, 0x04, 0, 1)  # input register 0 of unit 1
+
+
+def answered(connection):
+    """A client kept connected while the page is checked, once the daemon answered it."""
+    connection.sendall(READ)
+    assert len(connection.recv(64)) > 0, "no answer"
+    return connection
+
+
+def refused_handshake(port, context):
+    """A TLS client without a certificate: TLS 1.3 refuses it after the client's Finished."""
+    with context.wrap_socket(socket.create_connection(("127.0.0.1", port), timeout=5),
+                             server_hostname="127.0.0.1") as tls:
+        try:
+            tls.sendall(READ)
+            assert tls.recv(64) == b"", "a client without a certificate was answered"
+        except (ssl.SSLError, ConnectionError):
+            pass
+
+
 def main():
     directory = tempfile.mkdtemp(prefix="ioportd-page-")
     rig = Rig(directory, IOPORTD, IOPORT_SIM)
+    clients = []
     try:
+        certs = Certificates(directory)
+        certs.client("operator", "operator")
         rig.start_hub(HUB)
         rig.start_id2()
-        rig.write_config(config(rig))
+        rig.write_config(config(rig, certs))
         rig.start_daemon()
         url = f"http://127.0.0.1:{rig.listening_port('HTTP')}/"
         modbus_port = rig.listening_port("Modbus TCP")
+        tls_port = rig.listening_port("Modbus/TCP Security (TLS)")
+        clients.append(answered(socket.create_connection(("127.0.0.1", modbus_port), timeout=5)))
+        clients.append(answered(certs.context("operator").wrap_socket(
+            socket.create_connection(("127.0.0.1", tls_port), timeout=5),
+            server_hostname="127.0.0.1")))
+        refused_handshake(tls_port, certs.context())
         # Values a person would recognise on the screenshot.
         rig.ctl("set dim16:0 0x0001")
         rig.ctl("set lim16:0 0x8011")
@@ -68,6 +111,8 @@ def main():
             expected_word=0x000D,
             fault=lambda: rig.ctl("fault acm3p:0 silent"),
             fault_module="acm3p 0",
+            shows=[("mb-listen", f"127.0.0.1:{tls_port} (TLS)"), ("clients", "TLS · operator"),
+                   ("clients", "plain TCP"), ("mb-th", "1")],
             screenshot_path=os.path.join(OUTDIR, "status-page.png"))
         print(f"live_page_test: passed; screenshots in {OUTDIR}")
         return 0
@@ -77,6 +122,8 @@ def main():
             print("--- ioportd log ---\n" + rig.log_text(), file=sys.stderr)
         return 1
     finally:
+        for client in clients:
+            client.close()
         rig.close()
         shutil.rmtree(directory, ignore_errors=True)
 

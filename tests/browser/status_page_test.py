@@ -7,7 +7,8 @@ As a library, for the integration test that runs the real daemon and simulator:
     import status_page_test
     status_page_test.run(url, change_input, expected_word, fault, screenshot_path,
                          input_link='hub0', input_module='dim16 0',
-                         fault_link='hub0', fault_module='dim16 0')
+                         fault_link='hub0', fault_module='dim16 0',
+                         shows=[('clients', 'TLS · operator')])
 
 run() raises PageTestFailed (an AssertionError) listing every check that failed, and returns
 normally when all passed. What it checks:
@@ -16,8 +17,9 @@ normally when all passed. What it checks:
      input_timeout (5 s) the tile shows expected_word;
   3. fault() is called; within fault_timeout (10 s) the tile of fault_module on fault_link has
      a .status text other than "online";
-  4. the browser console has no error (level SEVERE);
-  5. screenshots: the whole page at 1280 px wide to screenshot_path, and at 360 px wide to
+  4. each (element id, text) of `shows`: within load_timeout the element's text contains it;
+  5. the browser console has no error (level SEVERE);
+  6. screenshots: the whole page at 1280 px wide to screenshot_path, and at 360 px wide to
      narrow_screenshot_path (default: screenshot_path with "-narrow" before the extension).
 Screenshots are taken even when a check failed, to see why.
 
@@ -70,6 +72,10 @@ const tile = document.querySelector(arguments[0]);
 if (!tile) return null;
 const e = tile.querySelector(arguments[1]);
 return e ? e.textContent.trim() : '';
+"""
+_ELEMENT_TEXT = """
+const e = document.getElementById(arguments[0]);
+return e ? e.textContent.trim() : null;
 """
 _TILES = """
 return [...document.querySelectorAll('[data-module]')]
@@ -154,7 +160,8 @@ def _driver(profile):
 
 def run(url, change_input, expected_word, fault, screenshot_path, *,
         input_link='hub0', input_module='dim16 0', fault_link='hub0', fault_module='dim16 0',
-        narrow_screenshot_path=None, load_timeout=15.0, input_timeout=5.0, fault_timeout=10.0):
+        shows=(), narrow_screenshot_path=None, load_timeout=15.0, input_timeout=5.0,
+        fault_timeout=10.0):
     """Checks the status page at `url` in headless Chromium (see the module's docstring).
 
     change_input(): makes the input word of input_module on input_link become expected_word
@@ -238,6 +245,17 @@ def run(url, change_input, expected_word, fault, screenshot_path, *,
                 print('status_page_test: %s / %s says %r %.1f s after fault()'
                       % (fault_link, fault_module, status, took), flush=True)
 
+            def element_shows(element, text):
+                last = [None]
+
+                def contains():
+                    last[0] = driver.execute_script(_ELEMENT_TEXT, element)
+                    return True if last[0] and text in last[0] else None
+                try:
+                    _wait('#%s shows %r' % (element, text), load_timeout, contains)
+                except PageTestFailed as e:
+                    raise PageTestFailed('%s (it shows %r)' % (e, last[0])) from None
+
             def console_clean():
                 errors = [e for e in driver.get_log('browser') if e.get('level') == 'SEVERE']
                 if errors:
@@ -253,6 +271,9 @@ def run(url, change_input, expected_word, fault, screenshot_path, *,
             if check('load %s' % url, load):
                 check('an input change reaches the page', input_changes)
                 check('a module fault reaches the page', fault_shows)
+                for element, text in shows:
+                    check('#%s shows %r' % (element, text),
+                          lambda element=element, text=text: element_shows(element, text))
             check('no errors in the browser console', console_clean)
             check('screenshots', screenshots)
         finally:
@@ -302,6 +323,8 @@ def main():
                                        word='0x%04X' % expected),
             expected_word=expected,
             fault=lambda: _post(url, 'fault', link='hub0', module='acm3p 0', status='2'),
+            shows=[('clients', 'TLS · operator'), ('clients', 'plain TCP'), ('mb-th', '2'),
+                   ('mb-listen', '0.0.0.0:802 (TLS)')],
             screenshot_path=args.screenshot, narrow_screenshot_path=args.narrow_screenshot,
             input_link=link, input_module=module, fault_link='hub0', fault_module='acm3p 0')
     except PageTestFailed as e:
