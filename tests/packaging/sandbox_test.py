@@ -30,6 +30,9 @@ from pathlib import Path
 
 from unit_file import unit_settings
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "support"))
+from certificates import Certificates  # noqa: E402
+
 IOPORTD, IOPORT_SIM, UNIT_FILE = sys.argv[1], sys.argv[2], Path(sys.argv[3])
 
 failures: list[str] = []
@@ -80,23 +83,6 @@ def modbus(port: int, unit: int, pdu: bytes, transaction: int) -> bytes:
         header = s.recv(7, socket.MSG_WAITALL)
         length = struct.unpack(">H", header[4:6])[0]
         return s.recv(length - 1, socket.MSG_WAITALL)
-
-
-def make_certificates(directory: str) -> None:
-    """A CA, the server's certificate and a client's with the role operator (README commands)."""
-    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-noenc"]
-    leaf = ["-days", "30", "-CA", "ca.pem", "-CAkey", "ca.key", "-addext",
-            "basicConstraints=critical,CA:FALSE"]
-    for command in (
-            ["-keyout", "ca.key", "-out", "ca.pem", "-days", "30", "-subj", "/CN=Sandbox CA"],
-            ["-keyout", "server.key", "-out", "server.pem", "-subj", "/CN=localhost", *leaf,
-             "-addext", "subjectAltName=IP:127.0.0.1"],
-            ["-keyout", "client.key", "-out", "client.pem", "-subj", "/CN=sandbox", *leaf,
-             "-addext", "1.3.6.1.4.1.50316.802.1=ASN1:UTF8String:operator"]):
-        subprocess.run(["openssl", "req", "-x509", *ec, *command], cwd=directory, check=True,
-                       capture_output=True)
-    for key in ("ca.key", "server.key", "client.key"):
-        os.chmod(os.path.join(directory, key), 0o640)
 
 
 def modbus_tls(port: int, context: ssl.SSLContext, session=None):
@@ -155,7 +141,8 @@ def main() -> int:
             for sim in sims:
                 banner = sim.stdout.readline()
                 assert banner.startswith("ioport-sim: "), banner
-            make_certificates(scratch)
+            certs = Certificates(scratch)
+            certs.client("operator", "operator")
             config = Path(scratch, "ioportd.yaml")
             config.write_text(f"""modbus:
   listen: "127.0.0.1:0"
@@ -212,8 +199,7 @@ links:
             # Modbus/TCP Security: OpenSSL's reads of its configuration, its random numbers.
             tls_port = int(re.search(r"Modbus/TCP Security \(TLS\) on 127\.0\.0\.1:(\d+)",
                                      Path(log).read_text()).group(1))
-            context = ssl.create_default_context(cafile=f"{scratch}/ca.pem")
-            context.load_cert_chain(f"{scratch}/client.pem", f"{scratch}/client.key")
+            context = certs.context("operator")
             answer, _, session = modbus_tls(tls_port, context)
             check(answer[:1] == b"\x04", f"Modbus/TCP Security read: {answer.hex()}")
             answer, resumed, _ = modbus_tls(tls_port, context, session)
