@@ -431,12 +431,13 @@ class ModbusTls(unittest.TestCase):
             keeper.close()
 
     def test_a_client_that_never_reads_its_responses_is_closed(self):
-        """Requests for 125 registers, pipelined by a client with a 4 KiB receive buffer that
-        never reads a response. The server answers until its socket buffer is full of responses,
-        then stops reading and closes the connection 5 to 10 s later (a TLS response's baseline
-        is taken at the watchdog's first look). The wait is timed from the last request the
-        server answered, as the state API counts them: how long the server takes to fill its
-        buffers is the CPU's business (a sanitized daemon under load takes many seconds)."""
+        """Requests for 125 input registers, pipelined by a client with a 4 KiB receive buffer
+        that never reads a response. The server answers until its socket buffer is full of
+        responses, then stops reading and closes the connection 5 to 10 s later (a TLS
+        response's baseline is taken at the watchdog's first look). The wait is timed from the
+        last request the server took (the state API's count of the client's requests): how long
+        it takes to fill its buffers is the CPU's business (a sanitized daemon under load takes
+        many seconds)."""
         keeper = self.client("operator")
         greedy = TlsClient(self.tls_port, self.certs.context("operator"), receive_buffer=4096)
         port = greedy.socket.getsockname()[1]
@@ -456,7 +457,7 @@ class ModbusTls(unittest.TestCase):
                     time.sleep(0.01)
                 except (ConnectionError, ssl.SSLError):
                     self.fail(f"closed after {sent} requests, before the buffers were full")
-            worst, answered, answered_last, closed_after = 0.0, -1, None, None
+            worst, answered, answered_last, closed_after = 0.0, -1, time.monotonic(), None
             deadline = time.monotonic() + 90
             while time.monotonic() < deadline:
                 t = time.monotonic()
