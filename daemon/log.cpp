@@ -69,6 +69,26 @@ bool is_journal_stream(const char* journal_stream, dev_t device, ino_t inode) {
     return stream_device == device && stream_inode == inode;
 }
 
+std::optional<std::uint64_t> LogLimiter::admit(std::string_view key, Clock::time_point now) {
+    const auto found = seen_.find(std::string(key));
+    if (found != seen_.end()) {
+        auto& seen = found->second;
+        if (now - seen.logged < interval_) {
+            ++seen.held;
+            return std::nullopt;
+        }
+        return std::exchange(seen, Seen{now, 0}).held;
+    }
+    if (seen_.size() >= keys_) seen_.clear();
+    seen_.emplace(std::string(key), Seen{now, 0});
+    return 0;
+}
+
+std::string held_back(std::uint64_t held) {
+    if (held == 0) return {};
+    return fmt::format(" ({} more since the last line)", held);
+}
+
 Log::Log(Target target, LogLevel level)
     : target_(target),
       level_(level),

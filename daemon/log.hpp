@@ -5,9 +5,13 @@
 
 #include <sys/types.h>
 
+#include <chrono>
+#include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -59,6 +63,36 @@ std::vector<std::string> journal_entry(LogLevel level, const LogFields& fields,
 // systemd sets JOURNAL_STREAM to "device:inode" of the journal stream it connected to stdout and
 // stderr; stderr goes to the journal when its own device and inode are those.
 bool is_journal_stream(const char* journal_stream, dev_t device, ino_t inode);
+
+// The one policy for lines a network peer can cause at any rate (refused clients, refused
+// commands): a line per key (an address and a reason, a kind of refusal) at most once a minute,
+// and that line tells how many were held back since the previous one: a port scanner, an HMI
+// retrying every second or a host flooding DCMDs must not flood the log. Remembers at
+// most `keys` keys; more, and it starts again from none, so that a peer making up keys costs
+// memory of `keys` entries at most. The time is the caller's: pure, and tested without waiting.
+class LogLimiter {
+  public:
+    using Clock = std::chrono::steady_clock;
+    static constexpr std::chrono::seconds default_interval{60};
+
+    explicit LogLimiter(Clock::duration interval = default_interval, std::size_t keys = 1024)
+        : interval_(interval), keys_(keys) {}
+
+    // nullopt: hold this line back; else it goes out, and this many were held back before it.
+    std::optional<std::uint64_t> admit(std::string_view key, Clock::time_point now);
+
+  private:
+    struct Seen {
+        Clock::time_point logged;
+        std::uint64_t held = 0;
+    };
+    Clock::duration interval_;
+    std::size_t keys_;
+    std::unordered_map<std::string, Seen> seen_;
+};
+
+// " (3 more since the last line)" after a line that LogLimiter let out; "" when none were held.
+std::string held_back(std::uint64_t held);
 
 class Log {
   public:

@@ -23,10 +23,6 @@ using asio::redirect_error;
 using asio::use_awaitable;
 using asio::ip::tcp;
 
-// Refusals of one address are logged at most this often: a port scanner or a misconfigured HMI
-// retrying every second must not flood the log.
-constexpr auto refusal_log_interval = 60s;
-constexpr std::size_t refusal_log_memory = 1024;
 constexpr auto accept_error_pause = 100ms;
 // After `keepalive` of silence a client is probed this many times, keepalive / probes apart: one
 // that vanished (power cut, cable pulled) is closed within twice `keepalive`.
@@ -435,14 +431,11 @@ void ModbusServer::log_refusal(const asio::ip::address& address, const std::stri
     const auto client = address.to_string();
     // By address and reason: one address may have several problems (an expired certificate on
     // one HMI, a missing one on another), each worth its line.
-    const auto key = fmt::format("{} {}", client, why);
-    const auto found = refused_logged_.find(key);
-    if (found != refused_logged_.end() && now - found->second < refusal_log_interval) return;
-    if (refused_logged_.size() >= refusal_log_memory) refused_logged_.clear();
-    refused_logged_[key] = now;
+    const auto held = refusals_.admit(fmt::format("{} {}", client, why), now);
+    if (!held) return;
     log_.warn({.client = client},
-              "refused Modbus client {}: {} (logged once a minute per address and reason)", client,
-              why);
+              "refused Modbus client {}: {} (logged once a minute per address and reason){}",
+              client, why, held_back(*held));
     events_.add(EventKind::client_refused, {}, {}, client,
                 fmt::format("refused Modbus client {}: {}", client, why));
 }

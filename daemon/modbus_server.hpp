@@ -190,7 +190,7 @@ class ModbusServer {
     Listener tls_;
     asio::steady_timer accept_retry_;
     std::unordered_set<Connection*> connections_;
-    std::unordered_map<std::string, Clock::time_point> refused_logged_;
+    LogLimiter refusals_;
     Mapping scratch_;  // write responses are built here, never in an image
     std::unique_ptr<ReplyBuilder> replies_;
     std::size_t max_clients_ = 0;  // max_connections, or fewer when descriptors are short

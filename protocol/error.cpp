@@ -25,8 +25,10 @@ Failure failure_of(Errc code) {
     return Failure::cancelled;
 }
 
-std::string printable(std::string_view bytes) {
+std::string printable(std::string_view bytes, std::size_t limit) {
     static constexpr char hex[] = "0123456789ABCDEF";
+    const bool cut = bytes.size() > limit;
+    if (cut) bytes = bytes.substr(0, limit);
     std::string out;
     out.reserve(bytes.size() + 8);
     for (const char c : bytes) {
@@ -45,6 +47,7 @@ std::string printable(std::string_view bytes) {
             out += c;
         }
     }
+    if (cut) out += "...";
     return out;
 }
 

@@ -1,6 +1,7 @@
 // Errors are values at module boundaries: every fallible call returns Result<T>.
 #pragma once
 
+#include <cstddef>
 #include <string>
 #include <string_view>
 
@@ -45,6 +46,11 @@ inline Unexpected<Error> fail(Errc code, std::string message) {
 namespace ioport {
 
 // Bytes as a person can read them in a log line: "a0\r" → "a0\\r", control bytes as \xNN.
-std::string printable(std::string_view bytes);
+// The one escaping of text that comes from the network (a serial line, a broker's topics, metric
+// names and values, STATE payloads) before it reaches a log line or an event: every byte outside
+// printable ASCII is escaped, so such text can never end a line, forge another, move the cursor or
+// hide behind a Unicode direction override. At most `limit` bytes of `bytes` are shown, then "...":
+// a log line stays a line however long the text a client sent.
+std::string printable(std::string_view bytes, std::size_t limit = std::string_view::npos);
 
 }  // namespace ioport
