@@ -98,9 +98,44 @@ void Exposition::sample(std::string_view name, std::initializer_list<Label> labe
     text_ += '\n';
 }
 
+namespace {
+
+// The length of the valid UTF-8 sequence at the start of `text`, or 0 when there is none.
+std::size_t utf8_sequence(std::string_view text) {
+    const auto byte = [&](std::size_t i) { return static_cast<unsigned char>(text[i]); };
+    const auto lead = byte(0);
+    if (lead < 0x80) return 1;
+    // The length a lead byte announces, and the range of its first continuation byte, which rules
+    // out overlong forms, surrogates and code points past U+10FFFF (Unicode 15, table 3-7).
+    std::size_t length = 0;
+    unsigned char low = 0x80;
+    unsigned char high = 0xBF;
+    if (lead >= 0xC2 && lead <= 0xDF) {
+        length = 2;
+    } else if (lead >= 0xE0 && lead <= 0xEF) {
+        length = 3;
+        if (lead == 0xE0) low = 0xA0;
+        if (lead == 0xED) high = 0x9F;
+    } else if (lead >= 0xF0 && lead <= 0xF4) {
+        length = 4;
+        if (lead == 0xF0) low = 0x90;
+        if (lead == 0xF4) high = 0x8F;
+    } else {
+        return 0;
+    }
+    if (text.size() < length || byte(1) < low || byte(1) > high) return 0;
+    for (std::size_t i = 2; i < length; ++i)
+        if (byte(i) < 0x80 || byte(i) > 0xBF) return 0;
+    return length;
+}
+
+}  // namespace
+
 void append_json_string(std::string& out, std::string_view text) {
     out += '"';
-    for (const char c : text) {
+    while (!text.empty()) {
+        const char c = text.front();
+        std::size_t used = 1;
         switch (c) {
             case '"':
                 out += "\\\"";
@@ -118,12 +153,17 @@ void append_json_string(std::string& out, std::string_view text) {
                 out += "\\t";
                 break;
             default:
-                if (static_cast<unsigned char>(c) < 0x20)
+                if (static_cast<unsigned char>(c) < 0x20 || c == 0x7F) {
                     fmt::format_to(std::back_inserter(out), "\\u{:04x}",
                                    static_cast<unsigned char>(c));
-                else
-                    out += c;
+                } else if (const auto length = utf8_sequence(text); length > 0) {
+                    used = length;
+                    out += text.substr(0, length);
+                } else {
+                    out += "\\ufffd";  // one for the stray byte; what follows is looked at anew
+                }
         }
+        text.remove_prefix(used);
     }
     out += '"';
 }

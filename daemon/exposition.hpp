@@ -67,8 +67,10 @@ class Json {
     bool first_ = true;  // no comma before the next value or key
 };
 
-// `text` as a JSON string literal, quotes included; control characters as \u00XX, other bytes
-// as they are (the daemon's strings are UTF-8 or ASCII).
+// `text` as a JSON string literal, quotes included: control characters and DEL as \u00XX, valid
+// UTF-8 as it is, and each byte that does not begin a valid UTF-8 sequence (a stray continuation
+// byte, a cut or overlong sequence, a surrogate, past U+10FFFF) as U+FFFD, so that the document
+// is valid JSON whatever bytes a network peer put into a name or a message.
 void append_json_string(std::string& out, std::string_view text);
 
 }  // namespace ioport::daemon

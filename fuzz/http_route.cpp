@@ -18,7 +18,9 @@
 //   percent-encoding every byte of a value and asking again gives the value back;
 // - an escaped label value and HELP text hold no raw newline; a label value no unescaped quote;
 //   unescaping gives the bytes back; a sample is one line;
-// - a JSON string literal has no raw control character and parses back to the bytes; a document
+// - a JSON string literal has no raw control character nor DEL, is valid UTF-8, and parses back
+//   to the bytes with each byte that begins no well-formed UTF-8 sequence (Unicode 15 §3.9: no
+//   overlong form, surrogate or code point past U+10FFFF) as U+FFFD; a document
 //   built with well-formed calls parses as JSON, numbers read back to the double or float
 //   written, and non-finite ones are null.
 #include <array>
@@ -242,6 +244,20 @@ void check_exposition(std::string_view bytes) {
 
 // A strict RFC 8259 reader; the strings' bytes decoded (\u00XX as byte XX; others kept as
 // escapes, which the writer never produces).
+// A code point below U+10000 as UTF-8 (what a \uXXXX escape stands for).
+void append_utf8(std::string& out, std::uint32_t code) {
+    if (code < 0x80) {
+        out += static_cast<char>(code);
+    } else if (code < 0x800) {
+        out += static_cast<char>(0xC0 | code >> 6);
+        out += static_cast<char>(0x80 | (code & 0x3F));
+    } else {
+        out += static_cast<char>(0xE0 | code >> 12);
+        out += static_cast<char>(0x80 | (code >> 6 & 0x3F));
+        out += static_cast<char>(0x80 | (code & 0x3F));
+    }
+}
+
 class JsonReader {
   public:
     explicit JsonReader(std::string_view text) : text_(text) {}
@@ -288,8 +304,7 @@ class JsonReader {
                         if (d < 0) return std::nullopt;
                         code = code * 16 + d;
                     }
-                    if (code > 0xFF) return std::nullopt;
-                    out += static_cast<char>(code);
+                    append_utf8(out, static_cast<std::uint32_t>(code));
                     break;
                 }
                 default:
@@ -365,14 +380,53 @@ class JsonReader {
     std::size_t at_ = 0;
 };
 
+// The bytes as a JSON reader must see them: each well-formed UTF-8 sequence as it is, any other
+// byte as U+FFFD. Decoded the long way (bits, then the range the length allows), not by the
+// table of first-continuation ranges the writer uses.
+std::string well_formed(std::string_view bytes) {
+    std::string out;
+    std::size_t at = 0;
+    while (at < bytes.size()) {
+        const auto lead = static_cast<unsigned char>(bytes[at]);
+        const std::size_t length = lead < 0x80         ? 1
+                                   : lead >> 5 == 0x6  ? 2
+                                   : lead >> 4 == 0xE  ? 3
+                                   : lead >> 3 == 0x1E ? 4
+                                                       : 0;
+        std::uint32_t code = length == 1   ? lead
+                             : length == 2 ? lead & 0x1Fu
+                             : length == 3 ? lead & 0x0Fu
+                                           : lead & 0x07u;
+        bool ok = length > 0 && at + length <= bytes.size();
+        for (std::size_t k = 1; ok && k < length; ++k) {
+            const auto next = static_cast<unsigned char>(bytes[at + k]);
+            ok = next >> 6 == 0x2;
+            code = code << 6 | (next & 0x3Fu);
+        }
+        constexpr std::array<std::uint32_t, 5> least{0, 0, 0x80, 0x800, 0x10000};
+        ok = ok && code >= least[length] && code <= 0x10FFFF && (code < 0xD800 || code > 0xDFFF);
+        if (ok) {
+            out += bytes.substr(at, length);
+            at += length;
+        } else {
+            out += "\xEF\xBF\xBD";  // U+FFFD
+            ++at;
+        }
+    }
+    return out;
+}
+
 void check_json_string(std::string_view bytes) {
     std::string literal;
     daemon::append_json_string(literal, bytes);
     for (const char c : literal)
-        check(static_cast<unsigned char>(c) >= 0x20, "a JSON string holds no raw control byte");
+        check(static_cast<unsigned char>(c) >= 0x20 && c != 0x7F,
+              "a JSON string holds no raw control byte nor DEL");
+    check(well_formed(literal) == literal, "a JSON string literal is valid UTF-8");
     JsonReader reader(literal);
     const auto back = reader.string();
-    check(back && *back == bytes, "a JSON string literal reads back to its bytes");
+    check(back && *back == well_formed(bytes),
+          "a JSON string literal reads back to its bytes, U+FFFD for what is not UTF-8");
 }
 
 // A number written, which it must read back as.

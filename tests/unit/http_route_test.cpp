@@ -251,10 +251,35 @@ TEST(Json, StringsEscapeQuotesBackslashesAndControlCharacters) {
     Json json;
     json.begin_array().value("\"\\\n\r\t\b\f"s).value("\x01\x1f\x7f/é\0z"s).end_array();
     EXPECT_EQ(json.take(),
-              "[\"\\\"\\\\\\n\\r\\t\\u0008\\u000c\",\"\\u0001\\u001f\x7f/é\\u0000z\"]");
+              "[\"\\\"\\\\\\n\\r\\t\\u0008\\u000c\",\"\\u0001\\u001f\\u007f/é\\u0000z\"]");
     Json keys;
     keys.begin_object().member("a\"b", "c").end_object();
     EXPECT_EQ(keys.take(), R"({"a\"b":"c"})");
+}
+
+// Names and messages from the network (a DCMD's metric name in an event, say) may be any bytes:
+// the document stays valid JSON, each byte that begins no UTF-8 sequence one U+FFFD (issue 23).
+TEST(Json, InvalidUtf8BecomesTheReplacementCharacter) {
+    const auto string = [](std::string_view text) {
+        std::string out;
+        append_json_string(out, text);
+        return out;
+    };
+    // valid UTF-8 of every length stays as it is
+    EXPECT_EQ(string("é€😀\u2028"), "\"é€😀\u2028\"");
+    EXPECT_EQ(string("a\xFF"
+                     "b"),
+              "\"a\\ufffd"
+              "b\"");                                                // never a lead byte
+    EXPECT_EQ(string("\x80"), "\"\\ufffd\"");                        // a stray continuation
+    EXPECT_EQ(string("\xC3"), "\"\\ufffd\"");                        // cut at the end
+    EXPECT_EQ(string("\xE2\x82z"), "\"\\ufffd\\ufffdz\"");           // cut before z
+    EXPECT_EQ(string("\xC0\xAF"), "\"\\ufffd\\ufffd\"");             // overlong '/'
+    EXPECT_EQ(string("\xE0\x80\xAF"), "\"\\ufffd\\ufffd\\ufffd\"");  // overlong, 3 bytes
+    EXPECT_EQ(string("\xED\xA0\x80"), "\"\\ufffd\\ufffd\\ufffd\"");  // a surrogate
+    EXPECT_EQ(string("\xF4\x90\x80\x80"), "\"\\ufffd\\ufffd\\ufffd\\ufffd\"");  // past U+10FFFF
+    EXPECT_EQ(string("\xF4\x8F\xBF\xBF"), "\"\xF4\x8F\xBF\xBF\"");              // U+10FFFF itself
+    EXPECT_EQ(string("x\x7Fy\n"), "\"x\\u007fy\\n\"");
 }
 
 TEST(Json, NonFiniteNumbersAreNull) {
