@@ -409,6 +409,20 @@ sparkplug("topic-dcmd", DOM16, b"spBv1.0/plant1/DCMD/box7/hub0.dom16.0")
 sparkplug("topic-state", 0, b"spBv1.0/STATE/scada")
 sparkplug("state-online", 0, b'{"online":true,"timestamp":1796183655123}')
 sparkplug("state-offline", 0, b'{ "timestamp": 1, "online" : false }')
+# the DCMD size limit (issue 23): as many metrics as the device has writable ones, one more, a
+# command to an input module, one far beyond the bytes of a dom16's, a protobuf group (which
+# Sparkplug does not use and the command walk refuses)
+DIM16 = 0
+sparkplug("dcmd-all-17", DOM16, payload(*[metric(f"out/{k}", datatype=11, bool=k % 2 == 0)
+                                          for k in range(16)], metric("word", datatype=6, int=5)))
+sparkplug("dcmd-18-out0", DOM16, payload(*[metric("out/0", datatype=11, bool=True)] * 18))
+sparkplug("dcmd-colour-twice", RGBDM, payload(metric("colour", datatype=5, int=3),
+                                               metric("colour", datatype=5, int=4)))
+sparkplug("dcmd-to-input", DIM16, payload(metric("in/0", datatype=11, bool=True)))
+sparkplug("dcmd-oversize", DOM16, payload(*[metric("out/0", datatype=11, bool=True)] * 1500))
+sparkplug("dcmd-group", DOM16, payload(metric("out/1", datatype=11, bool=True))
+          + varint(9 << 3 | 3) + varint(9 << 3 | 4))
+sparkplug("ncmd-five", 0, payload(*[metric("Node Control/Rebirth", datatype=11, bool=True)] * 5))
 
 
 # --- modbus_security: byte 0 the unit id, byte 1 the function code, byte 2 the default role

@@ -10,7 +10,11 @@
 // - a planned DCMD is a write the gateway could send: each change's bits lie within its mask,
 //   merged into any state it gives a value the module accepts (validate_output_value), and the
 //   change is to the device the command was for; a reset only for the ID-2;
-// - a refusal names the metric.
+// - a refusal names the metric;
+// - a command to a device is decoded only when it names no more metrics than the device has
+//   writable ones and fits max_command_bytes of them; anything larger is refused whole, before
+//   decoding, as invalid_argument (gateway.md §5.5); the metrics counted without decoding are the
+//   metrics decode finds.
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -62,15 +66,37 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     fuzz::check_topic(text);
     (void)sparkplug::parse_state(text);
 
+    std::optional<ModuleAddress> module;
+    if (data[0] < module_type_count) module = ModuleAddress{static_cast<ModuleType>(data[0]), 0};
+    const auto writable =
+        sparkplug::writable_metrics(module ? std::optional(module->type) : std::nullopt);
+    const auto counted = sparkplug::count_metrics(bytes);
+    const auto command = sparkplug::decode_command(bytes, writable);
+    if (command) {
+        fuzz::check(command->metrics.size() <= writable,
+                    "a command names no more metrics than the device has writable ones");
+        fuzz::check(bytes.size() <= sparkplug::max_command_bytes(writable),
+                    "a command decoded is within the bytes of its device");
+        fuzz::check(counted && *counted == command->metrics.size(),
+                    "the metrics counted are the metrics decoded");
+    } else if (command.error().code == Errc::invalid_argument) {
+        fuzz::check(bytes.size() > sparkplug::max_command_bytes(writable) ||
+                        (counted && *counted > writable),
+                    "a command refused whole is too long or names too many metrics");
+    } else {
+        fuzz::check(command.error().code == Errc::malformed, "a command that fails is malformed");
+    }
+
     const auto payload = sparkplug::decode(bytes);
     if (!payload) {
         fuzz::check(payload.error().code == Errc::malformed, "a payload that fails is malformed");
         return 0;
     }
+    if (counted)
+        fuzz::check(*counted == payload->metrics.size(),
+                    "the metrics counted are the metrics decoded");
     fuzz::check(sparkplug::decode(sparkplug::encode(*payload)).has_value(),
                 "a decoded payload encodes to one that decodes");
-    std::optional<ModuleAddress> module;
-    if (data[0] < module_type_count) module = ModuleAddress{static_cast<ModuleType>(data[0]), 0};
     for (const auto& metric : payload->metrics)
         fuzz::check_command(module, metric);
     return 0;

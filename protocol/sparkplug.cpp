@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 
 #include <fmt/format.h>
 
@@ -244,6 +245,83 @@ std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
             break;
     }
     return out;
+}
+
+std::vector<std::size_t> changed_metrics(std::optional<ModuleType> type,
+                                         const std::vector<std::optional<Value>>& published,
+                                         const std::vector<std::optional<Value>>& now,
+                                         double deadband) {
+    const auto moved = [&](std::size_t i) {
+        if (published[i].has_value() != now[i].has_value()) return true;
+        if (!now[i]) return false;
+        const auto* before = std::get_if<float>(&*published[i]);
+        const auto* after = std::get_if<float>(&*now[i]);
+        if (before != nullptr && after != nullptr && deadband > 0)
+            return std::fabs(static_cast<double>(*after) - static_cast<double>(*before)) > deadband;
+        return *published[i] != *now[i];
+    };
+    // Analog modules publish raw/0…raw/n-1, then value/0…value/n-1: a raw word goes with its value.
+    const auto analog = type && (*type == ModuleType::acm3p || *type == ModuleType::acm3c ||
+                                 *type == ModuleType::dccim || *type == ModuleType::dcvim);
+    const auto channels = analog ? static_cast<std::size_t>(reply_words(*type)) : 0;
+    std::vector<std::size_t> changed;
+    const auto count = std::min(published.size(), now.size());
+    for (std::size_t i = 0; i < count; ++i)
+        if (i < 2 * channels ? moved(channels + i % channels) : moved(i)) changed.push_back(i);
+    return changed;
+}
+
+std::size_t writable_metrics(std::optional<ModuleType> type) {
+    const auto metrics = module_metrics(type);
+    return static_cast<std::size_t>(std::ranges::count(metrics, true, &MetricSpec::writable));
+}
+
+Result<std::size_t> count_metrics(std::span<const std::uint8_t> bytes) {
+    const auto malformed = [] {
+        return fail(Errc::malformed, "not a Sparkplug B payload (bad protobuf field)");
+    };
+    std::size_t at = 0;
+    const auto varint = [&]() -> std::optional<std::uint64_t> {
+        std::uint64_t value = 0;
+        for (int shift = 0; shift < 64 && at < bytes.size(); shift += 7) {
+            const auto byte = bytes[at++];
+            value |= std::uint64_t{byte & 0x7Fu} << shift;
+            if ((byte & 0x80) == 0) return value;
+        }
+        return std::nullopt;
+    };
+    const auto skip = [&](std::uint64_t length) {
+        if (length > bytes.size() - at) return false;
+        at += static_cast<std::size_t>(length);
+        return true;
+    };
+    std::size_t metrics = 0;
+    while (at < bytes.size()) {
+        const auto key = varint();
+        if (!key || *key >> 3 == 0) return malformed();
+        bool ok = false;
+        switch (*key & 7) {
+            case 0:
+                ok = varint().has_value();
+                break;
+            case 1:
+                ok = skip(8);
+                break;
+            case 2: {
+                const auto length = varint();
+                ok = length && skip(*length);
+                if (*key >> 3 == 2) ++metrics;
+                break;
+            }
+            case 5:
+                ok = skip(4);
+                break;
+            default:  // groups (3, 4), which Sparkplug does not use, and wire types 6, 7
+                break;
+        }
+        if (!ok) return malformed();
+    }
+    return metrics;
 }
 
 Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std::string_view name,

@@ -116,7 +116,42 @@ struct ModuleValues {
 std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
                                                 const ModuleValues& values);
 
+// The metrics of a module that go out in DDATA, as indexes into module_metrics(type): those whose
+// value differs from the one last published (`published`, nullopt for is_null), except that an
+// analog channel's raw/<ch> and value/<ch> go out together, and only when the value moved more
+// than `deadband` from the one last published (gateway.md §5.5), so that a noisy channel within
+// the deadband publishes nothing and a slow drift goes out once it adds up.
+std::vector<std::size_t> changed_metrics(std::optional<ModuleType> type,
+                                         const std::vector<std::optional<Value>>& published,
+                                         const std::vector<std::optional<Value>>& now,
+                                         double deadband);
+
 // --- Commands (DCMD) --------------------------------------------------------------------------
+
+// How many metrics a command to this device may name: its writable ones (a host sets each at most
+// once per command). nullopt: the ID-2.
+std::size_t writable_metrics(std::optional<ModuleType> type);
+
+// A command's bytes per metric it may name, and for the payload around them: a real command's
+// metric (name, alias, timestamp, datatype, value) is some 30 bytes; the rest is room for long
+// names and properties a host may add.
+inline constexpr std::size_t command_bytes_per_metric = 1024;
+// The longest command payload that may name `metrics` metrics: (metrics + 1) KiB.
+constexpr std::size_t max_command_bytes(std::size_t metrics) {
+    return (metrics + 1) * command_bytes_per_metric;
+}
+
+// The metrics a payload names (its top-level field 2, as decode sees them), counted by walking
+// the protobuf fields without decoding any: no allocation, and cheap for any size. Fails with
+// malformed for bytes that are not a sequence of protobuf fields.
+Result<std::size_t> count_metrics(std::span<const std::uint8_t> bytes);
+
+// A command's payload, decoded only when it is at most max_command_bytes(max_metrics) long and
+// names at most `max_metrics` metrics (gateway.md §5.5: a DCMD naming more metrics than the device
+// has writable ones is refused whole). Otherwise invalid_argument, saying how many it named and
+// how many the device takes, before anything is decoded; malformed for bytes that are not a
+// Sparkplug B payload.
+Result<Payload> decode_command(std::span<const std::uint8_t> bytes, std::size_t max_metrics);
 
 // A DCMD metric as a write the gateway plans like any other: output changes (dom16 bits or
 // word, rgbdm colour, mux8m pos or neg, merged into the desired state when sent) or an ID-2

@@ -2,6 +2,8 @@
 // library (ioport_sparkplug) so that only what publishes or decodes payloads links it.
 #include <limits>
 
+#include <fmt/format.h>
+
 #include "protocol/sparkplug.hpp"
 #include "protocol/sparkplug_b.pb.h"
 
@@ -98,6 +100,24 @@ Result<Payload> decode(std::span<const std::uint8_t> bytes) {
         payload.metrics.push_back(std::move(metric));
     }
     return payload;
+}
+
+Result<Payload> decode_command(std::span<const std::uint8_t> bytes, std::size_t max_metrics) {
+    // Both bounds before protobuf sees the bytes: its parse of a large payload is itself the
+    // cost (an 11 MB DCMD of 100,000s of metrics held the loop for seconds).
+    if (bytes.size() > max_command_bytes(max_metrics))
+        return fail(Errc::invalid_argument,
+                    fmt::format("refused whole: {} bytes, more than the {} a command of at most {} "
+                                "metric(s) may take",
+                                bytes.size(), max_command_bytes(max_metrics), max_metrics));
+    const auto metrics = count_metrics(bytes);
+    if (!metrics) return Unexpected(metrics.error());
+    if (*metrics > max_metrics)
+        return fail(Errc::invalid_argument,
+                    fmt::format("refused whole: it names {} metrics, and the device has {} "
+                                "writable one(s)",
+                                *metrics, max_metrics));
+    return decode(bytes);
 }
 
 }  // namespace ioport::sparkplug

@@ -4,6 +4,8 @@
 
 #include <vector>
 
+#include <fmt/format.h>
+
 #include "protocol/sparkplug.hpp"
 
 namespace ioport::sparkplug {
@@ -234,6 +236,136 @@ TEST(SparkplugCommand, RefusedNeverTruncated) {
             << plan.error().message << " should contain " << c.fragment;
         EXPECT_NE(plan.error().message.find(c.name), std::string::npos) << plan.error().message;
     }
+}
+
+// --- The size of a command (gateway.md §5.5, issue 23) ------------------------------------------
+
+Payload command_of(std::size_t metrics, const std::string& name = "out/0") {
+    Payload payload{1796183655123, std::nullopt, {}};
+    for (std::size_t i = 0; i < metrics; ++i)
+        payload.metrics.push_back(Metric{name, std::nullopt, 17, 11, Value(true)});
+    return payload;
+}
+
+TEST(SparkplugCommandSize, EachDeviceTakesAsManyMetricsAsItHasWritableOnes) {
+    EXPECT_EQ(writable_metrics(ModuleType::dom16), 17u);  // out/0…out/15, word
+    EXPECT_EQ(writable_metrics(ModuleType::rgbdm), 1u);
+    EXPECT_EQ(writable_metrics(ModuleType::mux8m), 2u);
+    EXPECT_EQ(writable_metrics(ModuleType::dim16), 0u);
+    EXPECT_EQ(writable_metrics(ModuleType::acm3p), 0u);
+    EXPECT_EQ(writable_metrics(std::nullopt), 1u);  // the ID-2's reset
+}
+
+TEST(SparkplugCommandSize, MetricsAreCountedWithoutDecoding) {
+    for (const std::size_t n : {0u, 1u, 17u, 1000u}) {
+        const auto counted = count_metrics(encode(command_of(n)));
+        ASSERT_TRUE(counted) << counted.error().message;
+        EXPECT_EQ(*counted, n);
+    }
+    // every wire type a payload's fields may have; a metric is field 2, length-delimited
+    const Bytes fields{0x08, 0x96, 0x01,                      // 1 varint
+                       0x12, 0x00,                            // 2: an empty metric
+                       0x19, 1,    2,    3,   4, 5, 6, 7, 8,  // 3 fixed64
+                       0x22, 0x02, 'i',  'd',                 // 4 bytes
+                       0x35, 1,    2,    3,   4,              // 6 fixed32
+                       0x10, 0x05,                            // 2 as a varint: not a metric
+                       0x12, 0x02, 0x08, 0x01};               // 2: a metric
+    EXPECT_EQ(count_metrics(fields), 2u);
+    for (const auto& bad : {Bytes{0x12, 0x40, 0x0A},  // 64 bytes said, one there
+                            Bytes{0x08},              // a varint cut
+                            Bytes{0x19, 1, 2},        // a fixed64 cut
+                            Bytes{0x0B, 0x0C},        // a group
+                            Bytes{0x00, 0x00},        // field 0
+                            Bytes(11, 0xFF)}) {       // a varint of 11 bytes
+        const auto counted = count_metrics(bad);
+        ASSERT_FALSE(counted);
+        EXPECT_EQ(counted.error().code, Errc::malformed);
+    }
+}
+
+TEST(SparkplugCommandSize, MoreMetricsThanTheDeviceWritesIsRefusedWhole) {
+    const auto dom16 = writable_metrics(ModuleType::dom16);
+    const auto fits = decode_command(encode(command_of(dom16)), dom16);
+    ASSERT_TRUE(fits) << fits.error().message;
+    EXPECT_EQ(fits->metrics.size(), dom16);
+    // one more, each as small as a metric gets: refused by count
+    const auto over = decode_command(encode(command_of(dom16 + 1)), dom16);
+    ASSERT_FALSE(over);
+    EXPECT_EQ(over.error().code, Errc::invalid_argument);
+    EXPECT_NE(over.error().message.find("names 18 metrics, and the device has 17 writable"),
+              std::string::npos)
+        << over.error().message;
+    // the issue's 1.1 MB DCMD of 100,000 out/0: refused by size, before anything is walked
+    const auto flood = encode(command_of(100'000));
+    const auto refused = decode_command(flood, dom16);
+    ASSERT_FALSE(refused);
+    EXPECT_EQ(refused.error().code, Errc::invalid_argument);
+    EXPECT_NE(refused.error().message.find(fmt::format("{} bytes", flood.size())),
+              std::string::npos)
+        << refused.error().message;
+    // a device with nothing to write takes no metric at all
+    EXPECT_FALSE(decode_command(encode(command_of(1)), 0));
+    EXPECT_TRUE(decode_command(encode(command_of(0)), 0));
+    // garbage within the bounds stays malformed
+    const auto garbage = decode_command(Bytes{0x12, 0x40, 0x0A}, dom16);
+    ASSERT_FALSE(garbage);
+    EXPECT_EQ(garbage.error().code, Errc::malformed);
+}
+
+TEST(SparkplugCommandSize, ABoundOfBytesLeavesRoomForLongNames) {
+    // 17 metrics with names of 200 bytes: within max_command_bytes(17)
+    const auto long_names = encode(command_of(17, std::string(200, 'x')));
+    EXPECT_LE(long_names.size(), max_command_bytes(17));
+    EXPECT_TRUE(decode_command(long_names, 17));
+    EXPECT_FALSE(decode_command(Bytes(max_command_bytes(17) + 1, 0), 17));
+}
+
+// --- What goes out in DDATA (gateway.md §5.5: deadband) ---------------------------------------
+
+std::vector<std::optional<Value>> acm3p(std::uint16_t r0, std::uint16_t r1, std::uint16_t r2) {
+    ModuleValues values;
+    values.reading = Reading{};
+    values.reading->raw = {r0, r1, r2};
+    return module_values(ModuleType::acm3p, values);
+}
+
+TEST(SparkplugDeadband, AChannelsRawAndValueGoOutTogetherOnlyBeyondTheDeadband) {
+    // acm3p: raw/0..2 are 0..2, value/0..2 are 3..5; full scale 100 %, a raw step 0.0015 %
+    const auto published = acm3p(1000, 2000, 100);
+    // noise of a few raw steps on channel 1 within a deadband of 1 %: nothing
+    for (const std::uint16_t noisy :
+         std::initializer_list<std::uint16_t>{2001, 1999, 2030, 1970, 2600})
+        EXPECT_EQ(changed_metrics(ModuleType::acm3p, published, acm3p(1000, noisy, 100), 1.0),
+                  std::vector<std::size_t>{})
+            << noisy;
+    // beyond it (+1.07 %): raw/1 and value/1, in one DDATA
+    EXPECT_EQ(changed_metrics(ModuleType::acm3p, published, acm3p(1000, 2700, 100), 1.0),
+              (std::vector<std::size_t>{1, 4}));
+    // compared with the last published value: a drift of small steps goes out once it adds up
+    EXPECT_EQ(changed_metrics(ModuleType::acm3p, published, acm3p(1000, 1300, 100), 1.0),
+              (std::vector<std::size_t>{1, 4}));
+    // without a deadband, every change; two channels at once
+    EXPECT_EQ(changed_metrics(ModuleType::acm3p, published, acm3p(1001, 2000, 101), 0.0),
+              (std::vector<std::size_t>{0, 2, 3, 5}));
+    // a channel read for the first time (was null) goes out whole
+    const auto unread = module_values(ModuleType::acm3p, {});
+    EXPECT_EQ(changed_metrics(ModuleType::acm3p, unread, published, 1.0),
+              (std::vector<std::size_t>{0, 1, 2, 3, 4, 5}));
+}
+
+TEST(SparkplugDeadband, OtherModulesPublishEveryChange) {
+    ModuleValues before;
+    before.output = 0x0005;
+    ModuleValues after;
+    after.output = 0x0105;
+    EXPECT_EQ(changed_metrics(ModuleType::dom16, module_values(ModuleType::dom16, before),
+                              module_values(ModuleType::dom16, after), 50.0),
+              (std::vector<std::size_t>{8, 16}));  // out/8 and word
+    before.count = 3;
+    after.count = 4;
+    EXPECT_EQ(changed_metrics(std::nullopt, module_values(std::nullopt, before),
+                              module_values(std::nullopt, after), 50.0),
+              (std::vector<std::size_t>{1}));  // count
 }
 
 }  // namespace
