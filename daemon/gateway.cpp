@@ -48,6 +48,7 @@ Result<> Gateway::start_sparkplug(std::uint64_t next_bdseq) {
     auto node = SparkplugNode::create(executor_, *config_.mqtt, log_, events_, next_bdseq);
     if (!node) return Unexpected(node.error());
     sparkplug_ = std::move(*node);
+    sparkplug_->set_read_only(config_.modbus.read_only);
     sparkplug_->start(links_);
     return {};
 }
@@ -126,6 +127,7 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
         if (auto started = start_sparkplug(next_bdseq); !started)
             log_.error({}, "SIGHUP: Sparkplug not started: {}", started.error().message);
     } else if (sparkplug_) {
+        sparkplug_->set_read_only(config_.modbus.read_only);
         sparkplug_->set_links(links_);
     }
     const auto list = [](const std::vector<std::string>& of) {

@@ -302,7 +302,7 @@ asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
 void LinkScheduler::confirmed(std::size_t entry, std::uint16_t value) {
     entries_[entry].confirmed = value;
     gateway::store_output(image_.tables(), std::get<ModuleAddress>(entries_[entry].target), value);
-    if (observer_) observer_(entries_[entry].slot);
+    notify(entries_[entry].slot);
 }
 
 asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan) {
@@ -411,7 +411,7 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
         entry.status = ModuleStatus::online;
         entry.last_good = now;
         update_slot(entry, nullptr);
-        if (observer_) observer_(entry.slot);
+        notify(entry.slot);
         return;
     }
     const auto& error = result.error();
@@ -431,7 +431,7 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
     }
     plan_.done(index, false, now);
     update_slot(entry, &error);
-    if (observer_) observer_(entry.slot);
+    notify(entry.slot);
 }
 
 void LinkScheduler::update_slot(const Entry& changed, const Error* error) {
@@ -483,7 +483,20 @@ void LinkScheduler::port_lost(const Error& error) {
         if (status != ModuleStatus::not_configured && status != ModuleStatus::not_polled)
             status = ModuleStatus::no_answer;
     fail_pending_writes();
-    if (observer_) observer_(-1);
+    notify(-1);
+}
+
+LinkScheduler::Subscription LinkScheduler::subscribe(Observer observer) {
+    auto subscription = std::make_shared<const Observer>(std::move(observer));
+    observers_.push_back(subscription);
+    return subscription;
+}
+
+void LinkScheduler::notify(int slot) {
+    std::erase_if(observers_, [](const auto& observer) { return observer.expired(); });
+    // By index: an observer may subscribe while called; the call holds its own observer alive.
+    for (std::size_t i = 0; i < observers_.size(); ++i)
+        if (const auto observer = observers_[i].lock()) (*observer)(slot);
 }
 
 void LinkScheduler::fail_pending_writes() {

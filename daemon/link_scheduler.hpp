@@ -95,10 +95,14 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     std::vector<ModuleView> modules() const;
     // The module of `slot` (the ID-2's is 0); nullopt when none is configured there.
     std::optional<ModuleView> module_at(int slot) const;
-    // Called on the loop, at once, whenever a module's status or values may have changed (a
-    // transaction recorded, an output confirmed, the port lost): `slot`, or -1 for every module.
-    // The observer must not block; it may compare and publish.
-    void set_observer(std::function<void(int slot)> observer) { observer_ = std::move(observer); }
+    // `observer` is called on the loop, at once, whenever a module's status or values may have
+    // changed (a transaction recorded, an output confirmed, the port lost): `slot`, or -1 for
+    // every module. It must not block; it may compare and publish. Each subscriber has its own
+    // place: dropping the Subscription ends its calls and no other's (a node replaced by a reload
+    // may outlive its successor's subscriptions while a command of its own finishes).
+    using Observer = std::function<void(int slot)>;
+    using Subscription = std::shared_ptr<const Observer>;
+    [[nodiscard]] Subscription subscribe(Observer observer);
     // Client writes by WriteResult.
     const std::array<std::uint64_t, write_result_count>& writes() const { return writes_count_; }
     const LinkCounters& counters() const { return link_.counters(); }
@@ -146,6 +150,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     void update_slot(const Entry& changed, const Error* error);
     void set_status(int slot, gateway::ModuleStatus status, const Error* error);
     void port_lost(const Error& error);
+    void notify(int slot);
     void fail_pending_writes();
     std::optional<std::size_t> entry_of(ModuleAddress module) const;
 
@@ -166,7 +171,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     bool stopping_ = false;
     std::optional<config::OnShutdown> finishing_;
     std::function<void()> finished_;
-    std::function<void(int slot)> observer_;
+    std::vector<std::weak_ptr<const Observer>> observers_;
     std::string last_open_error_;
     Clock::time_point woke_ = Clock::now();  // started, or last woke from a sleep
     std::optional<Clock::time_point> asleep_until_;

@@ -1,7 +1,5 @@
 #include "daemon/sparkplug_node.hpp"
 
-#include <cmath>
-
 #include <fmt/format.h>
 
 namespace ioport::daemon {
@@ -36,18 +34,11 @@ std::optional<ModuleType> type_of(const std::optional<ModuleAddress>& module) {
     return module ? std::optional(module->type) : std::nullopt;
 }
 
-// Whether `now` differs from what was published enough to publish it: any change, but for a
-// Float only beyond the deadband (compared with the last published value, so that a slow drift
-// is published once it adds up).
-bool differs(const std::optional<Value>& published, const std::optional<Value>& now,
-             double deadband) {
-    if (published.has_value() != now.has_value()) return true;
-    if (!now) return false;
-    const auto* before = std::get_if<float>(&*published);
-    const auto* after = std::get_if<float>(&*now);
-    if (before != nullptr && after != nullptr && deadband > 0)
-        return std::fabs(static_cast<double>(*after) - static_cast<double>(*before)) > deadband;
-    return *published != *now;
+// Of a string from the broker, this much reaches a log line (escaped).
+constexpr std::size_t shown_bytes = 64;
+
+std::string shown(std::string_view text) {
+    return printable(text, shown_bytes);
 }
 
 std::string value_text(const std::optional<Value>& value) {
@@ -58,7 +49,7 @@ std::string value_text(const std::optional<Value>& value) {
             if constexpr (std::is_same_v<V, bool>)
                 return v ? "true" : "false";
             else if constexpr (std::is_same_v<V, std::string>)
-                return v;
+                return shown(v);
             else
                 return fmt::format("{}", v);
         },
@@ -104,12 +95,8 @@ SparkplugNode::SparkplugNode(const asio::any_io_executor& executor, config::Mqtt
       log_(log),
       events_(events),
       ticker_(executor),
+      rebirth_timer_(executor),
       host_online_(settings_.primary_host_id.empty()) {}
-
-SparkplugNode::~SparkplugNode() {
-    for (const auto& link : links_)
-        link->set_observer(nullptr);
-}
 
 void SparkplugNode::start(const Links& links) {
     build(links);
@@ -123,8 +110,6 @@ void SparkplugNode::start(const Links& links) {
 }
 
 void SparkplugNode::build(const Links& links) {
-    for (const auto& link : links_)
-        link->set_observer(nullptr);
     links_ = links;
     devices_.clear();
     links_published_.clear();
@@ -147,10 +132,11 @@ void SparkplugNode::build(const Links& links) {
 
 void SparkplugNode::watch_links() {
     const std::weak_ptr<SparkplugNode> weak = shared_from_this();
+    subscriptions_.clear();
     for (const auto& link : links_)
-        link->set_observer([weak, raw = link.get()](int slot) {
+        subscriptions_.push_back(link->subscribe([weak, raw = link.get()](int slot) {
             if (auto self = weak.lock()) self->changed(raw, slot);
-        });
+        }));
 }
 
 void SparkplugNode::set_links(const Links& links) {
@@ -164,8 +150,6 @@ void SparkplugNode::set_links(const Links& links) {
     const bool same_map = map_of(links) == map_of(links_);
     if (same_map) {
         // Restarted links are new objects with the same modules: only watched anew.
-        for (const auto& link : links_)
-            link->set_observer(nullptr);
         for (auto& device : devices_)
             for (const auto& link : links)
                 if (link->config().name == device.link->config().name) device.link = link;
@@ -183,8 +167,8 @@ void SparkplugNode::set_links(const Links& links) {
 void SparkplugNode::stop(std::chrono::milliseconds deadline, std::function<void()> done) {
     stopping_ = true;
     ticker_.cancel();
-    for (const auto& link : links_)
-        link->set_observer(nullptr);
+    rebirth_timer_.cancel();
+    subscriptions_.clear();
     if (client_->connected()) {
         // The will is for an unexpected end; a clean one says so itself (Sparkplug 3.0 §7.3).
         const auto death = death_payload();
@@ -298,6 +282,7 @@ void SparkplugNode::birth() {
     }
     counters_sent_ = std::chrono::steady_clock::now();
     if (!publish(MessageType::nbirth, {}, nbirth)) return;
+    last_nbirth_ = counters_sent_;
     ++stats_.births;
     born_ = true;
     int devices = 0;
@@ -350,10 +335,10 @@ void SparkplugNode::update(Device& device) {
     const auto values = sparkplug::module_values(type_of(device.module), values_of(*view));
     const auto now = now_ms();
     Payload payload{now, std::nullopt, {}};
-    for (std::size_t i = 0; i < values.size(); ++i)
-        if (differs(device.published[i], values[i], settings_.deadband))
-            payload.metrics.push_back(
-                Metric{{}, device.first_alias + i, now, wire(device.metrics[i].type), values[i]});
+    for (const auto i : sparkplug::changed_metrics(type_of(device.module), device.published, values,
+                                                   settings_.deadband))
+        payload.metrics.push_back(
+            Metric{{}, device.first_alias + i, now, wire(device.metrics[i].type), values[i]});
     if (payload.metrics.empty()) return;
     payload.seq = next_seq();
     if (!publish(MessageType::ddata, device.id, payload)) return;
@@ -421,7 +406,7 @@ void SparkplugNode::message(std::string_view topic_text, std::span<const std::ui
         const auto online = sparkplug::parse_state(json);
         if (!online) {
             log_.warn({}, "Sparkplug: STATE of {} is not {{\"online\": …}}: {}",
-                      settings_.primary_host_id, printable(json.substr(0, 80)));
+                      settings_.primary_host_id, shown(json));
             return;
         }
         const bool was = host_online_;
@@ -441,39 +426,99 @@ void SparkplugNode::message(std::string_view topic_text, std::span<const std::ui
         command(*topic, payload);
 }
 
+void SparkplugNode::refuse(std::string_view key, const LogFields& fields, std::string text) {
+    const auto held = refusals_.admit(key, std::chrono::steady_clock::now());
+    if (!held) return;
+    text += held_back(*held);
+    log_.warn(fields, "{} (logged once a minute per device and reason)", text);
+    events_.add(EventKind::write, fields.link, {}, "sparkplug", std::move(text));
+}
+
 void SparkplugNode::command(const sparkplug::Topic& topic, std::span<const std::uint8_t> bytes) {
-    const auto payload = sparkplug::decode(bytes);
-    if (!payload) {
-        log_.warn({}, "Sparkplug: {} on {}: {}", to_string(topic.type),
-                  sparkplug::topic(topic.group, topic.type, topic.node, topic.device),
-                  payload.error().message);
-        return;
-    }
     if (topic.type == MessageType::ncmd) {
-        for (const auto& metric : payload->metrics) {
-            const bool rebirth = metric.name == rebirth_metric ||
-                                 (metric.name.empty() && metric.alias == rebirth_alias);
-            if (rebirth && metric.value == Value(true)) {
-                log_.info({}, "Sparkplug: rebirth asked for (NCMD)");
-                birth();
-            } else {
-                log_.warn({}, "Sparkplug: NCMD metric {} ignored: only {} = true is a command",
-                          metric.name.empty() ? fmt::format("alias {}", metric.alias.value_or(0))
-                                              : metric.name,
-                          rebirth_metric);
-            }
-        }
+        node_command(bytes);
         return;
     }
     const auto device = std::find_if(devices_.begin(), devices_.end(),
                                      [&](const Device& d) { return d.id == topic.device; });
     if (device == devices_.end()) {
-        log_.warn({}, "Sparkplug: DCMD to {}, which this edge node does not have", topic.device);
+        ++stats_.commands;
         ++stats_.commands_refused;
+        refuse("unknown device", {},
+               fmt::format("Sparkplug: DCMD to {}, which this edge node does not have",
+                           shown(topic.device)));
+        return;
+    }
+    const LogFields fields{
+        device->link->config().name, device->link->config().unit_id, {}, "sparkplug"};
+    // A DCMD refused whole counts as one command refused: its metrics were never looked at.
+    const auto refuse_whole = [&](std::string_view reason, const std::string& why) {
+        ++stats_.commands;
+        ++stats_.commands_refused;
+        refuse(fmt::format("{} {}", device->id, reason), fields,
+               fmt::format("Sparkplug DCMD to {} refused: {}", device->id, why));
+    };
+    if (read_only_) {
+        refuse_whole("read_only",
+                     "modbus.read_only is set: nothing is written on a client's behalf");
+        return;
+    }
+    const auto payload =
+        sparkplug::decode_command(bytes, sparkplug::writable_metrics(type_of(device->module)));
+    if (!payload) {
+        refuse_whole(payload.error().code == Errc::malformed ? "malformed" : "size",
+                     payload.error().message);
         return;
     }
     for (const auto& metric : payload->metrics)
         device_command(*device, metric);
+}
+
+void SparkplugNode::node_command(std::span<const std::uint8_t> bytes) {
+    const auto payload = sparkplug::decode_command(bytes, node_command_metrics);
+    if (!payload) {
+        refuse(payload.error().code == Errc::malformed ? "NCMD malformed" : "NCMD size", {},
+               fmt::format("Sparkplug NCMD refused: {}", payload.error().message));
+        return;
+    }
+    for (const auto& metric : payload->metrics) {
+        const bool rebirth =
+            metric.name == rebirth_metric || (metric.name.empty() && metric.alias == rebirth_alias);
+        if (rebirth && metric.value == Value(true)) {
+            rebirth_asked();
+        } else {
+            refuse(
+                "NCMD metric", {},
+                fmt::format("Sparkplug: NCMD metric {} ignored: only {} = true is a command",
+                            metric.name.empty() ? fmt::format("alias {}", metric.alias.value_or(0))
+                                                : shown(metric.name),
+                            rebirth_metric));
+        }
+    }
+}
+
+// A host asks again when it missed something; one rebirth a second serves every request in it,
+// and the last request is always served: the one waiting goes out when the second is over.
+void SparkplugNode::rebirth_asked() {
+    if (rebirth_waiting_) return;
+    const auto held = refusals_.admit("NCMD rebirth", std::chrono::steady_clock::now());
+    if (held)
+        log_.info({}, "Sparkplug: rebirth asked for (NCMD; logged once a minute){}",
+                  held_back(*held));
+    const auto due = last_nbirth_ ? *last_nbirth_ + min_rebirth_interval
+                                  : std::chrono::steady_clock::time_point{};
+    if (std::chrono::steady_clock::now() >= due) {
+        birth();
+        return;
+    }
+    rebirth_waiting_ = true;
+    rebirth_timer_.expires_at(due);
+    rebirth_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
+        auto self = weak.lock();
+        if (!self) return;
+        self->rebirth_waiting_ = false;
+        if (!ec && !self->stopping_) self->birth();
+    });
 }
 
 void SparkplugNode::device_command(Device& device, const Metric& metric) {
@@ -483,16 +528,16 @@ void SparkplugNode::device_command(Device& device, const Metric& metric) {
         *metric.alias < device.first_alias + device.metrics.size())
         name = device.metrics[*metric.alias - device.first_alias].name;
     const auto value = value_text(metric.value);
-    const auto address = fmt::format("{}/{}", device.id, name.empty() ? "?" : name);
+    const auto address = fmt::format("{}/{}", device.id, name.empty() ? "?" : shown(name));
     const LogFields fields{
         device.link->config().name, device.link->config().unit_id, {}, "sparkplug"};
     auto plan = sparkplug::plan_command(device.module, name, metric.datatype, metric.value);
     if (!plan) {
         ++stats_.commands_refused;
-        auto text =
-            fmt::format("Sparkplug DCMD {} = {} refused: {}", address, value, plan.error().message);
-        log_.warn(fields, "{}", text);
-        events_.add(EventKind::write, device.link->config().name, {}, "sparkplug", std::move(text));
+        // The error names the metric as the host sent it: escaped here, like every broker string.
+        refuse(fmt::format("{} metric", device.id), fields,
+               fmt::format("Sparkplug DCMD {} = {} refused: {}", address, value,
+                           printable(plan.error().message, 4 * shown_bytes)));
         return;
     }
     const auto started = std::chrono::steady_clock::now();

@@ -2,9 +2,10 @@
 // MQTT namespace, one Sparkplug device per configured module.
 //
 // Report by exception, driven by the links: each link tells the node at once when a module's
-// status or values may have changed (LinkScheduler::set_observer); the node compares with what
-// it last published and sends DDATA with the metrics that changed (analog channels only beyond
-// `deadband`), DDEATH when a module goes offline and DBIRTH, with fresh values, when it is back.
+// status or values may have changed (LinkScheduler::subscribe); the node compares with what
+// it last published and sends DDATA with the metrics that changed (an analog channel's raw word
+// and value together, only beyond `deadband`), DDEATH when a module goes offline and DBIRTH,
+// with fresh values, when it is back.
 // Nothing here waits on the broker: publication goes through MqttClient's bounded queue, and
 // what it drops makes the node rebirth once there is room again, so a host never keeps a value
 // that was lost.
@@ -13,10 +14,16 @@
 // NBIRTH (seq 0) with the node metrics, then a DBIRTH per module that is online; from then on
 // seq counts every message 0..255. With primary_host_id the births wait for that host's STATE
 // {"online": true} and are sent again whenever it comes back online. NCMD "Node Control/Rebirth"
-// sends every birth again with the same bdSeq. DCMD writes take the gateway's one write path
+// sends every birth again with the same bdSeq, at most once a second (requests in between are
+// served by one rebirth at the end of that second). DCMD writes take the gateway's one write path
 // (sparkplug::plan_command, then LinkScheduler::write): validated, confirmed by the device,
 // counted and audited like a Modbus write; the new value is published when the device confirmed
-// it, not before. A clean stop publishes NDEATH, then disconnects.
+// it, not before. With modbus.read_only nothing is written; a DCMD naming more metrics than the
+// device has writable ones is refused whole, before it is decoded. A clean stop publishes NDEATH,
+// then disconnects.
+//
+// Everything from the broker is hostile: its strings reach the log escaped (printable), and the
+// lines a host can cause at any rate (refused commands) go through one LogLimiter.
 #pragma once
 
 #include <chrono>
@@ -39,6 +46,11 @@ namespace ioport::daemon {
 inline constexpr std::chrono::milliseconds sparkplug_stop_deadline{500};
 // Link counters go out in NDATA at most this often: they change with every transaction.
 inline constexpr std::chrono::seconds counter_period{10};
+// NCMD rebirth requests closer than this are served once (gateway.md §5.5).
+inline constexpr std::chrono::seconds min_rebirth_interval{1};
+// An NCMD may name the Node Control metrics of Sparkplug 3.0 (Rebirth, Reboot, Next Server, Scan
+// rate) together; only Rebirth acts. More is refused whole, like an oversized DCMD.
+inline constexpr std::size_t node_command_metrics = 4;
 
 struct SparkplugStats {
     bool connected = false;  // to the broker
@@ -46,8 +58,8 @@ struct SparkplugStats {
     std::uint64_t bdseq = 0;
     std::uint64_t published = 0;
     std::uint64_t dropped = 0;
-    std::uint64_t births = 0;  // NBIRTHs, rebirths included
-    std::uint64_t commands = 0;
+    std::uint64_t births = 0;    // NBIRTHs, rebirths included
+    std::uint64_t commands = 0;  // DCMD metrics; a DCMD refused whole counts as one
     std::uint64_t commands_refused = 0;
 };
 
@@ -61,7 +73,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
                                                          const config::MqttSettings& settings,
                                                          Log& log, EventLog& events,
                                                          std::uint64_t next_bdseq = 0);
-    ~SparkplugNode();
+    ~SparkplugNode() = default;
     SparkplugNode(const SparkplugNode&) = delete;
     SparkplugNode& operator=(const SparkplugNode&) = delete;
 
@@ -69,6 +81,8 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     // A reload: the links running now. A changed module map is announced with new births; the
     // same map keeps the session (restarted links are only watched anew).
     void set_links(const Links& links);
+    // modbus.read_only: DCMD writes are refused, as Modbus writes are.
+    void set_read_only(bool read_only) { read_only_ = read_only; }
     // NDEATH, then DISCONNECT; `done` when sent or after `deadline`.
     void stop(std::chrono::milliseconds deadline, std::function<void()> done);
 
@@ -104,8 +118,11 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void connected();
     void disconnected();
     void message(std::string_view topic, std::span<const std::uint8_t> payload);
+    void node_command(std::span<const std::uint8_t> payload);
+    void rebirth_asked();
     void command(const sparkplug::Topic& topic, std::span<const std::uint8_t> payload);
     void device_command(Device& device, const sparkplug::Metric& metric);
+    void refuse(std::string_view key, const LogFields& fields, std::string text);
     void birth();
     void device_birth(Device& device, const ModuleView& view);
     void changed(const LinkScheduler* link, int slot);
@@ -124,6 +141,9 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     EventLog& events_;
     std::shared_ptr<MqttClient> client_;
     asio::steady_timer ticker_;
+    asio::steady_timer rebirth_timer_;
+    std::vector<LinkScheduler::Subscription> subscriptions_;
+    LogLimiter refusals_;
     std::vector<Device> devices_;
     std::vector<LinkMetrics> links_published_;
     Links links_;
@@ -134,7 +154,10 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     bool born_ = false;
     bool rebirth_due_ = false;  // a message was dropped: the host's view is incomplete
     bool stopping_ = false;
+    bool read_only_ = false;
+    bool rebirth_waiting_ = false;  // a rebirth request waits for min_rebirth_interval to pass
     std::chrono::steady_clock::time_point counters_sent_{};
+    std::optional<std::chrono::steady_clock::time_point> last_nbirth_;
     SparkplugStats stats_;
 };
 
