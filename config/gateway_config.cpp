@@ -428,8 +428,9 @@ constexpr std::array<std::string_view, 6> tls_keys{"listen",    "certificate",  
 constexpr std::array<std::string_view, 2> role_keys{"units", "access"};
 constexpr std::array<std::pair<std::string_view, modbus_security::Access>, 2> accesses{
     {{"read", modbus_security::Access::read}, {"read_write", modbus_security::Access::read_write}}};
-constexpr std::array<std::string_view, 9> link_keys{
-    "name", "protocol", "device", "baud", "unit_id", "timeout", "retries", "modules", "identity"};
+constexpr std::array<std::string_view, 10> link_keys{
+    "name",    "protocol", "device",  "baud",     "unit_id",
+    "timeout", "retries",  "modules", "identity", "max_pending_writes"};
 constexpr std::array<std::string_view, 6> module_keys{"type",    "number", "poll",
                                                       "initial", "safe",   "refresh"};
 // `identity:` keys by object id; MajorMinorRevision (0x02) is the version and not a key.
@@ -929,6 +930,7 @@ Loader::LinkOutcome Loader::read_link_settings(const Fields& f, std::size_t inde
     read(f, "timeout", "a duration such as 100ms", link.timeout,
          duration(microseconds{1ms}, microseconds{10s}));
     read(f, "retries", "a number 0..10", link.retries, integer(0, 10));
+    read(f, "max_pending_writes", "a number 1..1024", link.max_pending_writes, integer(1, 1024));
     return outcome;
 }
 

@@ -128,6 +128,8 @@ struct LinkConfig {
     int unit_id = 1;
     std::chrono::microseconds timeout = 100ms;
     int retries = 1;
+    // Client writes that may wait for the line at once, every write path together (§4).
+    int max_pending_writes = 64;
     std::vector<ModuleConfig> modules;  // ioport only, in file order
     // Read Device Identification objects by id as `identity:` sets them; "" = ioportd's own
     // (daemon/identity.hpp). MajorMinorRevision is always the version.
@@ -136,7 +138,8 @@ struct LinkConfig {
     friend bool operator==(const LinkConfig& a, const LinkConfig& b) {
         return a.name == b.name && a.protocol == b.protocol && a.device == b.device &&
                a.baud == b.baud && a.unit_id == b.unit_id && a.timeout == b.timeout &&
-               a.retries == b.retries && a.modules == b.modules && a.identity == b.identity;
+               a.retries == b.retries && a.max_pending_writes == b.max_pending_writes &&
+               a.modules == b.modules && a.identity == b.identity;
     }
 };
 

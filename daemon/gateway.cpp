@@ -283,9 +283,10 @@ std::string describe(const config::GatewayConfig& config) {
         config::to_string(config.log_level));
     for (const auto& link : config.links) {
         const bool id2 = link.protocol == config::Protocol::id2;
-        text += fmt::format("link {}: {} on {}, {} baud, unit {}, timeout {}, retries {}\n",
-                            link.name, id2 ? "ID-2" : "ioport hub", link.device, link.baud,
-                            link.unit_id, format_duration(link.timeout), link.retries);
+        text += fmt::format(
+            "link {}: {} on {}, {} baud, unit {}, timeout {}, retries {}, max_pending_writes {}\n",
+            link.name, id2 ? "ID-2" : "ioport hub", link.device, link.baud, link.unit_id,
+            format_duration(link.timeout), link.retries, link.max_pending_writes);
         for (const auto& module : link.modules) {
             const bool output = is_output(module.address.type);
             text += fmt::format(

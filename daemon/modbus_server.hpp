@@ -158,9 +158,12 @@ class ModbusServer {
     Response built(const Connection& connection, Result<Bytes> response);
     // Takes the descriptors that settings_.max_connections clients need (see descriptors.hpp).
     void make_room();
-    // A request arrived at `at`: 1019's interval, and the communication-loss watch.
-    void note_request(Clock::time_point at);
-    void answered_request();
+    // A request arrived at `at`: 1019's interval, and with `contact` the communication-loss
+    // watch.
+    void note_request(Clock::time_point at, bool contact);
+    void answered_request(bool contact);
+    // The request is one that keeps the communication-loss timer from firing.
+    bool keeps_contact(const Connection& connection, std::span<const std::uint8_t> adu) const;
     void arm_comm_loss();
     void comm_loss_due(const boost::system::error_code& ec);
     // The unit id whose traffic a request counts in: its link's, or -1 for an unknown unit.
@@ -199,7 +202,8 @@ class ModbusServer {
     // §5.1, by the unit id of the link that answered (the single-link aliases 0 and 255 count as
     // its own): kept across reloads, as a unit is the client's view.
     std::array<gateway::Traffic, 256> traffic_{};
-    Clock::time_point last_request_ = Clock::now();
+    Clock::time_point last_request_ = Clock::now();  // any request: 1019
+    Clock::time_point last_contact_ = Clock::now();  // a request keeps_contact() counts
     std::chrono::microseconds since_previous_{};
     // §5.3. Lazily armed, as the connections' watchdogs: a request only moves last_request_.
     std::function<void()> comm_lost_;

@@ -104,7 +104,8 @@ void link_families(Exposition& out, const ModbusServer::Units& links) {
     for (const auto& link : links)
         out.sample("ioportd_link_cycle_seconds", {{"link", link->config().name}},
                    seconds(link->last_cycle()));
-    out.family("ioportd_writes_total", "counter", "Client writes that reached the link, by result");
+    out.family("ioportd_writes_total", "counter",
+               "Client writes to the link, by result (busy: refused, the queue was full)");
     for (const auto& link : links)
         for (std::size_t r = 0; r < write_result_count; ++r)
             out.sample(

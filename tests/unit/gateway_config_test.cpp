@@ -147,6 +147,7 @@ TEST(GatewayConfig, KeysLeftOutTakeTheDefaultsOfTheSpec) {
     EXPECT_EQ(hub.unit_id, 2);
     EXPECT_EQ(hub.timeout, 100ms);
     EXPECT_EQ(hub.retries, 1);
+    EXPECT_EQ(hub.max_pending_writes, 64);
     ASSERT_EQ(hub.modules.size(), 2u);
     EXPECT_EQ(hub.modules[0].address, (ModuleAddress{ModuleType::dom16, 3}));
     EXPECT_EQ(hub.modules[0].initial, 0);
@@ -169,9 +170,11 @@ TEST(GatewayConfig, ReadsEveryModbusSetting) {
     const auto config = parse(R"(modbus: { listen: "[::]:1502", max_connections: 4, idle_timeout: 0,
   allow: ["10.0.0.0/8", 192.168.1.7, "fd00::/8", "::1"], read_only: true, word_order: little,
   stale: hold }
-links: [{ name: a, protocol: id2, device: /dev/ttyS0, unit_id: 247, timeout: 1ms, retries: 0 }]
+links: [{ name: a, protocol: id2, device: /dev/ttyS0, unit_id: 247, timeout: 1ms, retries: 0,
+          max_pending_writes: 1 }]
 )");
     ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->links[0].max_pending_writes, 1);
     const ModbusSettings& modbus = config->modbus;
     EXPECT_EQ(modbus.listen_host, "::");
     EXPECT_EQ(modbus.listen_port, 1502);
@@ -579,6 +582,10 @@ TEST(GatewayConfigErrors, LinkSettings) {
     expect_one_error({hub + "    timeout: 11s\n", 7, "links[0].timeout", "use 1ms..10s"});
     expect_one_error({hub + "    timeout: 100\n", 7, "links[0].timeout", "e.g. 500us"});
     expect_one_error({hub + "    retries: 11\n", 7, "links[0].retries", "use 0..10"});
+    expect_one_error(
+        {hub + "    max_pending_writes: 0\n", 7, "links[0].max_pending_writes", "use 1..1024"});
+    expect_one_error(
+        {hub + "    max_pending_writes: 1025\n", 7, "links[0].max_pending_writes", "use 1..1024"});
     expect_one_error({hub + "    protocol: modbus\n", 7, "links[0].protocol", "duplicate key"});
     expect_one_error({"links:\n  - name: x\n    protocol: modbus\n    device: /d\n", 3,
                       "links[0].protocol", "use ioport or id2"});
