@@ -293,6 +293,16 @@ modbus("identification-read-only-comm-loss", [
     adu(122, 1, read_write(0, 1, 0, [1])),  # 01: read_only
     adu(123, 1, read(0x04, 1010, 11)),      # 1020 reads 0
 ], scenario=bytes([0b1101001, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0, 0, 0, 0, 0]))
+# /metrics' labels (gateway.md §5.4): unit ids no link has and function codes outside §3.5
+# count under `other`; with the hub alone, 0 and 255 count as the hub's unit.
+modbus("metric-labels-other", [
+    adu(130, 200, read(0x03, 0, 1)),        # 0A, unit other
+    adu(131, 248, bytes([0x41, 0, 0])),     # 0A, unit and function other
+    adu(132, 1, bytes([0x07])),             # 01, function other
+    adu(133, 1, bytes([0x85, 0, 4, 0xFF, 0])),  # 01, high bit set: other
+    adu(134, 0, read(0x04, 0, 1)),          # the hub's unit
+    adu(135, 255, bytes([0x2B, 0x0E, 1, 0])),   # the hub's unit, FC 43
+], scenario=bytes([0b100, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]))
 
 # --- http_route: a request line "METHOD TARGET", a LF, then the bytes the writers escape and the
 # JSON document's operations (fuzz/http_route.cpp) -----------------------------------------------

@@ -17,6 +17,8 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <regex>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -25,6 +27,7 @@
 #include "tests/support/gateway.hpp"
 #include "tests/support/http_client.hpp"
 #include "tests/support/process.hpp"
+#include "tests/support/raw_client.hpp"
 #include "tests/support/timing.hpp"
 
 namespace ioport::test {
@@ -71,6 +74,17 @@ std::map<std::string, double> samples(const std::string& text) {
         out[line.substr(0, space)] = std::stod(line.substr(space + 1));
     }
     return out;
+}
+
+// Prometheus' own linter, on the live output, read from stdin.
+void expect_promtool_passes(const std::string& metrics) {
+    TempDir dir;
+    const auto path = dir / "metrics.txt";
+    std::ofstream(path) << metrics;
+    const auto checked =
+        run({"/bin/sh", "-c", "exec /usr/bin/promtool check metrics < \"$0\"", path});
+    EXPECT_EQ(checked.exit_code, 0) << checked.out << checked.err << "\n" << metrics;
+    EXPECT_EQ(checked.out + checked.err, "") << "promtool has remarks";
 }
 
 std::optional<double> sample(std::uint16_t http_port, const std::string& key) {
@@ -235,15 +249,7 @@ TEST_F(Http, MetricsHasEveryFamilyOfTheContractWithHelpAndTypeAndPassesPromtool)
         return entry.first.starts_with("ioportd_build_info{version=\"") && entry.second == 1;
     });
     EXPECT_TRUE(version_labelled) << reply.body;
-
-    // Prometheus' own linter, on the live output, read from stdin.
-    TempDir dir;
-    const auto path = dir / "metrics.txt";
-    std::ofstream(path) << reply.body;
-    const auto checked =
-        run({"/bin/sh", "-c", "exec /usr/bin/promtool check metrics < \"$0\"", path});
-    EXPECT_EQ(checked.exit_code, 0) << checked.out << checked.err << "\n" << reply.body;
-    EXPECT_EQ(checked.out + checked.err, "") << "promtool has remarks";
+    expect_promtool_passes(reply.body);
 }
 
 TEST_F(Http, MetricsFollowTheInputsTheReadsAndTheWrites) {
@@ -275,6 +281,54 @@ TEST_F(Http, MetricsFollowTheInputsTheReadsAndTheWrites) {
     EXPECT_EQ(sample(http_port(), R"(ioportd_output_value{link="hub0",module="dom16 0"})"), 255);
     const auto all = samples(metrics());
     EXPECT_GE(all.at("ioportd_modbus_request_duration_seconds_count"), fc04_before + 5);
+}
+
+// Issue 23: one client sent every unit id with every function code and grew /metrics by 65,536
+// series. Only the configured unit (1, which the single-link aliases 0 and 255 reach too) and the
+// function codes of §3.5 are label values; anything else counts under `other`.
+TEST_F(Http, EveryUnitIdAndFunctionCodeAddsOnlyTheConfiguredUnitAndOther) {
+    const auto before = samples(metrics());
+    RawClient raw(gateway.port());
+    ASSERT_TRUE(raw.connected());
+    for (int unit = 0; unit < 256; ++unit) {
+        Bytes batch;  // pipelined: one unit's 256 requests at once
+        for (int function = 0; function < 256; ++function) {
+            const auto request =
+                adu(static_cast<std::uint16_t>(unit << 8 | function),
+                    static_cast<std::uint8_t>(unit), {static_cast<std::uint8_t>(function), 0, 0});
+            batch.insert(batch.end(), request.begin(), request.end());
+        }
+        ASSERT_TRUE(raw.send(batch));
+        for (int function = 0; function < 256; ++function)
+            ASSERT_TRUE(raw.receive()) << "unit " << unit << " function " << function;
+    }
+
+    const auto text = metrics();
+    const std::set<std::string> functions{"1",  "2",  "3",  "4",  "5",    "6",
+                                          "15", "16", "23", "43", "other"};
+    const std::regex labels(R"re(\{unit="([^"]*)",(function|code)="([^"]*)"\})re");
+    std::size_t series = 0;
+    std::vector<std::string> chosen;  // series with a label value the client chose
+    double requests = 0;
+    for (const auto& [key, value] : samples(text)) {
+        const bool request = key.starts_with("ioportd_modbus_requests_total{");
+        if (!request && !key.starts_with("ioportd_modbus_exceptions_total{")) continue;
+        ++series;
+        std::smatch match;
+        ASSERT_TRUE(std::regex_search(key, match, labels)) << key;
+        if ((match[1] != "1" && match[1] != "other") || (request && !functions.contains(match[3])))
+            chosen.push_back(key);
+        if (request) requests += value - (before.contains(key) ? before.at(key) : 0);
+    }
+    EXPECT_EQ(chosen.size(), 0U) << "of " << series << " series, e.g. "
+                                 << (chosen.empty() ? "" : chosen.front());
+    EXPECT_LE(series, 2U * (11U + 7U));  // units 1 and other: 11 functions, 7 exception codes
+    EXPECT_EQ(requests, 256.0 * 256.0);  // every request counted, under one of those
+    EXPECT_GE(sample(http_port(), R"(ioportd_modbus_requests_total{unit="other",function="3"})"),
+              253);
+    EXPECT_GE(sample(http_port(), R"(ioportd_modbus_requests_total{unit="1",function="other"})"),
+              3 * 246);
+    expect_promtool_passes(text);
 }
 
 // --- /healthz and /api/v1/state ------------------------------------------------------------
