@@ -307,8 +307,10 @@ modbus("metric-labels-other", [
 # --- http_route: a request line "METHOD TARGET", a LF, then the bytes the writers escape and the
 # JSON document's operations (fuzz/http_route.cpp) -----------------------------------------------
 
-def http(name, method, target, rest=b""):
-    write("http_route", name, method + b" " + target + b"\n" + rest)
+def http(name, method, target, rest=b"", hosts=None):
+    """`hosts`: the Host fields (and "1.0" for HTTP/1.0); None: HTTP/1.1 with Host: localhost."""
+    fields = b"" if hosts is None else b"".join(b"\t" + h for h in hosts)
+    write("http_route", name, method + b" " + target + fields + b"\n" + rest)
 
 
 for page in [b"/", b"/api/v1/state", b"/api/v1/trends", b"/metrics", b"/healthz", b"/map"]:
@@ -327,6 +329,23 @@ http("map-html-plus", b"HEAD", b"/map?x=a+b&format=html")
 http("map-bad", b"GET", b"/map?format=pdf")
 http("map-malformed-escape", b"GET", b"/map?format=%zz")
 http("map-truncated-escape", b"GET", b"/map?format=csv%2")
+# The Host against DNS rebinding (gateway.md §5.4): IP literals, localhost, the names; 421 for
+# others; 400 for several, none in HTTP/1.1 or a malformed one.
+http("host-ipv4-port", b"GET", b"/api/v1/state", hosts=[b"127.0.0.1:8502"])
+http("host-ipv6-port", b"GET", b"/api/v1/state", hosts=[b"[::1]:8502"])
+http("host-ipv6-scope", b"GET", b"/api/v1/state", hosts=[b"[fe80::1%25eth0]"])
+http("host-localhost-dot", b"GET", b"/metrics", hosts=[b"LOCALHOST.:8502"])
+http("host-server-name", b"GET", b"/", hosts=[b"Gateway.Plant.Example"])
+http("host-machine-name", b"HEAD", b"/healthz", hosts=[b"box7:80"])
+http("host-rebinding", b"GET", b"/api/v1/state", hosts=[b"evil.example:8502"])
+http("host-rebinding-missing-page", b"POST", b"/nowhere", hosts=[b"evil.example"])
+http("host-two", b"GET", b"/metrics", hosts=[b"127.0.0.1", b"evil.example"])
+http("host-none-http11", b"GET", b"/metrics", hosts=[])
+http("host-none-http10", b"GET", b"/metrics", hosts=[b"1.0"])
+http("host-http10-rebinding", b"GET", b"/metrics", hosts=[b"1.0", b"evil.example"])
+http("host-bad-port", b"GET", b"/metrics", hosts=[b"127.0.0.1:80x"])
+http("host-unbracketed-ipv6", b"GET", b"/metrics", hosts=[b"::1"])
+http("host-nul", b"GET", b"/metrics", hosts=[b"[::1\x00x]"])
 # The status page's own requests, with a name to look up and a label with every escape.
 http("state-query-name", b"GET", b"/api/v1/state?link=hub%200&link=hub1",
      b"link\nhub0 \"dim16 0\" \\ \x00\x01\x1f\x7f caf\xc3\xa9 \xff")
