@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -35,6 +36,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 using std::chrono::milliseconds;
+using namespace std::string_literals;
 
 constexpr std::string_view modules = "dim16:0,dom16:0,acm3p:0";
 
@@ -526,6 +528,79 @@ TEST_F(HttpAllow, AClientNotAllowedIsClosedWithoutAResponse) {
     EXPECT_TRUE(gateway.wait_for_log("not in http.allow"));
     // Modbus has its own allow list (empty: anyone).
     EXPECT_TRUE(client.read_input_registers(0, 1));
+}
+
+// --- DNS rebinding: the Host ------------------------------------------------------------------
+
+// A request of `version` ("1.1", "1.0") on a fresh connection with these header lines as they
+// are (no Host unless they have one).
+HttpReply with_headers(std::uint16_t port, std::string_view target, std::string_view headers,
+                       std::string_view version = "1.1") {
+    HttpConnection connection(port);
+    if (!connection.send(
+            fmt::format("GET {} HTTP/{}\r\n{}Connection: close\r\n\r\n", target, version, headers)))
+        return HttpReply{0, {}, {}, "send failed"};
+    return connection.receive();
+}
+
+HttpReply with_host(std::uint16_t port, std::string_view target, std::string_view host) {
+    return with_headers(port, target, fmt::format("Host: {}\r\n", host));
+}
+
+std::string host_name() {
+    std::array<char, 256> name{};
+    ::gethostname(name.data(), name.size() - 1);
+    return name.data();
+}
+
+class HttpServerNames : public Http {
+  protected:
+    HttpServerNames()
+        : Http(R"(http: { listen: "127.0.0.1:0", server_names: [gateway.plant.example] })") {}
+};
+
+// Issue 23: a web page on evil.example whose name came to resolve to 127.0.0.1 (DNS rebinding)
+// could read /api/v1/state from the operator's browser: any Host got 200.
+TEST_F(HttpServerNames, AHostThatIsNotThisServersIs421) {
+    for (const auto* target : {"/api/v1/state", "/metrics", "/", "/nowhere"}) {
+        SCOPED_TRACE(target);
+        const auto evil = with_host(http_port(), target, "evil.example");
+        EXPECT_EQ(evil.status, 421) << evil.error;
+        EXPECT_NE(evil.body.find("http.server_names"), std::string::npos);
+        EXPECT_EQ(evil.body.find("\"links\""), std::string::npos);
+        EXPECT_EQ(
+            with_host(http_port(), target, fmt::format("evil.example:{}", http_port())).status,
+            421);
+    }
+    EXPECT_TRUE(gateway.wait_for_log("Host evil.example is not this server's name (421)"));
+
+    const auto port = std::to_string(http_port());
+    for (const auto& host : {"127.0.0.1:" + port, "127.0.0.1"s, "localhost"s, "localhost:" + port,
+                             "gateway.plant.example"s, "Gateway.Plant.Example:" + port, host_name(),
+                             "[::1]:" + port}) {
+        SCOPED_TRACE(host);
+        const auto reply = with_host(http_port(), "/api/v1/state", host);
+        EXPECT_EQ(reply.status, 200) << reply.error << reply.body;
+        EXPECT_EQ(json_eval(reply.body, "d['links'][0]['name']"), "\"hub0\"");
+    }
+    // RFC 9112 §3.2: HTTP/1.1 must name its Host; HTTP/1.0 without one is no browser's.
+    EXPECT_EQ(with_headers(http_port(), "/metrics", "").status, 400);
+    EXPECT_EQ(with_headers(http_port(), "/metrics", "", "1.0").status, 200);
+    EXPECT_EQ(with_headers(http_port(), "/metrics", "Host: evil.example\r\n", "1.0").status, 421);
+    EXPECT_EQ(
+        with_headers(http_port(), "/metrics", "Host: 127.0.0.1\r\nHost: evil.example\r\n").status,
+        400);
+    EXPECT_TRUE(client.read_input_registers(0, 1));
+}
+
+TEST_F(HttpServerNames, SighupChangesTheServerNames) {
+    gateway.rewrite_config(gateway_yaml(
+        hub.link(), R"(http: { listen: "127.0.0.1:0", server_names: [scada.plant.example] })"));
+    const auto from = gateway.log().size();
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("SIGHUP: reloaded", 5s, from)) << gateway.log();
+    EXPECT_EQ(with_host(http_port(), "/healthz", "scada.plant.example").status, 200);
+    EXPECT_EQ(with_host(http_port(), "/healthz", "gateway.plant.example").status, 421);
 }
 
 TEST(HttpListen, NoSectionOrAnEmptyListenOpensNoHttpPort) {
