@@ -85,6 +85,9 @@ struct HttpSettings {
     std::string listen_host = "127.0.0.1";  // as ModbusSettings::listen_host
     std::uint16_t listen_port = 8502;
     std::vector<Network> allow;  // empty: anyone
+    // Names a request's Host may give besides IP literals, localhost and the machine's host
+    // name: a reverse proxy's public name, a DNS alias (gateway.md §5.4).
+    std::vector<std::string> server_names;
     friend bool operator==(const HttpSettings&, const HttpSettings&) = default;
 };
 

@@ -19,9 +19,9 @@ std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link
 }
 
 std::shared_ptr<HttpServer> Gateway::make_http(const config::HttpSettings& settings) {
-    return std::make_shared<HttpServer>(executor_, settings, log_, [this](const Route& route) {
-        return render_page(*this, route);
-    });
+    return std::make_shared<HttpServer>(
+        executor_, settings, host_name_, log_,
+        [this](const Route& route) { return render_page(*this, route); });
 }
 
 Result<> Gateway::start() {
@@ -165,7 +165,7 @@ void Gateway::apply_http(const std::optional<config::HttpSettings>& next) {
         http_ = std::exchange(next_http_, nullptr);
         return;
     }
-    http_->set_allow(next->allow);
+    http_->apply(*next);
 }
 
 std::optional<asio::ip::tcp::endpoint> Gateway::http_endpoint() const {

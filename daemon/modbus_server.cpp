@@ -735,10 +735,7 @@ void ModbusServer::count(int unit_id, std::span<const std::uint8_t> adu,
     const std::uint8_t function = adu[modbus::mbap_length];
     if (unit_id >= 0)
         gateway::count_response(traffic_[static_cast<std::size_t>(unit_id)], function, pdu);
-    // An unknown unit is counted under the id the client asked for.
-    const int unit = unit_id >= 0 ? unit_id : adu[modbus::mbap_length - 1];
-    ++stats_.requests[{unit, function}];
-    if (pdu.size() >= 2 && (pdu[0] & 0x80) != 0) ++stats_.exceptions[{unit, pdu[1]}];
+    stats_.responses.count(unit_id, function, pdu);
     stats_.request_duration.observe(std::chrono::duration<double>(Clock::now() - received).count());
 }
 

@@ -14,7 +14,6 @@
 #include <array>
 #include <cstdint>
 #include <functional>
-#include <map>
 #include <memory>
 #include <string>
 #include <unordered_map>
@@ -32,6 +31,7 @@
 #include "daemon/modbus_reply.hpp"
 #include "daemon/modbus_tls.hpp"
 #include "link/asio.hpp"
+#include "protocol/request_labels.hpp"
 
 namespace ioport::daemon {
 
@@ -52,9 +52,8 @@ inline constexpr std::array<double, 16> request_duration_bounds{
 
 // What the server counted since it started, for /metrics: kept across reloads.
 struct ModbusStats {
-    std::map<std::pair<int, int>, std::uint64_t> requests;    // by (unit id, function code)
-    std::map<std::pair<int, int>, std::uint64_t> exceptions;  // by (unit id, exception code)
-    Histogram request_duration{request_duration_bounds};      // frame received → response sent
+    gateway::RequestCounts responses;                     // by unit, function and exception
+    Histogram request_duration{request_duration_bounds};  // frame received → response sent
     std::uint64_t refused_not_allowed = 0;
     std::uint64_t refused_too_many = 0;       // max_connections, or out of file descriptors
     std::uint64_t refused_tls_handshake = 0;  // no valid client certificate, old TLS, plaintext
