@@ -32,10 +32,11 @@
 //     only after a silence: a moment t is possible when no request lies wholly within
 //     (t - timeout, t] (a request reached the gateway between `sent` and `received`). From the
 //     start of such a silence on, the safe value is a value somebody asked for (the gateway),
-//     until a write sent after the silence ended replaces it. The writes that reached the
-//     gateway before it declared the loss are applied first, then the safe state: an
-//     acknowledged write sent well before the silence (half a timeout: it reached the gateway
-//     before) whose value first reaches the device after the safe push began is a wrong value.
+//     until a write sent after the silence ended replaces it. Of the writes that reached the
+//     gateway before it declared the loss, the one in flight finishes and the others are
+//     dropped (answered 0B, never sent); then the safe state: an acknowledged write sent well
+//     before the silence (half a timeout: it reached the gateway before) whose value first
+//     reaches the device after the safe push began is a wrong value.
 //     Once the push began (seen on a module whose safe word nobody writes), or once a silence
 //     was confirmed (the first request after it read 1020 = 1) and the gateway had time for one
 //     transaction more, the values from before the loss are gone: the desired state is safe,

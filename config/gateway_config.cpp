@@ -145,6 +145,22 @@ struct Broker {
 constexpr std::string_view broker_help =
     "write mqtt://host[:port] or mqtts://host[:port], e.g. mqtt://127.0.0.1:1883";
 
+// http.server_names: what a Host header names, as DNS spells it; no scheme, port or wildcard.
+Parsed<std::string> server_name(const std::string& name) {
+    constexpr std::size_t max_length = 253;
+    const auto dns = [](char c) {
+        return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+               c == '-' || c == '.' || c == '_';
+    };
+    if (name.empty() || name.size() > max_length || !std::ranges::all_of(name, dns))
+        return Unexpected(fmt::format(
+            "'{}' is not a host name: give one of 1..{} letters, digits, '-', '_' and '.', as a "
+            "browser's address bar names this server, e.g. gateway.plant.example (no scheme, port "
+            "or wildcard)",
+            printable(name), max_length));
+    return name;
+}
+
 Parsed<Broker> parse_broker(const std::string& text) {
     Broker broker;
     std::string_view rest = text;
@@ -419,7 +435,7 @@ constexpr std::array<std::string_view, 6> top_keys{"modbus", "http",        "mqt
 constexpr std::array<std::string_view, 10> mqtt_keys{
     "broker",        "group_id", "edge_node_id", "client_id",       "username",
     "password_file", "ca_file",  "keepalive",    "primary_host_id", "deadband"};
-constexpr std::array<std::string_view, 2> http_keys{"listen", "allow"};
+constexpr std::array<std::string_view, 3> http_keys{"listen", "allow", "server_names"};
 constexpr std::array<std::string_view, 10> modbus_keys{
     "listen", "max_connections", "idle_timeout",      "allow", "read_only", "word_order",
     "stale",  "keepalive",       "comm_loss_timeout", "tls"};
@@ -428,8 +444,9 @@ constexpr std::array<std::string_view, 6> tls_keys{"listen",    "certificate",  
 constexpr std::array<std::string_view, 2> role_keys{"units", "access"};
 constexpr std::array<std::pair<std::string_view, modbus_security::Access>, 2> accesses{
     {{"read", modbus_security::Access::read}, {"read_write", modbus_security::Access::read_write}}};
-constexpr std::array<std::string_view, 9> link_keys{
-    "name", "protocol", "device", "baud", "unit_id", "timeout", "retries", "modules", "identity"};
+constexpr std::array<std::string_view, 10> link_keys{
+    "name",    "protocol", "device",  "baud",     "unit_id",
+    "timeout", "retries",  "modules", "identity", "max_pending_writes"};
 constexpr std::array<std::string_view, 6> module_keys{"type",    "number", "poll",
                                                       "initial", "safe",   "refresh"};
 // `identity:` keys by object id; MajorMinorRevision (0x02) is the version and not a key.
@@ -489,6 +506,7 @@ class Loader {
     void check_role_units(const GatewayConfig& config);
     void read_allow(const Fields& fields, std::vector<Network>& allow);
     void read_http(const Entry& entry, std::optional<HttpSettings>& http);
+    void read_server_names(const Fields& fields, std::vector<std::string>& names);
     void read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt);
     void check_sparkplug_ids(const GatewayConfig& config);
     void read_links(const Entry& entry, std::vector<LinkConfig>& links);
@@ -767,6 +785,7 @@ void Loader::read_http(const Entry& entry, std::optional<HttpSettings>& http) {
     if (!settings) return;
     const Fields& f = *settings;
     read_allow(f, http->allow);
+    read_server_names(f, http->server_names);
     Endpoint listen{http->listen_host, http->listen_port};
     const Entry* off = f.find("listen");
     if (off != nullptr && off->value.IsScalar() && off->value.Scalar().empty()) {
@@ -777,6 +796,31 @@ void Loader::read_http(const Entry& entry, std::optional<HttpSettings>& http) {
              [](const YAML::Node& value) { return parse_listen(value.Scalar()); })) {
         http->listen_host = listen.host;
         http->listen_port = listen.port;
+    }
+}
+
+void Loader::read_server_names(const Fields& f, std::vector<std::string>& names) {
+    const Entry* entry = f.find("server_names");
+    if (entry == nullptr || entry->value.IsNull()) return;  // "server_names:" alone: none
+    const std::string key = f.key("server_names");
+    if (!entry->value.IsSequence()) {
+        add(entry->line, key,
+            fmt::format("expected a list of host names such as [\"gateway.plant.example\"], "
+                        "found {}",
+                        kind(entry->value)));
+        return;
+    }
+    std::size_t index = 0;
+    for (const auto& item : entry->value) {
+        const std::string item_key = fmt::format("{}[{}]", key, index++);
+        const int line = std::max(line_of(item), entry->line);
+        auto name = item.IsScalar() ? server_name(item.Scalar())
+                                    : Parsed<std::string>(Unexpected(fmt::format(
+                                          "expected a host name, found {}", kind(item))));
+        if (name)
+            names.push_back(*std::move(name));
+        else
+            add(line, item_key, std::move(name).error());
     }
 }
 
@@ -929,6 +973,7 @@ Loader::LinkOutcome Loader::read_link_settings(const Fields& f, std::size_t inde
     read(f, "timeout", "a duration such as 100ms", link.timeout,
          duration(microseconds{1ms}, microseconds{10s}));
     read(f, "retries", "a number 0..10", link.retries, integer(0, 10));
+    read(f, "max_pending_writes", "a number 1..1024", link.max_pending_writes, integer(1, 1024));
     return outcome;
 }
 

@@ -85,6 +85,9 @@ struct HttpSettings {
     std::string listen_host = "127.0.0.1";  // as ModbusSettings::listen_host
     std::uint16_t listen_port = 8502;
     std::vector<Network> allow;  // empty: anyone
+    // Names a request's Host may give besides IP literals, localhost and the machine's host
+    // name: a reverse proxy's public name, a DNS alias (gateway.md §5.4).
+    std::vector<std::string> server_names;
     friend bool operator==(const HttpSettings&, const HttpSettings&) = default;
 };
 
@@ -128,6 +131,8 @@ struct LinkConfig {
     int unit_id = 1;
     std::chrono::microseconds timeout = 100ms;
     int retries = 1;
+    // Client writes that may wait for the line at once, every write path together (§4).
+    int max_pending_writes = 64;
     std::vector<ModuleConfig> modules;  // ioport only, in file order
     // Read Device Identification objects by id as `identity:` sets them; "" = ioportd's own
     // (daemon/identity.hpp). MajorMinorRevision is always the version.
@@ -136,7 +141,8 @@ struct LinkConfig {
     friend bool operator==(const LinkConfig& a, const LinkConfig& b) {
         return a.name == b.name && a.protocol == b.protocol && a.device == b.device &&
                a.baud == b.baud && a.unit_id == b.unit_id && a.timeout == b.timeout &&
-               a.retries == b.retries && a.modules == b.modules && a.identity == b.identity;
+               a.retries == b.retries && a.max_pending_writes == b.max_pending_writes &&
+               a.modules == b.modules && a.identity == b.identity;
     }
 };
 

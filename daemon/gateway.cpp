@@ -19,9 +19,9 @@ std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link
 }
 
 std::shared_ptr<HttpServer> Gateway::make_http(const config::HttpSettings& settings) {
-    return std::make_shared<HttpServer>(executor_, settings, log_, [this](const Route& route) {
-        return render_page(*this, route);
-    });
+    return std::make_shared<HttpServer>(
+        executor_, settings, host_name_, log_,
+        [this](const Route& route) { return render_page(*this, route); });
 }
 
 Result<> Gateway::start() {
@@ -167,7 +167,7 @@ void Gateway::apply_http(const std::optional<config::HttpSettings>& next) {
         http_ = std::exchange(next_http_, nullptr);
         return;
     }
-    http_->set_allow(next->allow);
+    http_->apply(*next);
 }
 
 std::optional<asio::ip::tcp::endpoint> Gateway::http_endpoint() const {
@@ -285,9 +285,10 @@ std::string describe(const config::GatewayConfig& config) {
         config::to_string(config.log_level));
     for (const auto& link : config.links) {
         const bool id2 = link.protocol == config::Protocol::id2;
-        text += fmt::format("link {}: {} on {}, {} baud, unit {}, timeout {}, retries {}\n",
-                            link.name, id2 ? "ID-2" : "ioport hub", link.device, link.baud,
-                            link.unit_id, format_duration(link.timeout), link.retries);
+        text += fmt::format(
+            "link {}: {} on {}, {} baud, unit {}, timeout {}, retries {}, max_pending_writes {}\n",
+            link.name, id2 ? "ID-2" : "ioport hub", link.device, link.baud, link.unit_id,
+            format_duration(link.timeout), link.retries, link.max_pending_writes);
         for (const auto& module : link.modules) {
             const bool output = is_output(module.address.type);
             text += fmt::format(

@@ -71,6 +71,7 @@ class Gateway {
     asio::any_io_executor executor_;
     config::GatewayConfig config_;
     Log& log_;
+    const std::string host_name_ = machine_host_name();  // read once: HTTP's Host check
     EventLog events_;
     std::chrono::system_clock::time_point started_ = std::chrono::system_clock::now();
     ModbusServer::Units links_;

@@ -1,9 +1,11 @@
 #include "daemon/http_route.hpp"
 
+#include <algorithm>
 #include <array>
 #include <optional>
 
 #include <fmt/format.h>
+#include <boost/asio/ip/address.hpp>
 
 namespace ioport::daemon {
 namespace {
@@ -48,6 +50,65 @@ std::optional<std::string> decoded(std::string_view text) {
         }
     }
     return out;
+}
+
+char lower(char c) {
+    return c >= 'A' && c <= 'Z' ? static_cast<char>(c - 'A' + 'a') : c;
+}
+
+// Host names compare without regard to letter case, or to the root's trailing dot.
+bool same_name(std::string_view a, std::string_view b) {
+    if (a.ends_with('.')) a.remove_suffix(1);
+    if (b.ends_with('.')) b.remove_suffix(1);
+    return std::ranges::equal(a, b, {}, lower, lower);
+}
+
+// RFC 3986: port = *DIGIT, after a colon, or nothing at all.
+bool port_or_nothing(std::string_view rest) {
+    if (rest.empty()) return true;
+    return rest.front() == ':' &&
+           std::ranges::all_of(rest.substr(1), [](char c) { return c >= '0' && c <= '9'; });
+}
+
+// Asio's parsers read a C string, which a NUL would cut short; and a scope ("%eth0") would make
+// them look the interface up, where browsers never send one.
+bool ip_literal(std::string_view text, bool v6) {
+    if (text.find_first_of(std::string_view("%\0", 2)) != std::string_view::npos) return false;
+    boost::system::error_code ec;
+    if (v6)
+        boost::asio::ip::make_address_v6(std::string(text), ec);
+    else
+        boost::asio::ip::make_address_v4(std::string(text), ec);
+    return !ec;
+}
+
+constexpr std::string_view misdirected =
+    "this server does not answer for that host name, which guards against DNS rebinding: use "
+    "its IP address or localhost, or add the name to http.server_names";
+
+std::optional<Refusal> host_refusal(const Request& request, std::span<const std::string> names) {
+    if (request.hosts > 1) return Refusal{400, "more than one Host header"};
+    if (request.hosts == 0) {
+        if (request.version >= 11) return Refusal{400, "HTTP/1.1 requires a Host header"};
+        return std::nullopt;
+    }
+    const auto host = request.host;
+    const auto malformed = Refusal{400, "the Host header is not host[:port]"};
+    if (host.starts_with('[')) {
+        const auto close = host.find(']');
+        if (close == std::string_view::npos || !ip_literal(host.substr(1, close - 1), true) ||
+            !port_or_nothing(host.substr(close + 1)))
+            return malformed;
+        return std::nullopt;
+    }
+    const auto colon = host.find(':');
+    const auto name = host.substr(0, colon);
+    if (colon != std::string_view::npos && !port_or_nothing(host.substr(colon))) return malformed;
+    if (ip_literal(name, false)) return std::nullopt;
+    if (same_name(name, "localhost") ||
+        std::ranges::any_of(names, [&](const std::string& n) { return same_name(name, n); }))
+        return std::nullopt;
+    return Refusal{421, std::string(misdirected)};
 }
 
 }  // namespace
@@ -102,6 +163,11 @@ Expected<Route, Refusal> route(std::string_view method, std::string_view target)
     else
         return Unexpected(Refusal{400, fmt::format("format: '{}' is not html, csv or md", format)});
     return route;
+}
+
+Expected<Route, Refusal> route(const Request& request, std::span<const std::string> names) {
+    if (auto refusal = host_refusal(request, names)) return Unexpected(*std::move(refusal));
+    return route(request.method, request.target);
 }
 
 }  // namespace ioport::daemon

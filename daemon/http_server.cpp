@@ -1,7 +1,14 @@
 #include "daemon/http_server.hpp"
 
+#include <unistd.h>
+
+#include <array>
+#include <climits>
+
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
+
+#include "protocol/error.hpp"
 
 namespace ioport::daemon {
 namespace {
@@ -30,7 +37,23 @@ http::response<http::string_body> make_response(unsigned version, bool keep_aliv
     return response;
 }
 
+std::string_view view(beast::string_view text) {
+    return {text.data(), text.size()};
+}
+
+Request request_of(const http::request<http::empty_body>& request) {
+    const auto host = request.find(http::field::host);
+    return {view(request.method_string()), view(request.target()), request.version(),
+            request.count(http::field::host), host == request.end() ? "" : view(host->value())};
+}
+
 }  // namespace
+
+std::string machine_host_name() {
+    std::array<char, HOST_NAME_MAX + 1> name{};
+    if (::gethostname(name.data(), name.size() - 1) != 0) return {};
+    return name.data();
+}
 
 struct HttpServer::Connection {
     Connection(tcp::socket socket, const tcp::endpoint& from)
@@ -41,12 +64,20 @@ struct HttpServer::Connection {
 };
 
 HttpServer::HttpServer(const asio::any_io_executor& executor, config::HttpSettings settings,
-                       Log& log, HttpHandler handler)
+                       std::string host_name, Log& log, HttpHandler handler)
     : executor_(executor),
       settings_(std::move(settings)),
+      host_name_(std::move(host_name)),
       log_(log),
       handler_(std::move(handler)),
-      accept_retry_(executor) {}
+      accept_retry_(executor) {
+    set_names();
+}
+
+void HttpServer::set_names() {
+    names_ = settings_.server_names;
+    if (!host_name_.empty()) names_.push_back(host_name_);
+}
 
 HttpServer::~HttpServer() = default;
 
@@ -69,8 +100,9 @@ void HttpServer::stop() {
         connection->stream.socket().close(ignored);
 }
 
-void HttpServer::set_allow(std::vector<config::Network> allow) {
-    settings_.allow = std::move(allow);
+void HttpServer::apply(config::HttpSettings next) {
+    settings_ = std::move(next);
+    set_names();
     for (auto* connection : connections_) {
         if (allowed(settings_.allow, connection->address)) continue;
         boost::system::error_code ignored;
@@ -159,12 +191,8 @@ asio::awaitable<void> HttpServer::serve(std::shared_ptr<Connection> c) {
             // A request with a body (a form's POST, a PUT) is refused for its method or path,
             // as one without: 405 or 404 (gateway.md §5.4); 413 is left for a GET with a body.
             if (ec == http::error::body_limit && !parser.get().method_string().empty()) {
-                const auto& request = parser.get();
-                version = request.version();
-                const auto routed =
-                    route(std::string_view(request.method_string().data(),
-                                           request.method_string().size()),
-                          std::string_view(request.target().data(), request.target().size()));
+                version = parser.get().version();
+                const auto routed = route(request_of(parser.get()), names_);
                 if (!routed)
                     page = {routed.error().status, "text/plain; charset=utf-8",
                             routed.error().message + "\n"};
@@ -173,13 +201,15 @@ asio::awaitable<void> HttpServer::serve(std::shared_ptr<Connection> c) {
             const auto& request = parser.get();
             version = request.version();
             keep_alive = request.keep_alive();
-            const auto routed = route(
-                std::string_view(request.method_string().data(), request.method_string().size()),
-                std::string_view(request.target().data(), request.target().size()));
+            const auto routed = route(request_of(request), names_);
             if (routed) {
                 head = routed->head;
                 page = handler_(*routed);
             } else {
+                if (routed.error().status == 421)
+                    log_refusal(c->peer, fmt::format("Host {} is not this server's name (421): "
+                                                     "if it is, add it to http.server_names",
+                                                     printable(view(request[http::field::host]))));
                 page = {routed.error().status, "text/plain; charset=utf-8",
                         routed.error().message + "\n"};
             }

@@ -1,6 +1,7 @@
 // The HTTP side's transport (gateway.md §5.4): Boost.Beast on the daemon's io_context, one
-// coroutine per connection, nothing blocking. It decides the route (http_route.hpp) and asks
-// the handler for the page; it never changes an output, as only GET and HEAD are routed.
+// coroutine per connection, nothing blocking. It decides the route (http_route.hpp: the Host, the
+// method and the path) and asks the handler for the page; it never changes an output, as only
+// GET and HEAD are routed.
 //
 // Limits, so that a scanner, a slowloris or a flood never costs the Modbus side more than a few
 // descriptors and microseconds: at most max_http_connections at once (more are closed at
@@ -38,12 +39,16 @@ struct HttpResponse {
 };
 using HttpHandler = std::function<HttpResponse(const Route& route)>;
 
+// The machine's host name (gethostname), or "" when it cannot be read.
+std::string machine_host_name();
+
 // Owned through a shared_ptr: its coroutines keep it alive, so that a reload may drop it while
 // they finish.
 class HttpServer : public std::enable_shared_from_this<HttpServer> {
   public:
-    HttpServer(const asio::any_io_executor& executor, config::HttpSettings settings, Log& log,
-               HttpHandler handler);
+    // `host_name`: the machine's, which a request's Host may name besides http.server_names.
+    HttpServer(const asio::any_io_executor& executor, config::HttpSettings settings,
+               std::string host_name, Log& log, HttpHandler handler);
     ~HttpServer();
     HttpServer(const HttpServer&) = delete;
     HttpServer& operator=(const HttpServer&) = delete;
@@ -52,8 +57,9 @@ class HttpServer : public std::enable_shared_from_this<HttpServer> {
     Result<> start();
     // Closes the listener and every connection.
     void stop();
-    // A reload that keeps the address: the new allow list, which open connections must pass too.
-    void set_allow(std::vector<config::Network> allow);
+    // A reload that keeps the address: the new allow list, which open connections must pass too,
+    // and the new server names.
+    void apply(config::HttpSettings next);
 
     const config::HttpSettings& settings() const { return settings_; }
     asio::ip::tcp::endpoint local_endpoint() const;
@@ -64,9 +70,12 @@ class HttpServer : public std::enable_shared_from_this<HttpServer> {
     asio::awaitable<void> accept_loop(Acceptor acceptor);
     asio::awaitable<void> serve(std::shared_ptr<Connection> connection);
     void log_refusal(const std::string& peer, std::string_view why);
+    void set_names();
 
     asio::any_io_executor executor_;
     config::HttpSettings settings_;
+    std::string host_name_;
+    std::vector<std::string> names_;  // that a Host may give: host_name_ and server_names
     Log& log_;
     HttpHandler handler_;
     Acceptor acceptor_;

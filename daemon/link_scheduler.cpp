@@ -74,6 +74,10 @@ std::string_view to_string(WriteResult result) {
             return "no_answer";
         case WriteResult::link_down:
             return "link_down";
+        case WriteResult::busy:
+            return "busy";
+        case WriteResult::dropped:
+            return "dropped";
     }
     return "unknown";
 }
@@ -84,8 +88,11 @@ std::optional<Exception> exception_of(WriteResult result) {
             return std::nullopt;
         case WriteResult::error_ack:
             return Exception::server_device_failure;
+        case WriteResult::busy:
+            return Exception::server_device_busy;
         case WriteResult::no_answer:
         case WriteResult::link_down:
+        case WriteResult::dropped:
             break;
     }
     return Exception::gateway_target_failed;
@@ -96,7 +103,6 @@ struct LinkScheduler::PendingWrite {
         : plan(std::move(write_plan)), done(executor, Clock::time_point::max()) {}
     gateway::WritePlan plan;
     asio::steady_timer done;  // cancelled when the outcome is known
-    bool safe_state = false;  // not a client's: the outputs to their safe values
     bool finished = false;
     WriteResult outcome = WriteResult::link_down;
 };
@@ -148,7 +154,7 @@ void LinkScheduler::stop() {
     wake_.cancel();
     link_.close();
     state_.port_open = false;
-    fail_pending_writes();
+    fail_pending_writes(WriteResult::link_down);
 }
 
 int LinkScheduler::modules_online() const {
@@ -199,6 +205,10 @@ bool LinkScheduler::try_open() {
 asio::awaitable<void> LinkScheduler::serve_port() {
     while (!stopping_ && link_.is_open()) {
         if (finishing_ && writes_.empty()) co_return;  // writes go first, so they are all done
+        if (std::exchange(safe_state_due_, false)) {
+            co_await send_safe_state();
+            continue;
+        }
         const auto step = plan_.next(Clock::now(), !writes_.empty());
         switch (step.kind) {
             case PollPlan::Kind::write: {
@@ -311,6 +321,10 @@ asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan) {
         ++writes_count_[static_cast<std::size_t>(WriteResult::link_down)];
         co_return WriteResult::link_down;
     }
+    if (writes_.size() >= static_cast<std::size_t>(config_.max_pending_writes)) {
+        refuse_busy();
+        co_return WriteResult::busy;
+    }
     const auto self = shared_from_this();  // a reload may let go of this link meanwhile
     auto pending = std::make_shared<PendingWrite>(wake_.get_executor(), std::move(plan));
     writes_.push_back(pending);
@@ -321,14 +335,28 @@ asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan) {
     co_return pending->outcome;
 }
 
+// Counted, and logged at most once a minute with the number refused meanwhile: the writer is a
+// flood, and one line per refusal would be another.
+void LinkScheduler::refuse_busy() {
+    ++writes_count_[static_cast<std::size_t>(WriteResult::busy)];
+    ++busy_unlogged_;
+    const auto now = Clock::now();
+    if (busy_logged_ && now - *busy_logged_ < 60s) return;
+    busy_logged_ = now;
+    log_.warn(fields(),
+              "link {}: {} write(s) refused (Modbus exception 06, DCMD refused): {} writes are "
+              "waiting for the line (max_pending_writes); logged at most once a minute",
+              config_.name, std::exchange(busy_unlogged_, 0), config_.max_pending_writes);
+}
+
 void LinkScheduler::enter_safe_state() {
-    if (!state_.port_open || stopping_ || finishing_) {
-        desire_safe_state();
-        return;
-    }
-    auto pending = std::make_shared<PendingWrite>(wake_.get_executor(), gateway::WritePlan{});
-    pending->safe_state = true;
-    writes_.push_back(std::move(pending));
+    desire_safe_state();  // with the port down, the state restored at reopen
+    if (!state_.port_open || stopping_ || finishing_) return;
+    if (!writes_.empty())
+        log_.warn(fields(), "link {}: {} waiting write(s) dropped for the safe state", config_.name,
+                  writes_.size());
+    fail_pending_writes(WriteResult::dropped);
+    safe_state_due_ = true;
     wake_.cancel();
 }
 
@@ -359,10 +387,6 @@ asio::awaitable<void> LinkScheduler::send_safe_state() {
 }
 
 asio::awaitable<void> LinkScheduler::execute(PendingWrite& write) {
-    if (write.safe_state) {
-        co_await send_safe_state();
-        co_return;
-    }
     auto outcome = WriteResult::confirmed;
     for (const auto& change : write.plan.changes) {
         if (!link_.is_open()) {
@@ -482,7 +506,7 @@ void LinkScheduler::port_lost(const Error& error) {
     for (auto& status : state_.status)
         if (status != ModuleStatus::not_configured && status != ModuleStatus::not_polled)
             status = ModuleStatus::no_answer;
-    fail_pending_writes();
+    fail_pending_writes(WriteResult::link_down);
     notify(-1);
 }
 
@@ -499,10 +523,9 @@ void LinkScheduler::notify(int slot) {
         if (const auto observer = observers_[i].lock()) (*observer)(slot);
 }
 
-void LinkScheduler::fail_pending_writes() {
+void LinkScheduler::fail_pending_writes(WriteResult outcome) {
     for (const auto& write : writes_) {
-        if (write->safe_state) desire_safe_state();  // restored at reopen
-        write->outcome = WriteResult::link_down;
+        write->outcome = outcome;
         write->finished = true;
         write->done.cancel();
     }

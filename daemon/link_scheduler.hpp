@@ -38,10 +38,12 @@ inline constexpr std::chrono::microseconds max_reopen_delay = 2s;
 inline constexpr std::chrono::microseconds watchdog_slack = 1s;
 
 // How a client's write ended: the result label of ioportd_writes_total and the audit's RESULT.
-enum class WriteResult { confirmed, error_ack, no_answer, link_down };
-inline constexpr std::size_t write_result_count = 4;
+// `busy`: refused at once, max_pending_writes were waiting; `dropped`: still waiting when the
+// communication-loss safe state was due (gateway.md §5.3). Neither sent anything.
+enum class WriteResult { confirmed, error_ack, no_answer, link_down, busy, dropped };
+inline constexpr std::size_t write_result_count = 6;
 std::string_view to_string(WriteResult result);  // "confirmed", "error_ack", …
-// What a Modbus request answers: nothing (confirmed), 04 (error ack) or 0B.
+// What a Modbus request answers: nothing (confirmed), 04 (error ack), 06 (busy) or 0B.
 std::optional<modbus::Exception> exception_of(WriteResult result);
 
 // A configured module as /metrics, /api/v1/state and the status page show it.
@@ -83,11 +85,14 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     modbus_mapping_t* image(bool diagnostics);
     const gateway::Tables& tables() const { return image_.tables(); }
     // Sends a validated write and completes when the device acknowledged it or it failed.
-    // Counted in writes() when it reached the link: an empty plan is confirmed at once.
+    // Counted in writes() when it reached the link: an empty plan is confirmed at once. Refused
+    // at once (busy) when max_pending_writes are waiting: a flood of writes, from whichever
+    // path, must neither grow without bound nor be applied hours after it was asked for.
     asio::awaitable<WriteResult> write(gateway::WritePlan plan);
     // Communication loss (gateway.md §5.3): every output module's safe value becomes its desired
-    // state and is sent, after the writes already queued, which clients asked for before the
-    // silence. With the port down it is the state restored at reopen.
+    // state and is sent next, after the transaction in flight; the writes still waiting are
+    // dropped, as the clients that asked for them fell silent. With the port down it is the
+    // state restored at reopen.
     void enter_safe_state();
 
     bool port_open() const { return state_.port_open; }
@@ -151,7 +156,8 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     void set_status(int slot, gateway::ModuleStatus status, const Error* error);
     void port_lost(const Error& error);
     void notify(int slot);
-    void fail_pending_writes();
+    void fail_pending_writes(WriteResult outcome);
+    void refuse_busy();
     std::optional<std::size_t> entry_of(ModuleAddress module) const;
 
     config::LinkConfig config_;
@@ -163,7 +169,10 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     asio::steady_timer wake_;
     PollPlan plan_;
     std::vector<Entry> entries_;
-    std::deque<std::shared_ptr<PendingWrite>> writes_;
+    std::deque<std::shared_ptr<PendingWrite>> writes_;  // at most max_pending_writes
+    bool safe_state_due_ = false;      // sent before anything else the loop does next
+    std::uint64_t busy_unlogged_ = 0;  // refused since the last line about it
+    std::optional<Clock::time_point> busy_logged_;
     std::array<std::uint64_t, write_result_count> writes_count_{};
     UnitImage image_;
     gateway::UnitState state_;

@@ -208,35 +208,47 @@ Result<> ModbusServer::start() {
         apply(settings_, transport);
     if (!plain_.acceptor && !tls_.acceptor)
         log_.warn({}, "no Modbus listener: modbus.listen is \"\" and modbus.tls has no listen");
-    last_request_ = Clock::now();  // comm loss counts from start-up too
+    last_request_ = last_contact_ = Clock::now();  // comm loss counts from start-up too
     arm_comm_loss();
     return {};
 }
 
-void ModbusServer::note_request(Clock::time_point at) {
+void ModbusServer::note_request(Clock::time_point at, bool contact) {
     since_previous_ =
         std::max(std::chrono::microseconds{0},
                  std::chrono::duration_cast<std::chrono::microseconds>(at - last_request_));
     last_request_ = at;
+    if (contact) last_contact_ = at;
 }
 
-void ModbusServer::answered_request() {
+void ModbusServer::answered_request(bool contact) {
+    if (!contact) return;
     comm_loss_ = false;  // the first request after a loss read 1020 as 1; later ones read 0
     arm_comm_loss();
+}
+
+// Only a request the gateway could serve shows that a SCADA is there: a client probing unknown
+// units, or one without the rights for what it asks, must not hold the outputs out of their
+// safe state (gateway.md §5.3).
+bool ModbusServer::keeps_contact(const Connection& c, std::span<const std::uint8_t> adu) const {
+    const auto& unit = units_[adu[modbus::mbap_length - 1]];
+    if (!unit) return false;
+    return !c.tls ||
+           modbus_security::permits(c.rights, unit->config().unit_id, adu[modbus::mbap_length]);
 }
 
 void ModbusServer::arm_comm_loss() {
     if (comm_loss_armed_ || comm_loss_ || stopping_ || settings_.comm_loss_timeout.count() == 0)
         return;
     comm_loss_armed_ = true;
-    comm_loss_timer_.expires_at(last_request_ + settings_.comm_loss_timeout);
+    comm_loss_timer_.expires_at(last_contact_ + settings_.comm_loss_timeout);
     comm_loss_timer_.async_wait([this](const boost::system::error_code& ec) { comm_loss_due(ec); });
 }
 
 void ModbusServer::comm_loss_due(const boost::system::error_code& ec) {
     comm_loss_armed_ = false;
     // Cancelled by a reload that changed the timeout (or by the stop): armed anew, or not.
-    if (ec || Clock::now() < last_request_ + settings_.comm_loss_timeout) {
+    if (ec || Clock::now() < last_contact_ + settings_.comm_loss_timeout) {
         arm_comm_loss();
         return;
     }
@@ -598,11 +610,12 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
             if (!*next) break;  // the rest of the request is still on its way
             const auto adu = **next;
             const auto received = c->last_activity;
-            note_request(received);
+            const bool contact = keeps_contact(*c, adu);
+            note_request(received, contact);
             ++c->requests;
             const int unit_id = counted_unit(adu);
             auto answered = answer(*c, adu);
-            answered_request();
+            answered_request(contact);
             auto* pending = std::get_if<Write>(&answered);
             Response response;
             if (pending) {
@@ -715,10 +728,7 @@ void ModbusServer::count(int unit_id, std::span<const std::uint8_t> adu,
     const std::uint8_t function = adu[modbus::mbap_length];
     if (unit_id >= 0)
         gateway::count_response(traffic_[static_cast<std::size_t>(unit_id)], function, pdu);
-    // An unknown unit is counted under the id the client asked for.
-    const int unit = unit_id >= 0 ? unit_id : adu[modbus::mbap_length - 1];
-    ++stats_.requests[{unit, function}];
-    if (pdu.size() >= 2 && (pdu[0] & 0x80) != 0) ++stats_.exceptions[{unit, pdu[1]}];
+    stats_.responses.count(unit_id, function, pdu);
     stats_.request_duration.observe(std::chrono::duration<double>(Clock::now() - received).count());
 }
 
@@ -753,7 +763,8 @@ asio::awaitable<ModbusServer::Response> ModbusServer::write(Connection& c, Write
     const auto received = c.last_activity;
     const bool reaches_device = !write.plan.changes.empty() || write.plan.reset_counter;
     const auto result = co_await write.unit->write(write.plan);
-    if (reaches_device) audit(c, write, result, received);
+    // A refusal for a full queue is not audited one by one: the link logs them as a flood.
+    if (reaches_device && result != WriteResult::busy) audit(c, write, result, received);
     if (!c.open) co_return std::nullopt;
     if (const auto failed = exception_of(result))
         co_return built(c, replies_->exception(write.request, *failed));

@@ -14,7 +14,6 @@
 #include <array>
 #include <cstdint>
 #include <functional>
-#include <map>
 #include <memory>
 #include <string>
 #include <unordered_map>
@@ -32,6 +31,7 @@
 #include "daemon/modbus_reply.hpp"
 #include "daemon/modbus_tls.hpp"
 #include "link/asio.hpp"
+#include "protocol/request_labels.hpp"
 
 namespace ioport::daemon {
 
@@ -52,9 +52,8 @@ inline constexpr std::array<double, 16> request_duration_bounds{
 
 // What the server counted since it started, for /metrics: kept across reloads.
 struct ModbusStats {
-    std::map<std::pair<int, int>, std::uint64_t> requests;    // by (unit id, function code)
-    std::map<std::pair<int, int>, std::uint64_t> exceptions;  // by (unit id, exception code)
-    Histogram request_duration{request_duration_bounds};      // frame received → response sent
+    gateway::RequestCounts responses;                     // by unit, function and exception
+    Histogram request_duration{request_duration_bounds};  // frame received → response sent
     std::uint64_t refused_not_allowed = 0;
     std::uint64_t refused_too_many = 0;       // max_connections, or out of file descriptors
     std::uint64_t refused_tls_handshake = 0;  // no valid client certificate, old TLS, plaintext
@@ -158,9 +157,12 @@ class ModbusServer {
     Response built(const Connection& connection, Result<Bytes> response);
     // Takes the descriptors that settings_.max_connections clients need (see descriptors.hpp).
     void make_room();
-    // A request arrived at `at`: 1019's interval, and the communication-loss watch.
-    void note_request(Clock::time_point at);
-    void answered_request();
+    // A request arrived at `at`: 1019's interval, and with `contact` the communication-loss
+    // watch.
+    void note_request(Clock::time_point at, bool contact);
+    void answered_request(bool contact);
+    // The request is one that keeps the communication-loss timer from firing.
+    bool keeps_contact(const Connection& connection, std::span<const std::uint8_t> adu) const;
     void arm_comm_loss();
     void comm_loss_due(const boost::system::error_code& ec);
     // The unit id whose traffic a request counts in: its link's, or -1 for an unknown unit.
@@ -199,7 +201,8 @@ class ModbusServer {
     // §5.1, by the unit id of the link that answered (the single-link aliases 0 and 255 count as
     // its own): kept across reloads, as a unit is the client's view.
     std::array<gateway::Traffic, 256> traffic_{};
-    Clock::time_point last_request_ = Clock::now();
+    Clock::time_point last_request_ = Clock::now();  // any request: 1019
+    Clock::time_point last_contact_ = Clock::now();  // a request keeps_contact() counts
     std::chrono::microseconds since_previous_{};
     // §5.3. Lazily armed, as the connections' watchdogs: a request only moves last_request_.
     std::function<void()> comm_lost_;

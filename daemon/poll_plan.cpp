@@ -49,21 +49,38 @@ PollPlan::Step PollPlan::next(Clock::time_point now, bool write_pending) {
     const bool take_turn = !after_write_ || !anything_due(now);
     after_write_ = write_pending && take_turn;
     if (after_write_) return {Kind::write};
-    if (const auto refresh = due_refresh(now)) return {Kind::refresh, *refresh};
-    // One look at every entry, wrapping at most once: the round-robin resumes where it stopped.
+    const auto refresh = due_refresh(now);
+    const auto poll = due_poll(now);
+    // Between writes, the turns alternate between refreshes and poll reads when both wait:
+    // with every output refreshing (one of them dead) they would otherwise take every turn.
+    const bool poll_first = write_pending && poll_owed_ && poll;
+    if (refresh && !poll_first) {
+        poll_owed_ = write_pending && poll;
+        return {Kind::refresh, *refresh};
+    }
+    if (poll) {
+        poll_owed_ = false;
+        return {Kind::poll, cursor_++};
+    }
+    auto wake = Clock::time_point::max();
+    for (const auto& state : entries_)
+        wake = std::min(wake, state.due);
+    return {Kind::idle, 0, wake};
+}
+
+std::optional<std::size_t> PollPlan::due_poll(Clock::time_point now) {
+    // One look at every entry, wrapping at most once: the round-robin resumes where it stopped,
+    // and stops at the entry that is due, which next() takes or leaves for the next turn.
     for (std::size_t looked = 0; looked <= entries_.size() && !entries_.empty(); ++looked) {
         if (cursor_ == entries_.size()) {
             cursor_ = 0;
             finish_pass(now);
         }
         const auto& state = entries_[cursor_];
-        if (!state.entry.output && state.due <= now) return {Kind::poll, cursor_++};
+        if (!state.entry.output && state.due <= now) return cursor_;
         ++cursor_;
     }
-    auto wake = Clock::time_point::max();
-    for (const auto& state : entries_)
-        wake = std::min(wake, state.due);
-    return {Kind::idle, 0, wake};
+    return std::nullopt;
 }
 
 void PollPlan::done(std::size_t entry, bool ok, Clock::time_point now) {

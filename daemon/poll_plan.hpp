@@ -1,6 +1,7 @@
 // What a link does next, as a pure function of its modules' due times: the order of work of
 // gateway.md §4 (client writes, then refreshes that are due, then poll reads in round-robin; but
-// after a write, a refresh or poll read that is due goes before the next write),
+// after a write, a refresh or poll read that is due goes before the next write, and those turns
+// between writes alternate between refreshes and poll reads while both wait),
 // the back-off of modules that keep failing, and the poll cycle's bookkeeping. The link's
 // coroutine (link_scheduler) asks `next`, does the transaction and reports it with `done`.
 #pragma once
@@ -58,6 +59,8 @@ class PollPlan {
         int failures = 0;
     };
     std::optional<std::size_t> due_refresh(Clock::time_point now) const;
+    // The next input due in the round-robin; the cursor stays on it.
+    std::optional<std::size_t> due_poll(Clock::time_point now);
     bool anything_due(Clock::time_point now) const;
     void finish_pass(Clock::time_point now);
 
@@ -66,6 +69,7 @@ class PollPlan {
     std::vector<std::size_t> outputs_;
     std::size_t cursor_ = 0;
     bool after_write_ = false;  // the last step was a write
+    bool poll_owed_ = false;  // the last turn between writes went to a refresh while a poll waited
     bool pass_did_work_ = false;
     std::optional<Clock::time_point> last_completion_;
     std::chrono::microseconds last_cycle_{};

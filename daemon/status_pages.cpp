@@ -104,7 +104,8 @@ void link_families(Exposition& out, const ModbusServer::Units& links) {
     for (const auto& link : links)
         out.sample("ioportd_link_cycle_seconds", {{"link", link->config().name}},
                    seconds(link->last_cycle()));
-    out.family("ioportd_writes_total", "counter", "Client writes that reached the link, by result");
+    out.family("ioportd_writes_total", "counter",
+               "Client writes to the link, by result (busy: refused, the queue was full)");
     for (const auto& link : links)
         for (std::size_t r = 0; r < write_result_count; ++r)
             out.sample(
@@ -168,20 +169,22 @@ void modbus_families(Exposition& out, const ModbusServer& server) {
                stats.refused_too_many);
     out.sample("ioportd_modbus_connections_refused_total", {{"reason", "tls_handshake"}},
                stats.refused_tls_handshake);
-    out.family("ioportd_modbus_requests_total", "counter",
-               "Modbus requests answered, by unit id and function code");
-    for (const auto& [key, count] : stats.requests)
+    out.family(
+        "ioportd_modbus_requests_total", "counter",
+        "Modbus requests answered, by configured unit id and function code, the rest as other");
+    for (const auto& [key, count] : stats.responses.requests())
         out.sample("ioportd_modbus_requests_total",
-                   {{"unit", fmt::format_int(key.first).c_str()},
-                    {"function", fmt::format_int(key.second).c_str()}},
+                   {{"unit", gateway::label_text(key.first)},
+                    {"function", gateway::label_text(key.second)}},
                    count);
-    out.family("ioportd_modbus_exceptions_total", "counter",
-               "Modbus exception responses, by unit id and exception code");
-    for (const auto& [key, count] : stats.exceptions)
-        out.sample("ioportd_modbus_exceptions_total",
-                   {{"unit", fmt::format_int(key.first).c_str()},
-                    {"code", fmt::format_int(key.second).c_str()}},
-                   count);
+    out.family(
+        "ioportd_modbus_exceptions_total", "counter",
+        "Modbus exception responses, by configured unit id and exception code, the rest as other");
+    for (const auto& [key, count] : stats.responses.exceptions())
+        out.sample(
+            "ioportd_modbus_exceptions_total",
+            {{"unit", gateway::label_text(key.first)}, {"code", gateway::label_text(key.second)}},
+            count);
     const auto& histogram = stats.request_duration;
     out.family("ioportd_modbus_request_duration_seconds", "histogram",
                "From a request's last byte received to its response sent");

@@ -1,14 +1,22 @@
-// Fuzz target: the HTTP side's routes and query parsing (daemon/http_route.hpp), and the writers
-// of its two text formats (daemon/exposition.hpp) on arbitrary bytes.
+// Fuzz target: the HTTP side's routes, Host check and query parsing (daemon/http_route.hpp), and
+// the writers of its two text formats (daemon/exposition.hpp) on arbitrary bytes.
 //
-// Input: a request line, "METHOD TARGET" up to the first LF (split at its first space; with no
-// space, the whole line is the method and the target is empty), then arbitrary bytes. The method
-// and target are routed; the target's query is asked for `format` and for the name the bytes'
-// first line gives. The bytes are written as a label value, a HELP text and a JSON string, and
-// drive the building of a JSON document (one operation a byte, see build_json).
+// Input: a request line, "METHOD TARGET" up to the first LF or TAB (split at its first space;
+// with no space, the whole line is the method and the target is empty), then, after a TAB, its
+// Host fields, TAB-separated: a field "1.0" makes it HTTP/1.0, every other is a Host header's
+// value. Without a TAB, the request is HTTP/1.1 with "Host: localhost", the everyday case. Then
+// arbitrary bytes. The request is routed, with the names "box7" and "gateway.plant.example"; the
+// target's query is asked for `format` and for the name the bytes' first line gives. The bytes
+// are written as a label value, a HELP text and a JSON string, and drive the building of a JSON
+// document (one operation a byte, see build_json).
 //
-// Invariants, from gateway.md §5.4, the Prometheus text format 0.0.4 and RFC 8259 rather than
-// from the code under test:
+// Invariants, from gateway.md §5.4, RFC 9110 §7.2 and RFC 9112 §3.2 (Host), the Prometheus text
+// format 0.0.4 and RFC 8259 rather than from the code under test:
+// - a request is refused for its Host before anything else: 400 for several Host fields, for
+//   none in HTTP/1.1, or for one that is not uri-host[:port] (RFC 3986; an IP literal in
+//   brackets is IPv6 without a zone); 421 for one that names neither an IPv4 or IPv6 literal,
+//   localhost nor one of the names (letter case and one trailing dot aside); otherwise, and for
+//   HTTP/1.0 without a Host, it routes as its method and target alone do;
 // - only GET and HEAD are ever routed, and `head` says which; a route's target is a path
 //   (origin form) whose part before '?' is one of the six pages, and the page is that path's;
 // - a refusal is 400 (not a path, or the map's format bad), 404 (a path that is no page) or 405
@@ -23,6 +31,9 @@
 //   overlong form, surrogate or code point past U+10FFFF) as U+FFFD; a document
 //   built with well-formed calls parses as JSON, numbers read back to the double or float
 //   written, and non-finite ones are null.
+#include <arpa/inet.h>
+
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -130,6 +141,82 @@ void check_query(std::string_view query, std::string_view name) {
     const auto again =
         daemon::query_value(percent_encoded(name) + "x=1&" + encoded + "&" + encoded + "1", name);
     check(again && *again && **again == **expected, "percent-encoding a value gives it back");
+}
+
+// --- The Host: DNS rebinding ------------------------------------------------------------------
+
+const std::vector<std::string> server_names{"box7", "gateway.plant.example"};
+
+enum class Verdict { served, misdirected, malformed };
+
+bool digits(std::string_view text) {
+    return std::all_of(text.begin(), text.end(), [](char c) { return c >= '0' && c <= '9'; });
+}
+
+bool is_address(int family, std::string_view text) {
+    std::array<unsigned char, 16> address{};
+    return text.find('\0') == std::string_view::npos &&
+           ::inet_pton(family, std::string(text).c_str(), address.data()) == 1;
+}
+
+std::string folded(std::string_view name) {
+    if (!name.empty() && name.back() == '.') name.remove_suffix(1);
+    std::string out;
+    for (const char c : name)
+        out += c >= 'A' && c <= 'Z' ? static_cast<char>(c + 32) : c;
+    return out;
+}
+
+// RFC 9110 §7.2: Host = uri-host [ ":" port ], port = *DIGIT; IP-literal = "[" IPv6address "]".
+Verdict verdict(std::string_view host) {
+    std::string_view name = host;
+    std::string_view port;
+    if (host.starts_with('[')) {
+        const auto close = host.find(']');
+        if (close == std::string_view::npos) return Verdict::malformed;
+        name = host.substr(1, close - 1);
+        port = host.substr(close + 1);
+        if (!port.empty() && (port[0] != ':' || !digits(port.substr(1)))) return Verdict::malformed;
+        return is_address(AF_INET6, name) ? Verdict::served : Verdict::malformed;
+    }
+    const auto colon = host.find(':');
+    if (colon != std::string_view::npos) {
+        name = host.substr(0, colon);
+        if (!digits(host.substr(colon + 1))) return Verdict::malformed;
+    }
+    if (is_address(AF_INET, name)) return Verdict::served;
+    const auto folded_name = folded(name);
+    if (folded_name == "localhost") return Verdict::served;
+    for (const auto& n : server_names)
+        if (folded(n) == folded_name) return Verdict::served;
+    return Verdict::misdirected;
+}
+
+// True when the Host lets the request through to its method and target.
+bool check_host(const daemon::Request& request) {
+    const auto routed = daemon::route(request, server_names);
+    const auto alone = daemon::route(request.method, request.target);
+    const auto refused = [&](unsigned status) {
+        check(!routed && routed.error().status == status && !routed.error().message.empty(),
+              "a Host refusal is its status, with a message");
+        return false;
+    };
+    if (request.hosts > 1) return refused(400);
+    if (request.hosts == 0 && request.version == 11) return refused(400);
+    if (request.hosts == 1) {
+        switch (verdict(request.host)) {
+            case Verdict::malformed:
+                return refused(400);
+            case Verdict::misdirected:
+                return refused(421);
+            case Verdict::served:
+                break;
+        }
+    }
+    check(routed.has_value() == alone.has_value() &&
+              (routed ? *routed == *alone : routed.error() == alone.error()),
+          "a request whose Host is served routes as its method and target do");
+    return true;
 }
 
 // --- Routes ------------------------------------------------------------------------------
@@ -591,14 +678,33 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     using namespace ioport;
     const std::string_view input(reinterpret_cast<const char*>(data), size);
     const auto newline = input.find('\n');
-    const auto line = input.substr(0, newline);
+    const auto whole_line = input.substr(0, newline);
     const auto bytes =
         newline == std::string_view::npos ? std::string_view() : input.substr(newline + 1);
+    const auto tab = whole_line.find('\t');
+    const auto line = whole_line.substr(0, tab);
     const auto space = line.find(' ');
     const auto method = line.substr(0, space);
     const auto target =
         space == std::string_view::npos ? std::string_view() : line.substr(space + 1);
 
+    daemon::Request request{method, target, 11, 1, "localhost"};
+    if (tab != std::string_view::npos) {
+        request.hosts = 0;
+        auto fields = whole_line.substr(tab + 1);
+        for (;;) {
+            const auto end = fields.find('\t');
+            const auto field = fields.substr(0, end);
+            if (field == "1.0") {
+                request.version = 10;
+            } else if (request.hosts++ == 0) {
+                request.host = field;
+            }
+            if (end == std::string_view::npos) break;
+            fields = fields.substr(end + 1);
+        }
+    }
+    fuzz::check_host(request);
     fuzz::check_route(method, target);
     const auto question = target.find('?');
     const auto query =

@@ -8,7 +8,8 @@
 // LinkScheduler::apply does once the device answered, FC 23's read part is decided by
 // gateway::read_back() once its write is done, libmodbus builds the response through the
 // daemon's own ReplyBuilder, and each response is counted with gateway::count_response into the
-// unit's traffic, which a read of the diagnostics stores with gateway::store_front.
+// unit's traffic, which a read of the diagnostics stores with gateway::store_front, and into
+// /metrics' counts (gateway::RequestCounts), every response, as ModbusServer::count does.
 //
 // Input: a scenario of `scenario_length` bytes, then the stream.
 //   byte 0     bit 0 read_only, bit 1 stale: hold, bit 2 only the hub is configured (so unit ids
@@ -47,6 +48,11 @@
 //   request, in the configured word order, 1018 the one connection, 1019 the seconds since the
 //   previous request saturating at 65535, 1020 1 only for the first request after a
 //   communication loss and else 0;
+// - /metrics (§5.4): a response counts once under its unit's id, `other` when no link has the
+//   unit id asked for (0 and 255 count as the hub's when it is the only link), and under its
+//   function code when it is one of §3.5's, else `other`; an exception counts under its code,
+//   which is always one of the server's (01-04, 0A, 0B), never one the client chose; so there
+//   are never more series than (configured units + 1) x 11;
 // - an unfinished request always fits the server's buffer.
 #include <algorithm>
 #include <array>
@@ -68,6 +74,7 @@
 #include "protocol/device_identification.hpp"
 #include "protocol/gateway_map.hpp"
 #include "protocol/modbus.hpp"
+#include "protocol/request_labels.hpp"
 
 namespace ioport::fuzz {
 namespace {
@@ -215,6 +222,21 @@ struct Unit {
     gateway::Traffic counted;  // as gateway.md §5.1 counts: the harness's own
 };
 
+// §5.4's label values as the spec words them: a configured unit's id, §3.5's function codes.
+int unit_label_as_spec(const Unit* unit) {
+    return unit == nullptr ? gateway::other_label : unit->link->unit_id;
+}
+int function_label_as_spec(std::uint8_t function) {
+    constexpr std::array<std::uint8_t, 10> own{1, 2, 3, 4, 5, 6, 15, 16, 23, 43};
+    return std::find(own.begin(), own.end(), function) != own.end() ? function
+                                                                    : gateway::other_label;
+}
+
+std::uint64_t count_of(const gateway::RequestCounts::Counts& counts, std::pair<int, int> key) {
+    const auto found = counts.find(key);
+    return found == counts.end() ? 0 : found->second;
+}
+
 // A copy of a unit's tables. Copied and compared with memcpy and ==, which the coverage
 // instrumentation leaves alone: element loops here would cost more than the code under test and
 // add nothing but the harness's own branches to the coverage.
@@ -287,6 +309,8 @@ class Harness {
     // Registers 1010-1020 in a read from `address` of `quantity` input registers.
     void check_front(const gateway::Traffic& counted, std::uint16_t address, std::uint16_t quantity,
                      const Bytes& reply) const;
+    // Counts a response of `unit` (nullptr: none has the unit id) into /metrics' counts.
+    void check_metrics(const Unit* unit, std::uint8_t function, const Bytes& reply);
 
     gateway::Policy policy_;
     gateway::WordOrder word_order_;
@@ -296,6 +320,7 @@ class Harness {
     daemon::Mapping scratch_ = daemon::scratch_mapping();
     std::unique_ptr<daemon::ReplyBuilder> replies_;
     std::uint64_t handled_ = 0;
+    gateway::RequestCounts metrics_;  // as the server keeps them, for /metrics
     // §5.1 and §5.3 as the server keeps them: the time between the request before this one and
     // this one (a made-up clock, so that 1019 saturates after a few requests), and whether the
     // outputs were put in their safe state since the last request.
@@ -687,6 +712,26 @@ void Harness::check_front(const gateway::Traffic& counted, std::uint16_t address
     }
 }
 
+void Harness::check_metrics(const Unit* unit, std::uint8_t function, const Bytes& reply) {
+    const std::pair key{unit_label_as_spec(unit), function_label_as_spec(function)};
+    const auto before = count_of(metrics_.requests(), key);
+    const bool exception = (reply[0] & 0x80U) != 0;
+    const std::pair exception_key{key.first, exception ? int{reply[1]} : 0};
+    const auto exceptions_before = count_of(metrics_.exceptions(), exception_key);
+    metrics_.count(unit != nullptr ? unit->link->unit_id : -1, function, reply);
+    check(count_of(metrics_.requests(), key) == before + 1,
+          "a response counts under its configured unit or other, and §3.5's code or other");
+    const auto series = (units_.size() + 1) * 11;
+    check(metrics_.requests().size() <= series && metrics_.exceptions().size() <= series,
+          "at most (configured units + 1) x 11 series");
+    if (!exception) return;
+    constexpr std::array<std::uint8_t, 7> codes{0x01, 0x02, 0x03, 0x04, 0x06, 0x0A, 0x0B};
+    check(std::find(codes.begin(), codes.end(), reply[1]) != codes.end(),
+          "an exception code is one of the server's, never the client's");
+    check(count_of(metrics_.exceptions(), exception_key) == exceptions_before + 1,
+          "an exception counts under its unit and its code");
+}
+
 void Harness::handle(std::span<const std::uint8_t> adu) {
     ++handled_;
     // 16384.000123 s more before each request: 1019 reads 16384, 32768, 49152, then 65535.
@@ -710,6 +755,7 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
               "the length field counts the unit id and the PDU");
         check(bytes[modbus::mbap_length - 1] == unit_id, "the unit id is echoed");
         Bytes reply(bytes.begin() + modbus::mbap_length, bytes.end());
+        check_metrics(unit, pdu[0], reply);
         if (unit != nullptr) {
             gateway::count_response(unit->traffic, pdu[0], reply);
             count_as_spec(unit->counted, pdu[0], reply);

@@ -293,12 +293,24 @@ modbus("identification-read-only-comm-loss", [
     adu(122, 1, read_write(0, 1, 0, [1])),  # 01: read_only
     adu(123, 1, read(0x04, 1010, 11)),      # 1020 reads 0
 ], scenario=bytes([0b1101001, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0, 0, 0, 0, 0]))
+# /metrics' labels (gateway.md §5.4): unit ids no link has and function codes outside §3.5
+# count under `other`; with the hub alone, 0 and 255 count as the hub's unit.
+modbus("metric-labels-other", [
+    adu(130, 200, read(0x03, 0, 1)),        # 0A, unit other
+    adu(131, 248, bytes([0x41, 0, 0])),     # 0A, unit and function other
+    adu(132, 1, bytes([0x07])),             # 01, function other
+    adu(133, 1, bytes([0x85, 0, 4, 0xFF, 0])),  # 01, high bit set: other
+    adu(134, 0, read(0x04, 0, 1)),          # the hub's unit
+    adu(135, 255, bytes([0x2B, 0x0E, 1, 0])),   # the hub's unit, FC 43
+], scenario=bytes([0b100, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]))
 
 # --- http_route: a request line "METHOD TARGET", a LF, then the bytes the writers escape and the
 # JSON document's operations (fuzz/http_route.cpp) -----------------------------------------------
 
-def http(name, method, target, rest=b""):
-    write("http_route", name, method + b" " + target + b"\n" + rest)
+def http(name, method, target, rest=b"", hosts=None):
+    """`hosts`: the Host fields (and "1.0" for HTTP/1.0); None: HTTP/1.1 with Host: localhost."""
+    fields = b"" if hosts is None else b"".join(b"\t" + h for h in hosts)
+    write("http_route", name, method + b" " + target + fields + b"\n" + rest)
 
 
 for page in [b"/", b"/api/v1/state", b"/api/v1/trends", b"/metrics", b"/healthz", b"/map"]:
@@ -317,6 +329,23 @@ http("map-html-plus", b"HEAD", b"/map?x=a+b&format=html")
 http("map-bad", b"GET", b"/map?format=pdf")
 http("map-malformed-escape", b"GET", b"/map?format=%zz")
 http("map-truncated-escape", b"GET", b"/map?format=csv%2")
+# The Host against DNS rebinding (gateway.md §5.4): IP literals, localhost, the names; 421 for
+# others; 400 for several, none in HTTP/1.1 or a malformed one.
+http("host-ipv4-port", b"GET", b"/api/v1/state", hosts=[b"127.0.0.1:8502"])
+http("host-ipv6-port", b"GET", b"/api/v1/state", hosts=[b"[::1]:8502"])
+http("host-ipv6-scope", b"GET", b"/api/v1/state", hosts=[b"[fe80::1%25eth0]"])
+http("host-localhost-dot", b"GET", b"/metrics", hosts=[b"LOCALHOST.:8502"])
+http("host-server-name", b"GET", b"/", hosts=[b"Gateway.Plant.Example"])
+http("host-machine-name", b"HEAD", b"/healthz", hosts=[b"box7:80"])
+http("host-rebinding", b"GET", b"/api/v1/state", hosts=[b"evil.example:8502"])
+http("host-rebinding-missing-page", b"POST", b"/nowhere", hosts=[b"evil.example"])
+http("host-two", b"GET", b"/metrics", hosts=[b"127.0.0.1", b"evil.example"])
+http("host-none-http11", b"GET", b"/metrics", hosts=[])
+http("host-none-http10", b"GET", b"/metrics", hosts=[b"1.0"])
+http("host-http10-rebinding", b"GET", b"/metrics", hosts=[b"1.0", b"evil.example"])
+http("host-bad-port", b"GET", b"/metrics", hosts=[b"127.0.0.1:80x"])
+http("host-unbracketed-ipv6", b"GET", b"/metrics", hosts=[b"::1"])
+http("host-nul", b"GET", b"/metrics", hosts=[b"[::1\x00x]"])
 # The status page's own requests, with a name to look up and a label with every escape.
 http("state-query-name", b"GET", b"/api/v1/state?link=hub%200&link=hub1",
      b"link\nhub0 \"dim16 0\" \\ \x00\x01\x1f\x7f caf\xc3\xa9 \xff")

@@ -103,7 +103,7 @@ class Fixture:
             {'name': 'hub0', 'protocol': 'ioport', 'device': '/dev/ttyUSB0', 'baud': 115200,
              'unit_id': 1, 'port_open': True, 'reopens': 0, 'ok': 0, 'no_answer': 0,
              'bad_answer': 0, 'error_ack': 0,
-             'writes': {'confirmed': 3, 'error_ack': 0, 'no_answer': 0, 'link_down': 0},
+             'writes': {'confirmed': 3, 'error_ack': 0, 'no_answer': 0, 'link_down': 0, 'busy': 0, 'dropped': 0},
              'modules': [
                  Module('dim16', 0, 0, word=0x0005),
                  Module('dom16', 0, 1, word=0x0000),
@@ -117,12 +117,12 @@ class Fixture:
             {'name': 'press', 'protocol': 'id2', 'device': '/dev/ttyS1', 'baud': 9600,
              'unit_id': 2, 'port_open': True, 'reopens': 0, 'ok': 0, 'no_answer': 0,
              'bad_answer': 0, 'error_ack': 0,
-             'writes': {'confirmed': 0, 'error_ack': 0, 'no_answer': 0, 'link_down': 0},
+             'writes': {'confirmed': 0, 'error_ack': 0, 'no_answer': 0, 'link_down': 0, 'busy': 0, 'dropped': 0},
              'modules': [Module('id2', 0, 0, stop=False, count=1207)]},
             {'name': 'hub1', 'protocol': 'ioport', 'device': '/dev/ttyUSB1', 'baud': 38400,
              'unit_id': 3, 'port_open': False, 'reopens': 4, 'ok': 0, 'no_answer': 0,
              'bad_answer': 0, 'error_ack': 0,
-             'writes': {'confirmed': 0, 'error_ack': 0, 'no_answer': 0, 'link_down': 2},
+             'writes': {'confirmed': 0, 'error_ack': 0, 'no_answer': 0, 'link_down': 2, 'busy': 0, 'dropped': 0},
              'modules': [Module('dim16', 1, 0, word=None, status=4),
                          Module('dom16', 1, 1, word=None, status=4)]},
         ]

@@ -46,23 +46,11 @@ milliseconds since(Clock::time_point start) {
     return std::chrono::duration_cast<milliseconds>(Clock::now() - start);
 }
 
-// The scenario's own clock: faults are injected on a schedule, so this waits for a time, not
-// for a condition (there is none to wait for).
-void pace_until(Clock::time_point when) {
-    while (Clock::now() < when)
-        std::this_thread::sleep_for(std::min<Clock::duration>(when - Clock::now(), 5ms));
-}
-
 std::string gateway_config(const std::string& device, const std::string& modbus_extra = "") {
     return fmt::format("modbus:\n  listen: \"127.0.0.1:0\"\n{}\nlinks:\n{}", modbus_extra,
                        bench::hub_link_yaml(device, serial_timeout, 1));
 }
 
-// A figure for the README: printed, and kept in the test's XML properties.
-void figure(const std::string& name, const std::string& value) {
-    ::testing::Test::RecordProperty(name, value);
-    std::cout << "[ figure   ] " << name << ": " << value << "\n";
-}
 std::string ms(milliseconds value) {
     return fmt::format("{} ms", value.count());
 }
@@ -307,13 +295,14 @@ class CommLoss : public Faults {
 
 // gateway.md §5.3 under load: the clients write outputs, dom16 1 answers 30 ms late (inside the
 // 50 ms timeout), so the coil writes of 16 clients queue, and every client falls silent with
-// them in flight; the gateway declares the loss while they still drain. The writes answered
-// normally must reach the device before the safe state does (0 lost writes: none overwritten
-// by anything but a later write or a safe state after it), no output may ever be set to a value
+// them in flight; the gateway declares the loss while they still wait. The write in flight
+// finishes, the waiting ones are dropped (0B); the writes answered normally must reach the
+// device before the safe state does (0 lost writes: none overwritten by anything but a later
+// write or a safe state after it), no output may ever be set to a value
 // nobody asked for (the safe value only after a real silence), 1020 reads 1 for the first
 // request afterwards and 0 for the next; then the clients write again. Every other time the
-// port is unplugged during the loss, while the safe push may still wait behind the writes: the
-// reopen restores the safe state.
+// port is unplugged during the loss, just after the safe push began: the reopen restores the
+// safe state.
 TEST_F(CommLoss, ScadaFallsSilentWithWritesInFlightNoWriteLostNoValueNobodyAskedFor) {
     ASSERT_TRUE(all_online(diagnostics));
     bench::WorkloadSettings settings;

@@ -484,6 +484,145 @@ TEST_F(ContractTest, WritesToADeadModuleInALoopNeverStarvePollingOrOtherWrites) 
     EXPECT_LT(slowest, 300ms);
 }
 
+// §4: while writes keep coming, the turns between them alternate between due refreshes and due
+// poll reads. 16 modules, 7 outputs refreshing every second (the default), three clients writing
+// to a dead dom16 without pause: each write takes (retries + 1) timeouts and a silence (180 ms),
+// so the six live refreshes a second could take every turn between writes, and before this rule
+// they did (dim16 0 was never read). The README states the bound: an input module is read at
+// least every inputs × 2 × (the longest write + the longest refresh or poll read).
+class WriteStormTest : public Contract {
+  protected:
+    WriteStormTest()
+        : gateway(config(hub_link(hub.link(), modules, "timeout: 60ms\n    retries: 1"))) {}
+    const std::vector<Module> modules{
+        {"dim16", 0}, {"dim16", 1}, {"dim16", 2}, {"dim16", 3}, {"lim16", 0}, {"lim16", 1},
+        {"acm3p", 0}, {"acm3c", 0}, {"dccim", 0}, {"dom16", 0}, {"dom16", 1}, {"dom16", 2},
+        {"dom16", 3}, {"rgbdm", 0}, {"rgbdm", 1}, {"mux8m", 0},
+    };
+    static constexpr std::array input_slots{0, 1, 2, 3, 88, 89, 16, 24, 48};
+    SimProcess hub{"--hub", sim_modules(modules), {"--no-line-timing"}};
+    GatewayProcess gateway;
+};
+
+TEST_F(WriteStormTest, InputsAreReadWithinTheStatedBoundWhileThreeClientsWriteToADeadOutput) {
+    ModbusClient client(gateway.port());
+    ASSERT_TRUE(all_online(client));
+    hub.ctl("fault dom16:3 silent");
+    std::atomic<bool> writing = true;
+    std::atomic<int> dead_writes = 0;
+    std::vector<std::thread> writers;
+    for (int i = 0; i < 3; ++i)
+        writers.emplace_back([&] {
+            ModbusClient dead(gateway.port());
+            while (writing) {
+                EXPECT_EQ(error_of(dead.write_register(3, 0x0001)), target_failed);
+                ++dead_writes;
+            }
+        });
+    ASSERT_TRUE(eventually([&] { return dead_writes > 0; }));
+    // The ages are read once the storm has lasted longer than any input's age before it.
+    pace_until(Clock::now() + 1s);
+    const auto end = Clock::now() + 10s;
+    std::uint16_t oldest = 0;
+    while (Clock::now() < end) {
+        const auto ages = ir_values(client, 1200, 72);
+        for (const auto slot : input_slots)
+            oldest = std::max(oldest, ages[static_cast<std::size_t>(slot)]);
+        pace_until(Clock::now() + 50ms);
+    }
+    writing = false;
+    for (auto& writer : writers)
+        writer.join();
+    // The README's bound: every other turn between two writes is a poll read, so each of n
+    // inputs is read within 2n × (W + T), W the longest write (to the silent module: two
+    // attempts, each a timeout and a silence) and T the longest other transaction (the silent
+    // module's refresh, at worst W). Without the alternation the refreshes took every turn and
+    // the age grew for as long as the storm lasted (11 s).
+    const auto dead_write = 2 * 2 * 60ms;
+    const auto bound = 2 * input_slots.size() * (dead_write + dead_write);
+    figure("writes to the dead dom16 in 11 s", std::to_string(dead_writes.load()));
+    figure("oldest input module during the storm", fmt::format("{} ms", oldest));
+    figure("the README's bound for 9 inputs", fmt::format("{} ms", bound.count()));
+    EXPECT_GE(dead_writes, 30) << "the writes did not stream";
+    EXPECT_LT(milliseconds(oldest), bound + 500ms)
+        << "an input module was starved by the refreshes between the writes";
+}
+
+// §4: writes waiting on one link are bounded (max_pending_writes); a write that finds the queue
+// full answers 06 at once and is never applied later.
+class PendingWritesTest : public Contract {
+  protected:
+    PendingWritesTest()
+        : gateway(config(hub_link(hub.link(), modules,
+                                  "timeout: 100ms\n    retries: 0\n    max_pending_writes: 4"))) {}
+    const std::vector<Module> modules{{"dim16", 0}, {"dom16", 0, ", refresh: 1m"}};
+    SimProcess hub{"--hub", sim_modules(modules), {"--no-line-timing"}};
+    GatewayProcess gateway;
+};
+
+TEST_F(PendingWritesTest, AWriteThatFindsTheQueueFullAnswers06AtOnceAndIsNeverApplied) {
+    {
+        ModbusClient client(gateway.port());
+        ASSERT_TRUE(all_online(client));
+    }
+    hub.ctl("fault dom16:0 delay 60ms");  // answers, slowly: the writes queue
+    hub.ctl("log clear");
+    constexpr std::uint16_t writers = 12;
+    std::vector<std::unique_ptr<RawClient>> clients;
+    for (std::uint16_t i = 0; i < writers; ++i) {
+        clients.push_back(std::make_unique<RawClient>(gateway.port()));
+        ASSERT_TRUE(clients.back()->connected());
+    }
+    const auto sent = Clock::now();
+    for (std::uint16_t i = 0; i < writers; ++i)
+        ASSERT_TRUE(clients[i]->send(
+            adu(i, 1, pdu(fc_write_register, {0, static_cast<std::uint16_t>(0x1000 + i)}))));
+    std::vector<std::uint16_t> confirmed;
+    std::vector<std::uint16_t> refused;
+    milliseconds slowest_refusal{0};
+    milliseconds last_confirmation{0};
+    // Answered in whatever order: each client is polled until every one has its answer.
+    std::vector<bool> answered(writers, false);
+    const auto deadline = Clock::now() + 5s;
+    for (std::size_t left = writers; left > 0 && Clock::now() < deadline;) {
+        for (std::uint16_t i = 0; i < writers; ++i) {
+            if (answered[i]) continue;
+            const auto response = clients[i]->receive(1ms);
+            if (!response) continue;
+            answered[i] = true;
+            --left;
+            const auto value = static_cast<std::uint16_t>(0x1000 + i);
+            if (response->exception() == 0x06) {
+                refused.push_back(value);
+                slowest_refusal = std::max(slowest_refusal, since(sent));
+            } else {
+                EXPECT_EQ(response->exception(), 0) << "write " << i;
+                confirmed.push_back(value);
+                last_confirmation = std::max(last_confirmation, since(sent));
+            }
+        }
+    }
+    ASSERT_EQ(confirmed.size() + refused.size(), writers) << "writes not answered within 5 s";
+    // One in flight and four waiting; the rest refused before the first was confirmed.
+    figure("confirmed / refused with 06", fmt::format("{} / {}", confirmed.size(), refused.size()));
+    EXPECT_LE(confirmed.size(), 5U);
+    EXPECT_GE(refused.size(), writers - 5U);
+    // The device takes 60 ms a write: a refusal that waited for the line would come after the
+    // queue drained.
+    figure("slowest refusal / last confirmation",
+           fmt::format("{} / {} ms", slowest_refusal.count(), last_confirmation.count()));
+    EXPECT_LT(slowest_refusal, last_confirmation) << "a refusal waited for the line";
+    const auto log = hub.ctl("log");
+    for (const auto value : confirmed)
+        EXPECT_NE(log.find(fmt::format(" b0{:04X} ", value)), std::string::npos) << value;
+    // Nothing refused ever reaches the device, however long the link then has to work.
+    pace_until(Clock::now() + 200ms);
+    const auto later = hub.ctl("log");
+    for (const auto value : refused)
+        EXPECT_EQ(later.find(fmt::format(" b0{:04X} ", value)), std::string::npos) << value;
+    EXPECT_TRUE(gateway.wait_for_log("max_pending_writes"));
+}
+
 // --- §3.3 and §4 Blocks, unconfigured modules -----------------------------------------------
 
 TEST_F(ContractTest, UnconfiguredModulesReadZeroAndRejectWrites) {
@@ -1117,8 +1256,9 @@ TEST_F(ContractTest, TrafficCountersCountEveryResponseOfTheUnit) {
 // is long enough that the test's own requests keep it away while it sets up.
 class CommLossTest : public Contract {
   protected:
-    explicit CommLossTest(std::string_view timeout = "1500ms")
-        : gateway(config(hub_link(hub.link(), modules),
+    explicit CommLossTest(std::string_view timeout = "1500ms",
+                          const std::string& link_settings = "timeout: 30ms\n    retries: 1")
+        : gateway(config(hub_link(hub.link(), modules, link_settings),
                          fmt::format("  comm_loss_timeout: {}", timeout))) {}
     const std::vector<Module> modules{
         {"dim16", 0},
@@ -1204,6 +1344,81 @@ TEST_F(CommLossTest, AReloadDuringCommLossRestartsTheLinkInTheSafeState) {
     EXPECT_EQ(hub.ctl("log").find(" b000F0 "), std::string::npos)
         << "dom16 0 was sent its initial value";
     EXPECT_EQ(sim_value(hub, "rgbdm:0"), "1");  // still red
+}
+
+// Requests that do not show a SCADA is there (a unit no link has, answered 0A) keep nothing
+// from happening: the safe state comes on time while such a client asks without pause.
+TEST_F(CommLossTest, RequestsToAnUnknownUnitDoNotHoldOffTheSafeState) {
+    {
+        ModbusClient scada(gateway.port());
+        ASSERT_TRUE(all_online(scada));
+        ASSERT_TRUE(scada.write_register(0, 0x1234));
+    }
+    const auto silent = Clock::now();
+    ModbusClient prober(gateway.port(), 99);
+    bool safe = false;
+    while (!safe && since(silent) < 5s) {
+        EXPECT_EQ(error_of(prober.read_input_registers(1000, 1)), path_unavailable);
+        safe = sim_value(hub, "dom16:0") == "1";
+        pace_until(Clock::now() + 20ms);
+    }
+    EXPECT_TRUE(safe) << "requests answered 0A held off the safe state";
+    EXPECT_LT(since(silent), 1500ms + 1s * slowdown);
+}
+
+// §5.3: writes still waiting when the safe state is due are dropped (answered 0B) and never
+// applied after it; the safe state reaches the outputs within the timeout, the write in flight
+// and one transaction per output module, not after the whole queue. The link's timeout leaves
+// room for a slow module's answers.
+class CommLossQueueTest : public CommLossTest {
+  protected:
+    CommLossQueueTest() : CommLossTest("1500ms", "timeout: 100ms\n    retries: 1") {}
+};
+
+TEST_F(CommLossQueueTest, WritesWaitingWhenTheSafeStateIsDueAreDroppedNeverAppliedAfterIt) {
+    {
+        ModbusClient scada(gateway.port());
+        ASSERT_TRUE(all_online(scada));
+    }
+    hub.ctl("fault dom16:0 delay 80ms");  // answers within the timeout, slowly
+    hub.ctl("log clear");
+    // 2.4 s of writes, longer than the 1.5 s timeout; within max_connections (32).
+    constexpr std::uint16_t writers = 30;
+    std::vector<std::unique_ptr<RawClient>> clients;
+    for (std::uint16_t i = 0; i < writers; ++i) {
+        clients.push_back(std::make_unique<RawClient>(gateway.port()));
+        ASSERT_TRUE(clients.back()->connected());
+    }
+    const auto sent = Clock::now();
+    for (std::uint16_t i = 0; i < writers; ++i)
+        ASSERT_TRUE(clients[i]->send(
+            adu(i, 1, pdu(fc_write_register, {0, static_cast<std::uint16_t>(0x2000 + i)}))));
+    ASSERT_TRUE(sim_becomes("dom16:0", "1", 10s));
+    const auto safe_after = since(sent);
+    int confirmed = 0;
+    int dropped = 0;
+    for (std::uint16_t i = 0; i < writers; ++i) {
+        const auto response = clients[i]->receive(5s);
+        ASSERT_TRUE(response) << "write " << i << " was not answered";
+        (response->exception() == target_failed ? dropped : confirmed) += 1;
+        EXPECT_TRUE(response->exception() == 0 || response->exception() == target_failed)
+            << "write " << i << ": " << response->exception();
+    }
+    figure("writes confirmed / dropped for the safe state",
+           fmt::format("{} / {}", confirmed, dropped));
+    figure("safe value at the device after", fmt::format("{} ms", safe_after.count()));
+    EXPECT_GT(dropped, 0);
+    // 1.5 s, the write in flight (80 ms) and three outputs' transactions (80 ms for dom16 0),
+    // on a busy machine.
+    EXPECT_LT(safe_after, 1500ms + 500ms * slowdown) << "the safe state waited behind the writes";
+    // Nothing a client asked for reaches dom16 0 after its safe value.
+    pace_until(Clock::now() + 200ms);
+    const auto log = hub.ctl("log");
+    const auto safe_at = log.find(" b00001 ");
+    ASSERT_NE(safe_at, std::string::npos);
+    EXPECT_EQ(log.find(" b02", safe_at), std::string::npos)
+        << "a write was applied after the safe state";
+    EXPECT_EQ(sim_value(hub, "dom16:0"), "1");
 }
 
 class CommLossOffTest : public CommLossTest {

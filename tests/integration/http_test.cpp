@@ -11,12 +11,15 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
 #include <memory>
 #include <optional>
+#include <regex>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -25,6 +28,7 @@
 #include "tests/support/gateway.hpp"
 #include "tests/support/http_client.hpp"
 #include "tests/support/process.hpp"
+#include "tests/support/raw_client.hpp"
 #include "tests/support/timing.hpp"
 
 namespace ioport::test {
@@ -32,6 +36,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 using std::chrono::milliseconds;
+using namespace std::string_literals;
 
 constexpr std::string_view modules = "dim16:0,dom16:0,acm3p:0";
 
@@ -71,6 +76,17 @@ std::map<std::string, double> samples(const std::string& text) {
         out[line.substr(0, space)] = std::stod(line.substr(space + 1));
     }
     return out;
+}
+
+// Prometheus' own linter, on the live output, read from stdin.
+void expect_promtool_passes(const std::string& metrics) {
+    TempDir dir;
+    const auto path = dir / "metrics.txt";
+    std::ofstream(path) << metrics;
+    const auto checked =
+        run({"/bin/sh", "-c", "exec /usr/bin/promtool check metrics < \"$0\"", path});
+    EXPECT_EQ(checked.exit_code, 0) << checked.out << checked.err << "\n" << metrics;
+    EXPECT_EQ(checked.out + checked.err, "") << "promtool has remarks";
 }
 
 std::optional<double> sample(std::uint16_t http_port, const std::string& key) {
@@ -235,15 +251,7 @@ TEST_F(Http, MetricsHasEveryFamilyOfTheContractWithHelpAndTypeAndPassesPromtool)
         return entry.first.starts_with("ioportd_build_info{version=\"") && entry.second == 1;
     });
     EXPECT_TRUE(version_labelled) << reply.body;
-
-    // Prometheus' own linter, on the live output, read from stdin.
-    TempDir dir;
-    const auto path = dir / "metrics.txt";
-    std::ofstream(path) << reply.body;
-    const auto checked =
-        run({"/bin/sh", "-c", "exec /usr/bin/promtool check metrics < \"$0\"", path});
-    EXPECT_EQ(checked.exit_code, 0) << checked.out << checked.err << "\n" << reply.body;
-    EXPECT_EQ(checked.out + checked.err, "") << "promtool has remarks";
+    expect_promtool_passes(reply.body);
 }
 
 TEST_F(Http, MetricsFollowTheInputsTheReadsAndTheWrites) {
@@ -275,6 +283,54 @@ TEST_F(Http, MetricsFollowTheInputsTheReadsAndTheWrites) {
     EXPECT_EQ(sample(http_port(), R"(ioportd_output_value{link="hub0",module="dom16 0"})"), 255);
     const auto all = samples(metrics());
     EXPECT_GE(all.at("ioportd_modbus_request_duration_seconds_count"), fc04_before + 5);
+}
+
+// Issue 23: one client sent every unit id with every function code and grew /metrics by 65,536
+// series. Only the configured unit (1, which the single-link aliases 0 and 255 reach too) and the
+// function codes of §3.5 are label values; anything else counts under `other`.
+TEST_F(Http, EveryUnitIdAndFunctionCodeAddsOnlyTheConfiguredUnitAndOther) {
+    const auto before = samples(metrics());
+    RawClient raw(gateway.port());
+    ASSERT_TRUE(raw.connected());
+    for (int unit = 0; unit < 256; ++unit) {
+        Bytes batch;  // pipelined: one unit's 256 requests at once
+        for (int function = 0; function < 256; ++function) {
+            const auto request =
+                adu(static_cast<std::uint16_t>(unit << 8 | function),
+                    static_cast<std::uint8_t>(unit), {static_cast<std::uint8_t>(function), 0, 0});
+            batch.insert(batch.end(), request.begin(), request.end());
+        }
+        ASSERT_TRUE(raw.send(batch));
+        for (int function = 0; function < 256; ++function)
+            ASSERT_TRUE(raw.receive()) << "unit " << unit << " function " << function;
+    }
+
+    const auto text = metrics();
+    const std::set<std::string> functions{"1",  "2",  "3",  "4",  "5",    "6",
+                                          "15", "16", "23", "43", "other"};
+    const std::regex labels(R"re(\{unit="([^"]*)",(function|code)="([^"]*)"\})re");
+    std::size_t series = 0;
+    std::vector<std::string> chosen;  // series with a label value the client chose
+    double requests = 0;
+    for (const auto& [key, value] : samples(text)) {
+        const bool request = key.starts_with("ioportd_modbus_requests_total{");
+        if (!request && !key.starts_with("ioportd_modbus_exceptions_total{")) continue;
+        ++series;
+        std::smatch match;
+        ASSERT_TRUE(std::regex_search(key, match, labels)) << key;
+        if ((match[1] != "1" && match[1] != "other") || (request && !functions.contains(match[3])))
+            chosen.push_back(key);
+        if (request) requests += value - (before.contains(key) ? before.at(key) : 0);
+    }
+    EXPECT_EQ(chosen.size(), 0U) << "of " << series << " series, e.g. "
+                                 << (chosen.empty() ? "" : chosen.front());
+    EXPECT_LE(series, 2U * (11U + 7U));  // units 1 and other: 11 functions, 7 exception codes
+    EXPECT_EQ(requests, 256.0 * 256.0);  // every request counted, under one of those
+    EXPECT_GE(sample(http_port(), R"(ioportd_modbus_requests_total{unit="other",function="3"})"),
+              253);
+    EXPECT_GE(sample(http_port(), R"(ioportd_modbus_requests_total{unit="1",function="other"})"),
+              3 * 246);
+    expect_promtool_passes(text);
 }
 
 // --- /healthz and /api/v1/state ------------------------------------------------------------
@@ -472,6 +528,79 @@ TEST_F(HttpAllow, AClientNotAllowedIsClosedWithoutAResponse) {
     EXPECT_TRUE(gateway.wait_for_log("not in http.allow"));
     // Modbus has its own allow list (empty: anyone).
     EXPECT_TRUE(client.read_input_registers(0, 1));
+}
+
+// --- DNS rebinding: the Host ------------------------------------------------------------------
+
+// A request of `version` ("1.1", "1.0") on a fresh connection with these header lines as they
+// are (no Host unless they have one).
+HttpReply with_headers(std::uint16_t port, std::string_view target, std::string_view headers,
+                       std::string_view version = "1.1") {
+    HttpConnection connection(port);
+    if (!connection.send(
+            fmt::format("GET {} HTTP/{}\r\n{}Connection: close\r\n\r\n", target, version, headers)))
+        return HttpReply{0, {}, {}, "send failed"};
+    return connection.receive();
+}
+
+HttpReply with_host(std::uint16_t port, std::string_view target, std::string_view host) {
+    return with_headers(port, target, fmt::format("Host: {}\r\n", host));
+}
+
+std::string host_name() {
+    std::array<char, 256> name{};
+    ::gethostname(name.data(), name.size() - 1);
+    return name.data();
+}
+
+class HttpServerNames : public Http {
+  protected:
+    HttpServerNames()
+        : Http(R"(http: { listen: "127.0.0.1:0", server_names: [gateway.plant.example] })") {}
+};
+
+// Issue 23: a web page on evil.example whose name came to resolve to 127.0.0.1 (DNS rebinding)
+// could read /api/v1/state from the operator's browser: any Host got 200.
+TEST_F(HttpServerNames, AHostThatIsNotThisServersIs421) {
+    for (const auto* target : {"/api/v1/state", "/metrics", "/", "/nowhere"}) {
+        SCOPED_TRACE(target);
+        const auto evil = with_host(http_port(), target, "evil.example");
+        EXPECT_EQ(evil.status, 421) << evil.error;
+        EXPECT_NE(evil.body.find("http.server_names"), std::string::npos);
+        EXPECT_EQ(evil.body.find("\"links\""), std::string::npos);
+        EXPECT_EQ(
+            with_host(http_port(), target, fmt::format("evil.example:{}", http_port())).status,
+            421);
+    }
+    EXPECT_TRUE(gateway.wait_for_log("Host evil.example is not this server's name (421)"));
+
+    const auto port = std::to_string(http_port());
+    for (const auto& host : {"127.0.0.1:" + port, "127.0.0.1"s, "localhost"s, "localhost:" + port,
+                             "gateway.plant.example"s, "Gateway.Plant.Example:" + port, host_name(),
+                             "[::1]:" + port}) {
+        SCOPED_TRACE(host);
+        const auto reply = with_host(http_port(), "/api/v1/state", host);
+        EXPECT_EQ(reply.status, 200) << reply.error << reply.body;
+        EXPECT_EQ(json_eval(reply.body, "d['links'][0]['name']"), "\"hub0\"");
+    }
+    // RFC 9112 §3.2: HTTP/1.1 must name its Host; HTTP/1.0 without one is no browser's.
+    EXPECT_EQ(with_headers(http_port(), "/metrics", "").status, 400);
+    EXPECT_EQ(with_headers(http_port(), "/metrics", "", "1.0").status, 200);
+    EXPECT_EQ(with_headers(http_port(), "/metrics", "Host: evil.example\r\n", "1.0").status, 421);
+    EXPECT_EQ(
+        with_headers(http_port(), "/metrics", "Host: 127.0.0.1\r\nHost: evil.example\r\n").status,
+        400);
+    EXPECT_TRUE(client.read_input_registers(0, 1));
+}
+
+TEST_F(HttpServerNames, SighupChangesTheServerNames) {
+    gateway.rewrite_config(gateway_yaml(
+        hub.link(), R"(http: { listen: "127.0.0.1:0", server_names: [scada.plant.example] })"));
+    const auto from = gateway.log().size();
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("SIGHUP: reloaded", 5s, from)) << gateway.log();
+    EXPECT_EQ(with_host(http_port(), "/healthz", "scada.plant.example").status, 200);
+    EXPECT_EQ(with_host(http_port(), "/healthz", "gateway.plant.example").status, 421);
 }
 
 TEST(HttpListen, NoSectionOrAnEmptyListenOpensNoHttpPort) {

@@ -539,6 +539,11 @@ def check_unit(root: Path, scratch: Path) -> None:
     watchdog = settings.get("WatchdogSec", ["0"])[0]
     check(re.fullmatch(r"(1\d|2\d|30)s", watchdog) is not None,
           f"{UNIT}: WatchdogSec={watchdog}, want 10s-30s")
+    # A backstop against a runaway allocation (a flood that some bound missed), well above the
+    # measured peaks that the unit's comment lists.
+    memory_max = settings.get("MemoryMax", ["infinity"])[0]
+    check(re.fullmatch(r"\d+M", memory_max) is not None and 128 <= int(memory_max[:-1]) <= 1024,
+          f"{UNIT}: MemoryMax={memory_max}, want 128M-1024M")
     check(settings.get("PrivateUsers") is None and settings.get("PrivateDevices") is None,
           f"{UNIT}: PrivateUsers=/PrivateDevices= would break port 502 or the serial ports")
 

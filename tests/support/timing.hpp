@@ -4,6 +4,14 @@
 // check of values stay as they are.
 #pragma once
 
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <iostream>
+#include <string>
+#include <thread>
+
 namespace ioport::test {
 
 #if defined(__SANITIZE_ADDRESS__)
@@ -11,5 +19,19 @@ inline constexpr int slowdown = 3;
 #else
 inline constexpr int slowdown = 1;
 #endif
+
+// A scenario's own clock: a storm that lasts so long, faults injected on a schedule. It waits
+// for a time, not for a condition (there is none to wait for: use eventually() for those).
+inline void pace_until(std::chrono::steady_clock::time_point when) {
+    while (std::chrono::steady_clock::now() < when)
+        std::this_thread::sleep_for(std::min<std::chrono::steady_clock::duration>(
+            when - std::chrono::steady_clock::now(), std::chrono::milliseconds(5)));
+}
+
+// A figure for the README: printed, and kept in the test's XML properties.
+inline void figure(const std::string& name, const std::string& value) {
+    ::testing::Test::RecordProperty(name, value);
+    std::cout << "[ figure   ] " << name << ": " << value << "\n";
+}
 
 }  // namespace ioport::test

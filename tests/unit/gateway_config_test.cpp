@@ -147,6 +147,7 @@ TEST(GatewayConfig, KeysLeftOutTakeTheDefaultsOfTheSpec) {
     EXPECT_EQ(hub.unit_id, 2);
     EXPECT_EQ(hub.timeout, 100ms);
     EXPECT_EQ(hub.retries, 1);
+    EXPECT_EQ(hub.max_pending_writes, 64);
     ASSERT_EQ(hub.modules.size(), 2u);
     EXPECT_EQ(hub.modules[0].address, (ModuleAddress{ModuleType::dom16, 3}));
     EXPECT_EQ(hub.modules[0].initial, 0);
@@ -169,9 +170,11 @@ TEST(GatewayConfig, ReadsEveryModbusSetting) {
     const auto config = parse(R"(modbus: { listen: "[::]:1502", max_connections: 4, idle_timeout: 0,
   allow: ["10.0.0.0/8", 192.168.1.7, "fd00::/8", "::1"], read_only: true, word_order: little,
   stale: hold }
-links: [{ name: a, protocol: id2, device: /dev/ttyS0, unit_id: 247, timeout: 1ms, retries: 0 }]
+links: [{ name: a, protocol: id2, device: /dev/ttyS0, unit_id: 247, timeout: 1ms, retries: 0,
+          max_pending_writes: 1 }]
 )");
     ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->links[0].max_pending_writes, 1);
     const ModbusSettings& modbus = config->modbus;
     EXPECT_EQ(modbus.listen_host, "::");
     EXPECT_EQ(modbus.listen_port, 1502);
@@ -316,13 +319,19 @@ TEST(GatewayConfig, TheHttpSection) {
     EXPECT_EQ(defaults->http->listen_host, "127.0.0.1");
     EXPECT_EQ(defaults->http->listen_port, 8502);
     EXPECT_TRUE(defaults->http->allow.empty());
-    const auto set = parse("http:\n  listen: \"[::]:9100\"\n  allow: [10.0.0.0/8]\n" + links);
+    EXPECT_TRUE(defaults->http->server_names.empty());
+    const auto set = parse(
+        "http:\n  listen: \"[::]:9100\"\n  allow: [10.0.0.0/8]\n"
+        "  server_names: [gateway.plant.example, GW-7, scada_alias]\n" +
+        links);
     ASSERT_TRUE(set) << describe(set.error());
     ASSERT_TRUE(set->http);
     EXPECT_EQ(set->http->listen_host, "::");
     EXPECT_EQ(set->http->listen_port, 9100);
     ASSERT_EQ(set->http->allow.size(), 1u);
     EXPECT_EQ(set->http->allow[0].text, "10.0.0.0/8");
+    EXPECT_EQ(set->http->server_names,
+              (std::vector<std::string>{"gateway.plant.example", "GW-7", "scada_alias"}));
     const auto off = parse("http:\n  listen: \"\"\n" + links);
     ASSERT_TRUE(off) << describe(off.error());
     EXPECT_FALSE(off->http);
@@ -579,6 +588,10 @@ TEST(GatewayConfigErrors, LinkSettings) {
     expect_one_error({hub + "    timeout: 11s\n", 7, "links[0].timeout", "use 1ms..10s"});
     expect_one_error({hub + "    timeout: 100\n", 7, "links[0].timeout", "e.g. 500us"});
     expect_one_error({hub + "    retries: 11\n", 7, "links[0].retries", "use 0..10"});
+    expect_one_error(
+        {hub + "    max_pending_writes: 0\n", 7, "links[0].max_pending_writes", "use 1..1024"});
+    expect_one_error(
+        {hub + "    max_pending_writes: 1025\n", 7, "links[0].max_pending_writes", "use 1..1024"});
     expect_one_error({hub + "    protocol: modbus\n", 7, "links[0].protocol", "duplicate key"});
     expect_one_error({"links:\n  - name: x\n    protocol: modbus\n    device: /d\n", 3,
                       "links[0].protocol", "use ioport or id2"});
@@ -716,6 +729,21 @@ TEST(GatewayConfigErrors, TheHttpSection) {
     expect_one_error(
         {"http:\n  port: 80\n" + hub, 2, "http.port", "allowed here are listen, allow"});
     expect_one_error({"http: on\n" + hub, 1, "http", "expected a mapping"});
+    const auto name = [&](const std::string& list, const std::string& key,
+                          const std::string& fragment) {
+        expect_one_error(
+            {"http:\n  listen: \"127.0.0.1:8502\"\n  server_names: " + list + "\n" + hub, 3, key,
+             fragment});
+    };
+    name("gw.example", "http.server_names", "expected a list of host names");
+    name("[ok.example, \"\"]", "http.server_names[1]", "'' is not a host name");
+    name("[\"gw\\x01.example\"]", "http.server_names[0]", "'gw\\x01.example' is not a host name");
+    name("[\"gw\\n.example\"]", "http.server_names[0]", "'gw\\n.example' is not a host name");
+    name("[\"http://gw.example\"]", "http.server_names[0]", "no scheme, port or wildcard");
+    name("[\"gw.example:8502\"]", "http.server_names[0]", "not a host name");
+    name("[\"*.example\"]", "http.server_names[0]", "not a host name");
+    name("[" + std::string(254, 'a') + "]", "http.server_names[0]", "1..253 letters");
+    name("[{ name: gw }]", "http.server_names[0]", "expected a host name, found a mapping");
 }
 
 TEST(GatewayConfigErrors, TheMqttSection) {

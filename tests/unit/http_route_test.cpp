@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <limits>
 #include <string>
+#include <vector>
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -113,6 +114,74 @@ TEST(HttpRoute, MapFormats) {
     EXPECT_EQ(route("GET", "/map?format=csv%").error().status, 400U);
     // The method before the query: a POST with a bad format is still refused as a POST.
     EXPECT_EQ(status("POST", "/map?format=bad"), 405U);
+}
+
+// --- route() with the Host: DNS rebinding -----------------------------------------------------
+
+const std::vector<std::string> names{"box7", "gateway.plant.example"};
+
+unsigned host_status(std::string_view host, unsigned version = 11, std::size_t hosts = 1) {
+    const auto routed = route(Request{"GET", "/api/v1/state", version, hosts, host}, names);
+    return routed ? 200 : routed.error().status;
+}
+
+TEST(HttpHost, IpLiteralsLocalhostAndTheNamesAreServedWithOrWithoutAPort) {
+    for (const auto host : {"127.0.0.1", "127.0.0.1:8502", "10.1.2.3:80", "[::1]", "[::1]:8502",
+                            "[fe80::1]:", "[::ffff:127.0.0.1]:8502", "localhost", "localhost:8502",
+                            "LocalHost", "localhost.", "box7", "BOX7:8502", "gateway.plant.example",
+                            "Gateway.Plant.Example.:443"}) {
+        SCOPED_TRACE(host);
+        EXPECT_EQ(host_status(host), 200U);
+        EXPECT_EQ(route(Request{"GET", "/metrics", 11, 1, host}, names),
+                  (Route{Page::metrics, MapFormat::html, false}));
+    }
+}
+
+TEST(HttpHost, AnyOtherNameIs421WhateverThePageOrMethod) {
+    for (const auto host : {"evil.example", "evil.example:8502", "box7.evil.example", "box", "",
+                            "localhost.evil.example", "127.0.0.1.evil.example", "1.2.3",
+                            "0x7f000001", "user@localhost", "2130706433"}) {
+        SCOPED_TRACE(host);
+        const auto routed = route(Request{"GET", "/api/v1/state", 11, 1, host}, names);
+        ASSERT_FALSE(routed);
+        EXPECT_EQ(routed.error().status, 421U);
+        EXPECT_NE(routed.error().message.find("http.server_names"), std::string::npos);
+        EXPECT_EQ(route(Request{"POST", "/nowhere", 11, 1, host}, names).error().status, 421U);
+    }
+    // Without names of its own, only IP literals and localhost.
+    EXPECT_FALSE(route(Request{"GET", "/", 11, 1, "box7"}, {}));
+    EXPECT_TRUE(route(Request{"GET", "/", 11, 1, "[::1]:1"}, {}));
+}
+
+TEST(HttpHost, MalformedOrSeveralHostsAre400) {
+    for (const auto host :
+         {"127.0.0.1:80x", "localhost:-1", "evil.example:", "[::1", "[::1]x", "[::1]:8502:1",
+          "[evil.example]", "[v1.x]", "::1", "[fe80::1%eth0]", "localhost:80:80"}) {
+        SCOPED_TRACE(host);
+        const auto status = host_status(host);
+        // "evil.example:" has an empty port, which RFC 3986 allows: a name this server lacks.
+        EXPECT_EQ(status, std::string_view(host) == "evil.example:" ? 421U : 400U);
+    }
+    EXPECT_EQ(route(Request{"GET", "/", 11, 2, "127.0.0.1"}, names).error(),
+              (Refusal{400, "more than one Host header"}));
+}
+
+// RFC 9112 §3.2: HTTP/1.1 requires a Host. HTTP/1.0 without one is served: browsers always send
+// a Host, so such a request cannot be a DNS rebinding; with one, it is checked as any other.
+TEST(HttpHost, NoHostIs400ForHttp11AndServedForHttp10) {
+    EXPECT_EQ(route(Request{"GET", "/metrics", 11, 0, ""}, names).error(),
+              (Refusal{400, "HTTP/1.1 requires a Host header"}));
+    EXPECT_EQ(route(Request{"GET", "/metrics", 10, 0, ""}, names),
+              (Route{Page::metrics, MapFormat::html, false}));
+    EXPECT_EQ(host_status("evil.example", 10), 421U);
+    EXPECT_EQ(host_status("127.0.0.1", 10), 200U);
+}
+
+// The Host first: a misdirected request is not told which pages or methods there are.
+TEST(HttpHost, TheHostIsDecidedBeforeThePathAndTheMethod) {
+    EXPECT_EQ(route(Request{"GET", "/nowhere", 11, 1, "localhost"}, names).error().status, 404U);
+    EXPECT_EQ(route(Request{"PUT", "/metrics", 11, 1, "localhost"}, names).error().status, 405U);
+    EXPECT_EQ(route(Request{"GET", "*", 11, 1, "evil.example"}, names).error().status, 421U);
 }
 
 // --- query_value() ---------------------------------------------------------------------------

@@ -68,6 +68,30 @@ TEST_F(PollPlanTest, WritesTakeTurnsWithDueWorkButNeverWait) {
     EXPECT_EQ(idle.next(t0, true).kind, Kind::write);
 }
 
+// gateway.md §4: while writes keep coming, the turns between them alternate between due
+// refreshes and due poll reads, so outputs that are always due to refresh (many of them, one
+// dead and slow) never take every turn from the inputs.
+TEST_F(PollPlanTest, TurnsBetweenWritesAlternateBetweenRefreshesAndPollReads) {
+    const PollEntry fast_output{true, 1ms};  // due again by the time its turn ends
+    PollPlan plan({input, fast_output, fast_output, fast_output, input});
+    plan.port_opened(t0);
+    std::string order;
+    auto now = t0;
+    for (int i = 0; i < 16; ++i) {
+        const auto step = plan.next(now, true);
+        now += 10ms;  // every step takes time: each refresh is due again after it
+        if (step.kind == Kind::write) {
+            order += "w ";
+            continue;
+        }
+        order.append(step.kind == Kind::poll ? "p" : "r").append(std::to_string(step.entry)) += ' ';
+        plan.done(step.entry, true, now);
+    }
+    EXPECT_EQ(order, "w r1 w p0 w r2 w p4 w r3 w p0 w r1 w p4 ");
+    // Without writes, due refreshes still go before poll reads.
+    EXPECT_EQ(plan.next(now, false).kind, Kind::refresh);
+}
+
 TEST_F(PollPlanTest, ADueRefreshGoesBeforePollReads) {
     PollPlan plan({input, input, output});
     plan.port_opened(t0);
