@@ -544,10 +544,21 @@ void SparkplugNode::device_command(Device& device, const Metric& metric) {
     asio::co_spawn(
         executor_,
         [self = shared_from_this(), link = device.link, plan = std::move(*plan), address, value,
-         started]() mutable -> asio::awaitable<void> {
+         started, device_id = device.id]() mutable -> asio::awaitable<void> {
             const bool reaches_device = !plan.changes.empty() || plan.reset_counter;
             const auto result = co_await link->write(std::move(plan));
             if (!reaches_device) co_return;
+            if (result == WriteResult::busy) {
+                // Never queued, never sent: a refusal like the others, not an audited write.
+                ++self->stats_.commands_refused;
+                self->refuse(fmt::format("{} busy", device_id),
+                             {link->config().name, link->config().unit_id, {}, "sparkplug"},
+                             fmt::format("Sparkplug DCMD {} = {} refused: {} writes are waiting "
+                                         "for link {} (max_pending_writes)",
+                                         address, value, link->config().max_pending_writes,
+                                         link->config().name));
+                co_return;
+            }
             const WriteAudit audit{
                 .function = "DCMD",
                 .address = address,

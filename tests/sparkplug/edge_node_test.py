@@ -90,7 +90,7 @@ class EdgeNodeRig(Rig):
     in a temporary directory."""
 
     def __init__(self, directory, broker_port, hub_modules=HUB_MODULES, mqtt_extra="",
-                 broker_url=None, modbus_extra=""):
+                 broker_url=None, modbus_extra="", hub_extra=""):
         super().__init__(directory, IOPORTD, IOPORT_SIM)
         self.broker_url = broker_url or f"mqtt://127.0.0.1:{broker_port}"
         try:
@@ -99,11 +99,11 @@ class EdgeNodeRig(Rig):
         except BaseException:
             self.close()
             raise
-        self.configure(hub_modules, mqtt_extra, modbus_extra)
+        self.configure(hub_modules, mqtt_extra, modbus_extra, hub_extra)
 
-    def configure(self, hub_modules, mqtt_extra="", modbus_extra=""):
-        """Writes the configuration: these modules of the hub, and lines to add under mqtt: and
-        modbus:."""
+    def configure(self, hub_modules, mqtt_extra="", modbus_extra="", hub_extra=""):
+        """Writes the configuration: these modules of the hub, and lines to add under mqtt:,
+        modbus: and the link hub0."""
         modules = "\n".join(f"      - {{ type: {m.split(':')[0]}, number: {m.split(':')[1]} }}"
                             for m in hub_modules)
         self.write_config(f"""modbus:
@@ -116,7 +116,7 @@ links:
     device: {self.hub_link}
     unit_id: 1
     timeout: 100ms
-    modules:
+{hub_extra}    modules:
 {modules}
   - name: press
     protocol: id2
@@ -610,6 +610,35 @@ class HostileCommands(OwnDaemon):
             self.assertEqual(int(self.rig.ctl("get dom16:0")), 0x0008)
         finally:
             client.close()
+
+    def test_a_dcmd_finding_the_write_queue_full_is_refused_and_never_applied(self):
+        # one write may wait on hub0: of a DCMD's 17 metrics, those that find it taken are
+        # refused at once (gateway.md §4), logged once, and never sent later
+        self.rig.configure(HUB_MODULES, hub_extra="    max_pending_writes: 1\n")
+        self.start()
+        log = self.rig.log_mark()
+        metrics = [{"name": f"out/{k}", "value": True} for k in range(16)]
+        self.host.dcmd(GROUP, NODE, "hub0.dom16.0", metrics + [{"name": "word", "value": 0}])
+        refused = r"Sparkplug DCMD hub0\.dom16\.0/\S+ = \S+ refused: 1 writes are waiting"
+        self.rig.wait_log(refused, since=log)
+        # a barrier: every metric's write ended (audited) or was refused before these polls
+        self.barrier(self.rig)
+        text = self.rig.log_text()[log:]
+        written = re.findall(r"DCMD hub0\.dom16\.0/(\S+) = \S+: confirmed", text)
+        metrics_text = urllib.request.urlopen(
+            f"http://127.0.0.1:{self.rig.http_port}/metrics", timeout=5).read().decode()
+        busy = int(re.search(r'ioportd_sparkplug_commands_total\{result="refused"\} (\d+)',
+                             metrics_text).group(1))
+        print(f"\n  DCMD of 17 metrics, max_pending_writes 1: {len(written)} written "
+              f"({' '.join(written)}), {busy} refused, "
+              f"{len(re.findall(refused, text))} log line(s)", file=sys.stderr)
+        self.assertGreater(busy, 0)
+        self.assertEqual(len(written) + busy, 17)
+        self.assertEqual(len(re.findall(refused, text)), 1, "one line a minute")
+        expected = 0
+        for name in written:
+            expected = 0 if name == "word" else expected | 1 << int(name.split("/")[1])
+        self.assertEqual(int(self.rig.ctl("get dom16:0")), expected, "a refused write was sent")
 
     def test_broker_strings_cannot_forge_log_lines(self):
         self.start()
