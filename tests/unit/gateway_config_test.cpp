@@ -936,6 +936,8 @@ TEST(GatewayConfig, TheProductionExampleServesEveryoneOnPort502) {
     ASSERT_TRUE(config) << describe(config.error());
     EXPECT_EQ(config->modbus.listen_host, "0.0.0.0");
     EXPECT_EQ(config->modbus.listen_port, 502);
+    // The default, not written: uncommenting `tls` turns plain Modbus (no roles) off.
+    EXPECT_FALSE(config->modbus.listen_given);
     EXPECT_TRUE(config->modbus.allow.empty());
     EXPECT_TRUE(config->links.at(0).device.starts_with("/dev/serial/by-id/"));
     EXPECT_EQ(config->links.at(1).protocol, Protocol::id2);
