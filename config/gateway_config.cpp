@@ -1,14 +1,10 @@
 #include "config/gateway_config.hpp"
 
-#include <sys/stat.h>
-
 #include <algorithm>
 #include <cctype>
-#include <cerrno>
 #include <charconv>
 #include <cmath>
 #include <fstream>
-#include <iterator>
 #include <limits>
 #include <map>
 #include <span>
@@ -197,21 +193,15 @@ Parsed<Broker> parse_broker(const std::string& text) {
     return broker;
 }
 
-// A secret in a file of its own: not readable by others (the o+r bit), not empty; one trailing
-// newline is not part of it.
+// A secret in a file of its own: not readable by others (the o+r bit), writable by no one but
+// its owner, not empty; one trailing newline is not part of it.
 Parsed<std::string> read_secret(const std::string& path) {
-    struct stat status {};
-    if (::stat(path.c_str(), &status) != 0)
-        return Unexpected(fmt::format("{}: {}", path, std::generic_category().message(errno)));
-    if (!S_ISREG(status.st_mode)) return Unexpected(fmt::format("{} is not a file", path));
-    if ((status.st_mode & S_IROTH) != 0)
-        return Unexpected(fmt::format("{} is readable by every user: chmod o-r {}", path, path));
-    std::ifstream file(path);
-    std::string secret{std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>()};
-    if (!file && !file.eof()) return Unexpected(fmt::format("{}: cannot be read", path));
-    if (secret.ends_with('\n')) secret.pop_back();
-    if (secret.ends_with('\r')) secret.pop_back();
-    if (secret.empty()) return Unexpected(fmt::format("{} is empty", path));
+    constexpr std::size_t max_secret = std::size_t{64} * 1024;
+    auto secret = read_protected_file(path, Secrecy::secret, max_secret);
+    if (!secret) return secret;
+    if (secret->ends_with('\n')) secret->pop_back();
+    if (secret->ends_with('\r')) secret->pop_back();
+    if (secret->empty()) return Unexpected(fmt::format("{} is empty", path));
     return secret;
 }
 
@@ -439,8 +429,9 @@ constexpr std::array<std::string_view, 3> http_keys{"listen", "allow", "server_n
 constexpr std::array<std::string_view, 10> modbus_keys{
     "listen", "max_connections", "idle_timeout",      "allow", "read_only", "word_order",
     "stale",  "keepalive",       "comm_loss_timeout", "tls"};
-constexpr std::array<std::string_view, 6> tls_keys{"listen",    "certificate",  "key",
-                                                   "client_ca", "default_role", "roles"};
+constexpr std::array<std::string_view, 8> tls_keys{"listen",       "certificate", "key",
+                                                   "client_ca",    "client_crl",  "max_handshakes",
+                                                   "default_role", "roles"};
 constexpr std::array<std::string_view, 2> role_keys{"units", "access"};
 constexpr std::array<std::pair<std::string_view, modbus_security::Access>, 2> accesses{
     {{"read", modbus_security::Access::read}, {"read_write", modbus_security::Access::read_write}}};
@@ -637,6 +628,12 @@ void Loader::read_modbus(const Entry& entry, ModbusSettings& modbus) {
     read(f, "comm_loss_timeout", "a duration such as 10s, or 0 for off", modbus.comm_loss_timeout,
          duration(microseconds{0}, 24h));
     if (const Entry* tls = f.find("tls")) read_tls(*tls, modbus.tls);
+    // Plain Modbus bypasses the roles: with TLS on, it runs only when asked for (gateway.md §5.6).
+    modbus.listen_given = off != nullptr;
+    if (modbus.tls && !modbus.listen_given) {
+        modbus.listen_host.clear();
+        modbus.listen_port = 0;
+    }
 }
 
 void Loader::read_tls(const Entry& entry, std::optional<TlsSettings>& tls) {
@@ -654,6 +651,7 @@ void Loader::read_tls(const Entry& entry, std::optional<TlsSettings>& tls) {
         t.listen_port = listen.port;
     }
     read_tls_files(f, t);
+    read(f, "max_handshakes", "a number 1..1024", t.max_handshakes, integer(1, 1024));
     read_roles(f, t);
     read(f, "default_role", "a role name, or \"\" for none", t.default_role, text_value);
     if (!t.default_role.empty() && !t.roles.contains(t.default_role) && f.find("roles") != nullptr)
@@ -683,7 +681,10 @@ void Loader::read_tls_files(const Fields& f, TlsSettings& t) {
     const bool certificate =
         file("certificate", t.certificate, t.certificate_pem, read_certificates);
     const bool key = file("key", t.key, t.key_pem, read_private_key);
-    file("client_ca", t.client_ca, t.client_ca_pem, read_certificates);
+    const bool client_ca = file("client_ca", t.client_ca, t.client_ca_pem, read_certificates);
+    if (client_ca)
+        file("client_crl", t.client_crl, t.client_crl_pem,
+             [&](const std::string& path) { return read_crl(path, t.client_ca_pem, t.client_ca); });
     if (certificate && key)
         if (auto pair = check_key_pair(t.certificate_pem, t.key_pem, t.key); !pair)
             add(f.line_of("key"), f.key("key"), std::move(pair).error());
@@ -1188,16 +1189,17 @@ std::string stuck_message(const std::string& text, const YAML::Mark& mark) {
     return fmt::format("YAML syntax error at column {}: no value can start here", mark.column + 1);
 }
 
-Parsed<std::string> read_file(const std::filesystem::path& path) {
-    std::ifstream file(path, std::ios::binary);
-    // open(2)'s errno is the reason: the stream keeps none of its own.
-    if (!file) return Unexpected(std::generic_category().message(errno));
-    try {
-        return std::string(std::istreambuf_iterator<char>(file), {});
-    } catch (const std::ios_base::failure& e) {
-        // libstdc++'s filebuf throws when read(2) fails, as it does on a directory.
-        return Unexpected(e.code().message());
-    }
+// The configuration grants rights too (roles, the files it names): read as read_protected_file
+// reads them. Its messages begin with the path, which the configuration's error names already.
+Parsed<std::string> read_config_file(const std::string& path) {
+    constexpr std::size_t max_config_size = std::size_t{4} * 1024 * 1024;
+    auto text = read_protected_file(path, Secrecy::public_file, max_config_size);
+    if (text) return text;
+    std::string message = std::move(text).error();
+    if (message.starts_with(path)) message.erase(0, path.size());
+    if (message.starts_with(": ")) return Unexpected("cannot read the file" + message);
+    if (message.starts_with(' ')) message.erase(0, 1);
+    return Unexpected(std::move(message));
 }
 
 }  // namespace
@@ -1250,11 +1252,30 @@ ConfigResult parse_config(std::string_view yaml, const std::string& file,
     }
 }
 
+std::vector<std::string> warnings(const GatewayConfig& config) {
+    std::vector<std::string> found;
+    const auto& modbus = config.modbus;
+    if (modbus.plain() && modbus.tls) {
+        const bool v6 = modbus.listen_host.find(':') != std::string::npos;
+        found.push_back(fmt::format(
+            "plain Modbus TCP (modbus.listen \"{}{}{}:{}\") bypasses the roles of Modbus/TCP "
+            "Security: any client that reaches it may {} every unit. Remove modbus.listen, or set "
+            "it to \"\", to serve TLS clients only",
+            v6 ? "[" : "", modbus.listen_host, v6 ? "]" : "", modbus.listen_port,
+            modbus.read_only ? "read" : "read and write"));
+    }
+    if (const auto& mqtt = config.mqtt; mqtt && !mqtt->tls && !mqtt->password.empty())
+        found.push_back(fmt::format(
+            "the MQTT password (mqtt.password_file) goes to the broker {} unencrypted over "
+            "mqtt://, readable by anyone on the way: use mqtts://",
+            mqtt->host));
+    return found;
+}
+
 ConfigResult load_config(const std::filesystem::path& path, const DeviceResolver& resolve) {
-    auto text = read_file(path);
+    auto text = read_config_file(path.string());
     if (!text)
-        return Unexpected(std::vector{ConfigError{
-            path.string(), 0, "", fmt::format("cannot read the file: {}", text.error())}});
+        return Unexpected(std::vector{ConfigError{path.string(), 0, "", std::move(text).error()}});
     return parse_config(*text, path.string(), resolve);
 }
 

@@ -52,20 +52,30 @@ struct TlsSettings {
     std::string certificate;  // paths, for messages
     std::string key;
     std::string client_ca;
+    std::string client_crl;  // "" = none
     // Their contents, read and checked at load (and at each reload, so a renewed certificate is
     // taken by a SIGHUP): PEM.
     std::string certificate_pem;
     std::string key_pem;
     std::string client_ca_pem;
+    std::string client_crl_pem;
+    // Connections still in their handshake, at most, and at most per_address_handshakes of one
+    // client address: they never take max_connections places.
+    int max_handshakes = 16;
     std::string default_role;  // "" = none
     modbus_security::Roles roles;
     friend bool operator==(const TlsSettings&, const TlsSettings&) = default;
 };
 
+// Of one client address, at most this many connections in their TLS handshake (gateway.md §5.6).
+inline constexpr int per_address_handshakes = 4;
+
 struct ModbusSettings {
-    // An IPv4 or IPv6 literal, without brackets; "" (`listen: ""`): no plain Modbus TCP listener.
+    // An IPv4 or IPv6 literal, without brackets; "" (`listen: ""`, or no `listen` beside `tls`):
+    // no plain Modbus TCP listener.
     std::string listen_host = "0.0.0.0";
     std::uint16_t listen_port = 502;
+    bool listen_given = false;                      // `listen` is in the file
     int max_connections = 32;                       // 1..
     std::chrono::microseconds idle_timeout = 5min;  // 0 = never
     std::vector<Network> allow;                     // empty: anyone
@@ -182,7 +192,12 @@ std::string resolve_device(const std::string& device);
 // Parses and validates YAML text; `file` is used in messages only.
 ConfigResult parse_config(std::string_view yaml, const std::string& file,
                           const DeviceResolver& resolve = resolve_device);
-// Reads the file and parses it; a missing or unreadable file is one error.
+// What the configuration allows that weakens it, for the log at start-up and reload and for the
+// status page: plain Modbus beside Modbus/TCP Security, a password sent over plain MQTT.
+std::vector<std::string> warnings(const GatewayConfig& config);
+
+// Reads the file and parses it; a missing or unreadable file, or one that its group or others
+// may write, is one error.
 ConfigResult load_config(const std::filesystem::path& path,
                          const DeviceResolver& resolve = resolve_device);
 

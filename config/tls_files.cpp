@@ -1,12 +1,16 @@
 #include "config/tls_files.hpp"
 
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <array>
 #include <cerrno>
-#include <fstream>
+#include <ctime>
 #include <memory>
+#include <optional>
 #include <system_error>
+#include <vector>
 
 #include <fmt/format.h>
 #include <openssl/bio.h>
@@ -28,36 +32,75 @@ std::string openssl_reason() {
     return reason != nullptr ? reason : "no PEM data";
 }
 
-constexpr std::size_t max_file_size = std::size_t{1024} * 1024;
+// Certificate chains, keys and a plant CA's CRL are kilobytes; a file far larger is none of them
+// (nor read whole).
+constexpr std::size_t max_pem_size = std::size_t{1024} * 1024;
 
-Expected<std::string, std::string> read_file(const std::string& path, bool secret) {
+std::string system_error(const std::string& path, int error) {
+    return fmt::format("{}: {}", path, std::generic_category().message(error));
+}
+
+struct Descriptor {
+    int fd = -1;
+    ~Descriptor() {
+        if (fd >= 0) ::close(fd);
+    }
+};
+
+}  // namespace
+
+Expected<std::string, std::string> read_protected_file(const std::string& path, Secrecy secrecy,
+                                                       std::size_t max_size) {
+    // O_NONBLOCK: a FIFO put in the file's place would block the open until a writer came.
+    const Descriptor file{::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOCTTY | O_NONBLOCK)};
+    if (file.fd < 0) {
+        if (errno == EACCES)
+            return Unexpected(fmt::format("{}: cannot be read by this user", path));
+        return Unexpected(system_error(path, errno));
+    }
     struct stat status {};
-    if (::stat(path.c_str(), &status) != 0)
-        return Unexpected(fmt::format("{}: {}", path, std::generic_category().message(errno)));
+    if (::fstat(file.fd, &status) != 0) return Unexpected(system_error(path, errno));
+    if (S_ISDIR(status.st_mode))
+        return Unexpected(
+            fmt::format("{} is not a file ({})", path, std::generic_category().message(EISDIR)));
     if (!S_ISREG(status.st_mode)) return Unexpected(fmt::format("{} is not a file", path));
-    if (secret && (status.st_mode & S_IROTH) != 0)
+    const auto mode = status.st_mode & 07777;
+    if ((status.st_mode & (S_IWGRP | S_IWOTH)) != 0)
+        return Unexpected(fmt::format(
+            "{} is writable by {} (mode {:04o}): whoever can write it can give themselves any "
+            "right; chmod go-w {}",
+            path, (status.st_mode & S_IWOTH) != 0 ? "every user" : "its group", mode, path));
+    if (secrecy == Secrecy::secret && (status.st_mode & S_IROTH) != 0)
         return Unexpected(fmt::format(
             "{} is readable by every user: chmod o-r {} (group-readable is fine)", path, path));
-    std::ifstream file(path);
-    if (!file) return Unexpected(fmt::format("{}: cannot be read by this user", path));
-    // Certificate chains are kilobytes; a file far larger is not one (nor read whole). Read in
-    // pieces: a buffer of the limit's size, even freed, would stay in the daemon's heap.
+    // Read in pieces: a buffer of the limit's size, even freed, would stay in the daemon's heap.
     std::string text;
     std::array<char, 16384> piece{};
-    while (file.read(piece.data(), piece.size()) || file.gcount() > 0) {
-        text.append(piece.data(), static_cast<std::size_t>(file.gcount()));
-        if (text.size() > max_file_size)
-            return Unexpected(
-                fmt::format("{} is larger than {} KiB: not a PEM file of certificates or a key",
-                            path, max_file_size / 1024));
+    for (;;) {
+        const auto n = ::read(file.fd, piece.data(), piece.size());
+        if (n < 0 && errno == EINTR) continue;
+        if (n < 0) return Unexpected(system_error(path, errno));
+        if (n == 0) return text;
+        text.append(piece.data(), static_cast<std::size_t>(n));
+        if (text.size() > max_size)
+            return Unexpected(fmt::format("{} is larger than {} KiB", path, max_size / 1024));
     }
+}
+
+namespace {
+
+Expected<std::string, std::string> read_pem_file(const std::string& path, Secrecy secrecy,
+                                                 std::string_view what) {
+    auto text = read_protected_file(path, secrecy, max_pem_size);
+    if (!text && text.error().find(" is larger than ") != std::string::npos)
+        return Unexpected(fmt::format("{}: not {}", text.error(), what));
     return text;
 }
 
 }  // namespace
 
 Expected<std::string, std::string> read_certificates(const std::string& path) {
-    auto text = read_file(path, false);
+    auto text = read_pem_file(path, Secrecy::public_file, "a PEM file of certificates");
     if (!text) return text;
     const auto bio = openssl::memory(*text);
     int count = 0;
@@ -83,7 +126,7 @@ Expected<std::string, std::string> read_certificates(const std::string& path) {
 }
 
 Expected<std::string, std::string> read_private_key(const std::string& path) {
-    auto text = read_file(path, true);
+    auto text = read_pem_file(path, Secrecy::secret, "a PEM private key");
     if (!text) return text;
     const auto bio = openssl::memory(*text);
     // An encrypted key would need its passphrase at every start: no callback, so it fails here.
@@ -93,6 +136,94 @@ Expected<std::string, std::string> read_private_key(const std::string& path) {
             "{} is not an unencrypted PEM private key ({}): write one with openssl pkey -in "
             "{} -out NEW_FILE",
             path, openssl_reason(), path));
+    return text;
+}
+
+namespace {
+
+// "CN=Plant Modbus CA", for messages.
+std::string name_text(const X509_NAME* name) {
+    const openssl::Bio text(BIO_new(BIO_s_mem()));
+    X509_NAME_print_ex(text.get(), name, 0, XN_FLAG_RFC2253);
+    char* data = nullptr;
+    const long length = BIO_get_mem_data(text.get(), &data);
+    return data != nullptr && length > 0 ? std::string(data, static_cast<std::size_t>(length))
+                                         : std::string("an empty name");
+}
+
+std::string time_text(const ASN1_TIME* time) {
+    std::tm tm{};
+    if (ASN1_TIME_to_tm(time, &tm) != 1) return "an unreadable time";
+    return fmt::format("{:04}-{:02}-{:02} {:02}:{:02}:{:02} UTC", tm.tm_year + 1900, tm.tm_mon + 1,
+                       tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec);
+}
+
+std::vector<openssl::Certificate> certificates_of(const std::string& pem) {
+    std::vector<openssl::Certificate> certificates;
+    const auto bio = openssl::memory(pem);
+    while (
+        openssl::Certificate certificate{PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)})
+        certificates.push_back(std::move(certificate));
+    ERR_clear_error();  // the end of the text
+    return certificates;
+}
+
+// The CA of `cas` that signed `crl`, or nullopt.
+std::optional<std::size_t> signer(X509_CRL* crl, const std::vector<openssl::Certificate>& cas) {
+    for (std::size_t i = 0; i < cas.size(); ++i) {
+        X509* ca = cas[i].get();
+        if (X509_NAME_cmp(X509_get_subject_name(ca), X509_CRL_get_issuer(crl)) == 0 &&
+            X509_CRL_verify(crl, X509_get0_pubkey(ca)) == 1)
+            return i;
+    }
+    ERR_clear_error();
+    return std::nullopt;
+}
+
+}  // namespace
+
+Expected<std::string, std::string> read_crl(const std::string& path,
+                                            const std::string& client_ca_pem,
+                                            const std::string& client_ca_path) {
+    auto text = read_pem_file(path, Secrecy::public_file, "a PEM CRL");
+    if (!text) return text;
+    const auto cas = certificates_of(client_ca_pem);
+    std::vector<bool> covered(cas.size(), false);
+    const auto bio = openssl::memory(*text);
+    int count = 0;
+    while (openssl::Crl crl{PEM_read_bio_X509_CRL(bio.get(), nullptr, nullptr, nullptr)}) {
+        ++count;
+        const auto issuer = name_text(X509_CRL_get_issuer(crl.get()));
+        const auto ca = signer(crl.get(), cas);
+        if (!ca)
+            return Unexpected(fmt::format(
+                "{}: CRL {} (issuer {}) is not signed by a CA of client_ca {}: make it with "
+                "openssl ca -gencrl and the key of the CA that signs the clients' certificates",
+                path, count, issuer, client_ca_path));
+        const ASN1_TIME* next_update = X509_CRL_get0_nextUpdate(crl.get());
+        if (next_update != nullptr && X509_cmp_current_time(next_update) < 0)
+            return Unexpected(fmt::format(
+                "{}: CRL {} (issuer {}) expired at {} (its nextUpdate), and with it every client "
+                "would be refused: issue a new one with openssl ca -gencrl",
+                path, count, issuer, time_text(next_update)));
+        covered[*ca] = true;
+    }
+    const unsigned long last = ERR_peek_last_error();
+    if (ERR_GET_REASON(last) != PEM_R_NO_START_LINE)
+        return Unexpected(
+            fmt::format("{}: CRL {} does not parse: {}", path, count + 1, openssl_reason()));
+    ERR_clear_error();
+    if (count == 0)
+        return Unexpected(fmt::format(
+            "{} has no PEM CRL (-----BEGIN X509 CRL-----): make one with openssl ca -gencrl -out "
+            "{}, or convert a DER file with openssl crl -inform der -in FILE -out {}",
+            path, path, path));
+    for (std::size_t i = 0; i < cas.size(); ++i)
+        if (!covered[i])
+            return Unexpected(fmt::format(
+                "{} has no CRL of {}, a CA in client_ca {}: with client_crl every CA there needs "
+                "its CRL (openssl ca -gencrl), else all its clients are refused",
+                path, name_text(X509_get_subject_name(cas[i].get())), client_ca_path));
     return text;
 }
 

@@ -36,11 +36,17 @@ Result<> Gateway::start() {
     for (auto& link : links_)
         link->start();
     if (auto started = server_->start(); !started) return started;
+    log_warnings();
     if (config_.http) {
         http_ = make_http(*config_.http);
         if (auto started = http_->start(); !started) return started;
     }
     return start_sparkplug();
+}
+
+void Gateway::log_warnings() {
+    for (const auto& warning : config::warnings(config_))
+        log_.warn({}, "{}", warning);
 }
 
 Result<> Gateway::start_sparkplug(std::uint64_t next_bdseq) {
@@ -118,6 +124,7 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     }
     links_ = std::move(links);
     server_->apply(config_.modbus, links_);
+    log_warnings();
     apply_http(config_.http);
     if (mqtt_changed) {
         // Another broker or node: this session ends cleanly (NDEATH), a new one begins.
@@ -237,7 +244,9 @@ std::string describe(const config::GatewayConfig& config) {
     std::string text = fmt::format(
         "Modbus TCP {}, at most {} clients, idle timeout {}, keepalive {}, {}{}, word order "
         "{}, stale {}\n",
-        modbus.plain() ? "on " + host_port(modbus.listen_host, modbus.listen_port) : "off",
+        modbus.plain() ? "on " + host_port(modbus.listen_host, modbus.listen_port)
+        : modbus.tls && !modbus.listen_given ? "off (modbus.tls is on and modbus.listen not given)"
+                                             : "off",
         modbus.max_connections, format_duration(modbus.idle_timeout),
         modbus.keepalive.count() == 0 ? "off" : format_duration(modbus.keepalive),
         modbus.allow.empty() ? "any client"
@@ -247,10 +256,14 @@ std::string describe(const config::GatewayConfig& config) {
         modbus.stale == gateway::Stale::exception ? "exception" : "hold");
     if (const auto& tls = modbus.tls) {
         text += fmt::format(
-            "Modbus/TCP Security (TLS 1.2/1.3, client certificates of {}) on {}, certificate {}, "
-            "default role {}\n",
-            tls->client_ca, host_port(tls->listen_host, tls->listen_port), tls->certificate,
-            tls->default_role.empty() ? "none" : tls->default_role);
+            "Modbus/TCP Security (TLS 1.2/1.3, client certificates of {}{}) on {}, certificate {}, "
+            "default role {}, at most {} handshakes at once ({} per address)\n",
+            tls->client_ca,
+            tls->client_crl.empty() ? std::string()
+                                    : fmt::format(", revoked ones in {}", tls->client_crl),
+            host_port(tls->listen_host, tls->listen_port), tls->certificate,
+            tls->default_role.empty() ? "none" : tls->default_role, tls->max_handshakes,
+            config::per_address_handshakes);
         for (const auto& [name, role] : tls->roles)
             text +=
                 fmt::format("  role {}: {} of {}\n", name, modbus_security::to_string(role.access),
@@ -300,6 +313,8 @@ std::string describe(const config::GatewayConfig& config) {
                     : fmt::format("poll every {}", format_duration(module.poll)));
         }
     }
+    for (const auto& warning : config::warnings(config))
+        text += fmt::format("warning: {}\n", warning);
     return text;
 }
 

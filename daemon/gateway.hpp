@@ -67,6 +67,8 @@ class Gateway {
     Result<> prepare_http(const std::optional<config::HttpSettings>& next);
     void apply_http(const std::optional<config::HttpSettings>& next);
     Result<> start_sparkplug(std::uint64_t next_bdseq = 0);
+    // What the configuration weakens (config::warnings), at start-up and after each reload.
+    void log_warnings();
 
     asio::any_io_executor executor_;
     config::GatewayConfig config_;

@@ -270,14 +270,16 @@ int ModbusServer::counted_unit(std::span<const std::uint8_t> adu) const {
 
 void ModbusServer::store_front(LinkScheduler& unit) const {
     const auto id = static_cast<std::size_t>(unit.config().unit_id);
-    gateway::store_front(unit.tables(),
-                         {traffic_[id], connections_.size(), since_previous_, comm_loss_},
+    gateway::store_front(unit.tables(), {traffic_[id], connections(), since_previous_, comm_loss_},
                          settings_.word_order);
 }
 
 void ModbusServer::make_room() {
-    const auto room =
-        make_room_for_clients(static_cast<std::size_t>(settings_.max_connections), ports_);
+    // A connection in its handshake holds a descriptor beside the max_connections clients.
+    const auto handshakes =
+        settings_.tls ? static_cast<std::size_t>(settings_.tls->max_handshakes) : 0;
+    const auto room = make_room_for_clients(static_cast<std::size_t>(settings_.max_connections),
+                                            ports_ + handshakes);
     max_clients_ = room.clients;
     if (room.shortfall)
         log_.warn({}, "{}", *room.shortfall);
@@ -307,9 +309,13 @@ void ModbusServer::accept_on(Transport transport, Acceptor acceptor) {
                       settings_.max_connections, read_only);
             break;
         case Transport::tls:
-            log_.info({}, "Modbus/TCP Security (TLS) on {}, at most {} clients{}, roles {}", where,
-                      settings_.max_connections, read_only,
-                      modbus_security::names(settings_.tls->roles));
+            log_.info({},
+                      "Modbus/TCP Security (TLS) on {}, at most {} clients{}, roles {}; at most {} "
+                      "handshakes at once, {} per address{}",
+                      where, settings_.max_connections, read_only,
+                      modbus_security::names(settings_.tls->roles), settings_.tls->max_handshakes,
+                      config::per_address_handshakes,
+                      settings_.tls->client_crl.empty() ? "" : ", revocations from client_crl");
             break;
     }
     asio::co_spawn(executor_, accept_loop(transport, l.acceptor), asio::detached);
@@ -334,7 +340,8 @@ Result<> ModbusServer::prepare(const config::ModbusSettings& next, Transport tra
         (!settings_.tls || !tls_.context ||
          settings_.tls->certificate_pem != next.tls->certificate_pem ||
          settings_.tls->key_pem != next.tls->key_pem ||
-         settings_.tls->client_ca_pem != next.tls->client_ca_pem)) {
+         settings_.tls->client_ca_pem != next.tls->client_ca_pem ||
+         settings_.tls->client_crl_pem != next.tls->client_crl_pem)) {
         auto context = make_tls_context(*next.tls);
         if (!context) return Unexpected(context.error());
         l.next_context = std::move(*context);
@@ -384,6 +391,23 @@ void ModbusServer::apply(config::ModbusSettings next, const Units& units) {
             connection->timer.cancel();  // re-armed with the new idle_timeout
         }
     }
+    close_revoked();
+}
+
+void ModbusServer::close_revoked() {
+    if (!tls_.context) return;
+    for (auto* connection : connections_) {
+        if (!connection->tls || connection->handshaking || !connection->open) continue;
+        const auto serial = revoked_serial(*tls_.context, *connection->tls);
+        if (!serial) continue;
+        auto text = fmt::format(
+            "Modbus/TCP Security client {} ({}) closed: its certificate (serial {}) is revoked by "
+            "the reloaded modbus.tls.client_crl",
+            connection->peer, tls_peer(*connection->tls).subject, *serial);
+        log_.warn({.client = connection->peer}, "{}", text);
+        events_.add(EventKind::client_refused, {}, {}, connection->peer, std::move(text));
+        connection->close();
+    }
 }
 
 void ModbusServer::shut_down() {
@@ -419,19 +443,61 @@ std::vector<ClientView> ModbusServer::clients() const {
     std::vector<ClientView> views;
     views.reserve(connections_.size());
     for (const auto* connection : connections_)
-        views.push_back({connection->peer, connection->since, connection->requests,
-                         connection->tls != nullptr, connection->rights.role});
+        if (!connection->handshaking)
+            views.push_back({connection->peer, connection->since, connection->requests,
+                             connection->tls != nullptr, connection->rights.role});
     std::ranges::sort(views, {}, &ClientView::since);
     return views;
 }
 
-std::optional<std::string> ModbusServer::refusal(const tcp::endpoint& peer) const {
-    if (connections_.size() >= max_clients_)
-        return max_clients_ < static_cast<std::size_t>(settings_.max_connections)
-                   ? fmt::format("out of file descriptors for more than {} clients", max_clients_)
-                   : fmt::format("max_connections ({}) reached", settings_.max_connections);
-    if (allowed(peer.address())) return std::nullopt;
-    return std::string("not in modbus.allow");
+std::string ModbusServer::too_many() const {
+    return max_clients_ < static_cast<std::size_t>(settings_.max_connections)
+               ? fmt::format("out of file descriptors for more than {} clients", max_clients_)
+               : fmt::format("max_connections ({}) reached", settings_.max_connections);
+}
+
+namespace {
+
+// Of one client, whether it arrives over IPv4 or as ::ffff:a.b.c.d on an IPv6 socket.
+asio::ip::address handshake_key(const asio::ip::address& address) {
+    if (address.is_v6() && address.to_v6().is_v4_mapped())
+        return asio::ip::make_address_v4(asio::ip::v4_mapped, address.to_v6());
+    return address;
+}
+
+}  // namespace
+
+// A TLS client's handshake is checked against the handshake budget only: those in progress never
+// take the places of the clients served (gateway.md §5.6), which the handshake's end checks.
+std::optional<ModbusServer::Refusal> ModbusServer::refusal(const tcp::endpoint& peer,
+                                                           Transport transport) {
+    if (connections() >= max_clients_) return Refusal{&stats_.refused_too_many, too_many()};
+    if (!allowed(peer.address()))
+        return Refusal{&stats_.refused_not_allowed, "not in modbus.allow"};
+    if (transport == Transport::tcp) return std::nullopt;
+    const auto budget = settings_.tls ? static_cast<std::size_t>(settings_.tls->max_handshakes) : 0;
+    if (handshakes_ >= budget)
+        return Refusal{&stats_.refused_too_many_handshakes,
+                       fmt::format("tls.max_handshakes ({}) TLS handshakes in progress", budget)};
+    const auto found = handshakes_by_address_.find(handshake_key(peer.address()));
+    if (found != handshakes_by_address_.end() && found->second >= config::per_address_handshakes)
+        return Refusal{&stats_.refused_too_many_handshakes,
+                       fmt::format("{} TLS handshakes of this address in progress",
+                                   config::per_address_handshakes)};
+    return std::nullopt;
+}
+
+void ModbusServer::begin_handshake(Connection& c) {
+    ++handshakes_;
+    ++handshakes_by_address_[handshake_key(c.address)];
+}
+
+void ModbusServer::end_handshake(Connection& c) {
+    if (!std::exchange(c.handshaking, false)) return;
+    --handshakes_;
+    const auto found = handshakes_by_address_.find(handshake_key(c.address));
+    if (found != handshakes_by_address_.end() && --found->second <= 0)
+        handshakes_by_address_.erase(found);
 }
 
 bool ModbusServer::allowed(const asio::ip::address& address) const {
@@ -482,10 +548,9 @@ asio::awaitable<void> ModbusServer::accept_loop(Transport transport, Acceptor ac
         }
         const auto peer = socket.remote_endpoint(ec);
         if (ec) continue;  // gone already
-        if (auto why = refusal(peer)) {
-            ++(connections_.size() >= max_clients_ ? stats_.refused_too_many
-                                                   : stats_.refused_not_allowed);
-            log_refusal(peer.address(), *why);
+        if (auto refused = refusal(peer, transport)) {
+            ++*refused->counted;
+            log_refusal(peer.address(), refused->why);
             socket.close(ec);
             continue;
         }
@@ -493,6 +558,7 @@ asio::awaitable<void> ModbusServer::accept_loop(Transport transport, Acceptor ac
         auto connection = std::make_shared<Connection>(
             std::move(socket), peer, transport == Transport::tls ? tls_.context : nullptr);
         connections_.insert(connection.get());
+        if (connection->handshaking) begin_handshake(*connection);
         log_.debug({.client = connection->peer}, "Modbus client {} connected ({} open)",
                    connection->peer, connections_.size());
         asio::co_spawn(executor_, serve(connection), asio::detached);
@@ -557,7 +623,7 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
     boost::system::error_code ec;
     co_await c.tls->async_handshake(asio::ssl::stream_base::server,
                                     redirect_error(use_awaitable, ec));
-    c.handshaking = false;
+    end_handshake(c);
     if (stopping_) co_return false;
     // A client without a valid certificate retries, maybe every second, and a scanner holds
     // places: refusals, logged once a minute per address and reason.
@@ -566,6 +632,21 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
         log_refusal(c.address, !c.open ? std::string("TLS handshake not complete within 5 s")
                                        : fmt::format("TLS handshake failed: {}",
                                                      handshake_failure(ec, *c.tls)));
+        co_return false;
+    }
+    // Handshakes in progress were not counted against max_connections: several may end together.
+    if (connections() > max_clients_) {
+        ++stats_.refused_too_many;
+        log_refusal(c.address, too_many());
+        co_return false;
+    }
+    const bool resumed = SSL_session_reused(c.tls->native_handle()) != 0;
+    // Against the CRL of now: the connection's context may be older than the last reload.
+    if (const auto serial = tls_.context ? revoked_serial(*tls_.context, *c.tls) : std::nullopt) {
+        ++stats_.refused_tls_handshake;
+        log_refusal(c.address, fmt::format("TLS {}: certificate revoked (serial {}) by "
+                                           "modbus.tls.client_crl",
+                                           resumed ? "session resumed" : "handshake", *serial));
         co_return false;
     }
     c.last_activity = Clock::now();
@@ -579,8 +660,7 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
     const TlsIdentity identity{peer.subject, c.rights.role};
     log_.info({.client = c.peer, .tls = &identity},
               "Modbus/TCP Security client {} ({}, TLS {}{}): {}", c.peer, peer.subject,
-              SSL_get_version(c.tls->native_handle()),
-              SSL_session_reused(c.tls->native_handle()) != 0 ? ", resumed" : "", c.rights.why);
+              SSL_get_version(c.tls->native_handle()), resumed ? ", resumed" : "", c.rights.why);
     co_return true;
 }
 

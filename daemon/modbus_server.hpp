@@ -38,7 +38,7 @@ namespace ioport::daemon {
 // A request must be complete within this time of its first byte (gateway.md §3.5).
 inline constexpr std::chrono::microseconds frame_timeout = 1s;
 // A TLS client must complete its handshake within this time of connecting: one that opens and
-// says nothing, or trickles its handshake, gives its max_connections place back.
+// says nothing, or trickles its handshake, gives its place of tls.max_handshakes back.
 inline constexpr std::chrono::microseconds tls_handshake_timeout = 5s;
 // A response must make progress into the client's socket within this time. The socket buffers
 // hold hundreds of responses, so only a client that stopped reading altogether gets here.
@@ -57,6 +57,8 @@ struct ModbusStats {
     std::uint64_t refused_not_allowed = 0;
     std::uint64_t refused_too_many = 0;       // max_connections, or out of file descriptors
     std::uint64_t refused_tls_handshake = 0;  // no valid client certificate, old TLS, plaintext
+    // tls.max_handshakes in progress, or per_address_handshakes of the client's address
+    std::uint64_t refused_too_many_handshakes = 0;
 };
 
 // A client connected now.
@@ -98,7 +100,10 @@ class ModbusServer {
     Result<> prepare(const config::ModbusSettings& next);
     void apply(config::ModbusSettings next, const Units& units);
 
-    std::size_t connections() const { return connections_.size(); }
+    // Clients connected now, plain or past their TLS handshake: what max_connections bounds.
+    std::size_t connections() const { return connections_.size() - handshakes_; }
+    // TLS connections still in their handshake (tls.max_handshakes bounds them).
+    std::size_t handshakes() const { return handshakes_; }
     // A communication loss is in effect: declared, and no request since (register 1020).
     bool comm_lost() const { return comm_loss_; }
     // Where the plain and the TLS listener are; a default endpoint for one that is off.
@@ -177,7 +182,18 @@ class ModbusServer {
                Clock::time_point received);
     // Registers 1010-1020 of `unit`, as of now.
     void store_front(LinkScheduler& unit) const;
-    std::optional<std::string> refusal(const asio::ip::tcp::endpoint& peer) const;
+    // Why a client just accepted is closed at once, and the counter of that reason.
+    struct Refusal {
+        std::uint64_t* counted;
+        std::string why;
+    };
+    std::optional<Refusal> refusal(const asio::ip::tcp::endpoint& peer, Transport transport);
+    std::string too_many() const;
+    // The handshake budget (gateway.md §5.6): taken at accept, given back when it ends.
+    void begin_handshake(Connection& connection);
+    void end_handshake(Connection& connection);
+    // A reload's client_crl: the TLS clients whose certificate it revokes are closed.
+    void close_revoked();
     bool allowed(const asio::ip::address& address) const;
     void log_refusal(const asio::ip::address& address, const std::string& why);
 
@@ -193,6 +209,8 @@ class ModbusServer {
     asio::steady_timer accept_retry_;
     std::unordered_set<Connection*> connections_;
     LogLimiter refusals_;
+    std::size_t handshakes_ = 0;
+    std::map<asio::ip::address, int> handshakes_by_address_;  // only addresses with some
     Mapping scratch_;  // write responses are built here, never in an image
     std::unique_ptr<ReplyBuilder> replies_;
     std::size_t max_clients_ = 0;  // max_connections, or fewer when descriptors are short

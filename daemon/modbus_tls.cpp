@@ -49,6 +49,19 @@ Result<> trust_client_ca(SSL_CTX* context, const config::TlsSettings& settings) 
     return {};
 }
 
+// Every client certificate checked against its CA's CRL (the leaf only: client_ca's own
+// certificates are the operator's).
+Result<> trust_client_crl(SSL_CTX* context, const config::TlsSettings& settings) {
+    if (settings.client_crl_pem.empty()) return {};
+    const auto bio = openssl::memory(settings.client_crl_pem);
+    X509_STORE* store = SSL_CTX_get_cert_store(context);
+    while (const openssl::Crl crl{PEM_read_bio_X509_CRL(bio.get(), nullptr, nullptr, nullptr)})
+        if (X509_STORE_add_crl(store, crl.get()) != 1) return failed(settings, "adding client_crl");
+    ERR_clear_error();  // the end of the PEM text
+    X509_STORE_set_flags(store, X509_V_FLAG_CRL_CHECK);
+    return {};
+}
+
 }  // namespace
 
 Result<TlsContext> make_tls_context(const config::TlsSettings& settings) {
@@ -71,6 +84,8 @@ Result<TlsContext> make_tls_context(const config::TlsSettings& settings) {
     if (ec || SSL_CTX_check_private_key(context) != 1) return failed(settings, "loading the key");
     if (auto trusted = trust_client_ca(context, settings); !trusted)
         return Unexpected(trusted.error());
+    if (auto checked = trust_client_crl(context, settings); !checked)
+        return Unexpected(checked.error());
     SSL_CTX_set_verify(context, SSL_VERIFY_PEER | SSL_VERIFY_FAIL_IF_NO_PEER_CERT, nullptr);
     SSL_CTX_set_session_id_context(context, session_id_context, sizeof session_id_context - 1);
     SSL_CTX_set_session_cache_mode(context, SSL_SESS_CACHE_SERVER);
@@ -111,6 +126,30 @@ TlsPeer tls_peer(TlsStream& stream) {
     peer.role = parsed ? modbus_security::CertificateRole{Kind::valid, *parsed}
                        : modbus_security::CertificateRole{Kind::malformed, parsed.error()};
     return peer;
+}
+
+std::optional<std::string> revoked_serial(asio::ssl::context& context, TlsStream& stream) {
+    const openssl::Certificate certificate(SSL_get1_peer_certificate(stream.native_handle()));
+    if (!certificate) return std::nullopt;
+    const X509_NAME* issuer = X509_get_issuer_name(certificate.get());
+    // A handful of CRLs, read by one thread: the store needs no lock here.
+    STACK_OF(X509_OBJECT)* objects =
+        X509_STORE_get0_objects(SSL_CTX_get_cert_store(context.native_handle()));
+    for (int i = 0; i < sk_X509_OBJECT_num(objects); ++i) {
+        X509_CRL* crl = X509_OBJECT_get0_X509_CRL(sk_X509_OBJECT_value(objects, i));
+        X509_REVOKED* entry = nullptr;
+        // A CRL lists serials of its issuer's certificates only; the issuer is compared here.
+        if (crl == nullptr || X509_NAME_cmp(X509_CRL_get_issuer(crl), issuer) != 0 ||
+            X509_CRL_get0_by_cert(crl, &entry, certificate.get()) != 1)
+            continue;
+        const ASN1_INTEGER* serial = X509_get0_serialNumber(certificate.get());
+        std::string hex;
+        const unsigned char* bytes = ASN1_STRING_get0_data(serial);
+        for (int b = 0; b < ASN1_STRING_length(serial); ++b)
+            hex += fmt::format("{:02X}", bytes[b]);
+        return hex;
+    }
+    return std::nullopt;
 }
 
 std::string handshake_failure(const boost::system::error_code& error, TlsStream& stream) {

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 
 #include <boost/asio/ssl.hpp>
@@ -29,8 +30,9 @@ inline constexpr const char* tls13_ciphersuites =
     "TLS_AES_128_GCM_SHA256:TLS_AES_256_GCM_SHA384:TLS_CHACHA20_POLY1305_SHA256";
 
 // The server's context: the certificate chain and key, client certificates required and verified
-// against client_ca, session resumption (session ids and tickets). A context is kept by each
-// connection made with it, so that a reload can replace it while they stay open.
+// against client_ca (and client_crl, if any), session resumption (session ids and tickets). A
+// context is kept by each connection made with it, so that a reload can replace it while they stay
+// open.
 Result<TlsContext> make_tls_context(const config::TlsSettings& settings);
 
 // A server-side stream over an accepted socket, as the listener makes each: OpenSSL keeps its
@@ -45,6 +47,12 @@ struct TlsPeer {
     modbus_security::CertificateRole role;
 };
 TlsPeer tls_peer(TlsStream& stream);
+
+// When a CRL of `context` (modbus.tls.client_crl) revokes the client's certificate: its serial,
+// in hex. OpenSSL verifies the chain at a full handshake only, not on a resumed session, and a
+// connection keeps the context it was accepted with: a certificate revoked by a reload is found
+// here.
+std::optional<std::string> revoked_serial(asio::ssl::context& context, TlsStream& stream);
 
 // Why a handshake failed, for the log: OpenSSL's reason and, where the client's certificate was
 // refused, the verification's: "certificate verify failed: certificate has expired".

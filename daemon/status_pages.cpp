@@ -169,6 +169,8 @@ void modbus_families(Exposition& out, const ModbusServer& server) {
                stats.refused_too_many);
     out.sample("ioportd_modbus_connections_refused_total", {{"reason", "tls_handshake"}},
                stats.refused_tls_handshake);
+    out.sample("ioportd_modbus_connections_refused_total", {{"reason", "too_many_handshakes"}},
+               stats.refused_too_many_handshakes);
     out.family(
         "ioportd_modbus_requests_total", "counter",
         "Modbus requests answered, by configured unit id and function code, the rest as other");
@@ -340,6 +342,7 @@ void modbus_json(Json& json, const ModbusServer& server) {
         .member("listen", settings.plain() ? describe(server.local_endpoint()) : std::string())
         .member("tls_listen", settings.tls ? describe(server.tls_endpoint()) : std::string())
         .member("connections", static_cast<std::uint64_t>(server.connections()))
+        .member("handshakes", static_cast<std::uint64_t>(server.handshakes()))
         .member("max_connections", settings.max_connections)
         .member("comm_loss", server.comm_lost());
     json.key("refused")
@@ -347,6 +350,7 @@ void modbus_json(Json& json, const ModbusServer& server) {
         .member("not_allowed", server.stats().refused_not_allowed)
         .member("too_many", server.stats().refused_too_many)
         .member("tls_handshake", server.stats().refused_tls_handshake)
+        .member("too_many_handshakes", server.stats().refused_too_many_handshakes)
         .end_object();
     json.key("clients").begin_array();
     for (const auto& client : server.clients())
@@ -471,6 +475,10 @@ std::string render_state(const Gateway& gateway) {
         .member("started", rfc3339(gateway.started()));
     json.key("health").begin_object().member("ok", health.ok).member("reason", health.reason);
     json.end_object();
+    json.key("warnings").begin_array();
+    for (const auto& warning : config::warnings(gateway.config()))
+        json.value(warning);
+    json.end_array();
     modbus_json(json, gateway.modbus());
     sparkplug_json(json, gateway.sparkplug());
     json.key("links").begin_array();

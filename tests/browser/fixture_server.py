@@ -130,7 +130,8 @@ class Fixture:
                          'transport': 'tcp', 'role': ''},
                         {'address': '10.0.0.17:41002', 'since': time.time() - 42, 'requests': 0,
                          'transport': 'tls', 'role': 'operator'}]
-        self.refused = {'not_allowed': 0, 'too_many': 1, 'tls_handshake': 2}
+        self.refused = {'not_allowed': 0, 'too_many': 1, 'tls_handshake': 2,
+                        'too_many_handshakes': 0}
         self.comm_loss = False
         self.last_tick = time.time()
         self.event('reload', '', '', '', 'ioportd 0.1.0 started with 3 links, 12 modules')
@@ -215,8 +216,9 @@ class Fixture:
         return {
             'version': '0.1.0', 'time': rfc3339(now), 'started': rfc3339(self.started),
             'health': {'ok': ok, 'reason': '' if ok else 'a link is down'},
+            'warnings': [],
             'modbus': {'listen': '0.0.0.0:502', 'tls_listen': '0.0.0.0:802',
-                       'connections': len(self.clients),
+                       'connections': len(self.clients), 'handshakes': 0,
                        'max_connections': 32, 'comm_loss': self.comm_loss,
                        'refused': dict(self.refused),
                        'clients': [{'address': c['address'], 'since': rfc3339(c['since']),

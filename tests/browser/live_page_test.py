@@ -112,7 +112,9 @@ def main():
             fault=lambda: rig.ctl("fault acm3p:0 silent"),
             fault_module="acm3p 0",
             shows=[("mb-listen", f"127.0.0.1:{tls_port} (TLS)"), ("clients", "TLS · operator"),
-                   ("clients", "plain TCP"), ("mb-th", "1")],
+                   ("clients", "plain TCP"), ("mb-th", "1"),
+                   # Both listeners: plain Modbus bypasses the roles (gateway.md §5.6).
+                   ("warn-list", "bypasses the roles of Modbus/TCP Security")],
             screenshot_path=os.path.join(OUTDIR, "status-page.png"))
         print(f"live_page_test: passed; screenshots in {OUTDIR}")
         return 0

@@ -371,11 +371,12 @@ TEST_F(Http, StateIsJsonThatFollowsTheInputsAndRecordsWritesWithTheClient) {
     ASSERT_EQ(reply.status, 200);
     EXPECT_TRUE(reply.header("Content-Type").value_or("").starts_with("application/json"))
         << reply.header("Content-Type").value_or("none");
-    EXPECT_EQ(
-        json_eval(reply.body, "sorted(d.keys())"),
-        R"(["events", "health", "links", "modbus", "sparkplug", "started", "time", "version"])")
+    EXPECT_EQ(json_eval(reply.body, "sorted(d.keys())"),
+              R"(["events", "health", "links", "modbus", "sparkplug", "started", "time", )"
+              R"("version", "warnings"])")
         << reply.body;
     EXPECT_EQ(json_eval(reply.body, "d['sparkplug']"), "null");  // no mqtt: section
+    EXPECT_EQ(json_eval(reply.body, "d['warnings']"), "[]");     // nothing weakened
     EXPECT_EQ(json_eval(reply.body, "[m['module'] for m in d['links'][0]['modules']]"),
               R"(["dim16 0", "dom16 0", "acm3p 0"])");
     EXPECT_EQ(json_eval(reply.body, "d['health']"), R"({"ok": true, "reason": ""})");

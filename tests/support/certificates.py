@@ -5,6 +5,8 @@ in extension 1.3.6.1.4.1.50316.802.1. Keys are 0640, as ioportd refuses a key ot
     certs = Certificates(directory)       # ca.pem/key, server.pem/key (CN gateway1)
     certs.client("operator", "operator")  # operator.pem/key
     ssl_context = certs.context("operator")
+    certs.revoke("operator")               # openssl ca -revoke, in the CA's database
+    certs.crl()                            # openssl ca -gencrl: crl.pem
 """
 
 import os
@@ -12,6 +14,17 @@ import ssl
 import subprocess
 
 ROLE_OID = "1.3.6.1.4.1.50316.802.1"
+
+# The least `openssl ca` needs to revoke certificates and issue CRLs: the README's recipe.
+CA_CONFIG = """[ca]
+default_ca = plant
+[plant]
+database = index.txt
+crlnumber = crlnumber
+certificate = ca.pem
+private_key = ca.key
+default_md = sha256
+"""
 
 
 def openssl(*args, cwd):
@@ -66,6 +79,27 @@ class Certificates:
         openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
                 "-days", "-1", "-extfile", f"{name}.ext", "-out", f"{name}.pem", cwd=self.dir)
         self._private(name)
+
+    def revoke(self, name):
+        """Revokes name.pem in the CA's `openssl ca` database (made on first use)."""
+        self._database()
+        openssl("ca", "-config", "ca.cnf", "-batch", "-revoke", f"{name}.pem", cwd=self.dir)
+
+    def crl(self, out="crl.pem", days=30):
+        """The CA's CRL of the certificates revoked so far; its path."""
+        self._database()
+        openssl("ca", "-config", "ca.cnf", "-batch", "-gencrl", "-crldays", str(days),
+                "-out", out, cwd=self.dir)
+        return self.path(out)
+
+    def _database(self):
+        if os.path.exists(self.path("ca.cnf")):
+            return
+        with open(self.path("ca.cnf"), "w") as f:
+            f.write(CA_CONFIG)
+        open(self.path("index.txt"), "w").close()
+        with open(self.path("crlnumber"), "w") as f:
+            f.write("01\n")
 
     def context(self, client=None, **versions):
         """A client context that trusts the plant CA and shows `client`'s certificate."""

@@ -53,9 +53,10 @@ def make_certificates(directory):
 
 
 def config(rig, certs, plain="127.0.0.1:0", tls_extra="", server="server", max_connections=64):
+    """plain=None: no modbus.listen (with tls: no plain listener)."""
+    listen = "" if plain is None else f'  listen: "{plain}"\n'
     return f"""modbus:
-  listen: "{plain}"
-  max_connections: {max_connections}
+{listen}  max_connections: {max_connections}
   tls:
     listen: "127.0.0.1:0"
     certificate: {certs.path(server + '.pem')}
@@ -85,12 +86,17 @@ links:
 class TlsClient:
     """Raw Modbus frames over TLS: the MBAP ADU unchanged inside TLS (the specification)."""
 
-    def __init__(self, port, context, timeout=5, receive_buffer=None):
+    def __init__(self, port, context, timeout=5, receive_buffer=None, source="127.0.0.1"):
         raw = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         if receive_buffer:  # set before connecting: the window it offers follows from it
             raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer)
         raw.settimeout(timeout)
-        raw.connect(("127.0.0.1", port))
+        raw.bind((source, 0))  # loopback is 127.0.0.0/8: one machine, many client addresses
+        try:
+            raw.connect(("127.0.0.1", port))
+        except OSError:
+            raw.close()
+            raise
         self.socket = context.wrap_socket(raw, server_hostname="127.0.0.1")
         self.transaction = 0
 
@@ -123,6 +129,32 @@ class TlsClient:
 
 def read_pdu(function, address, count):
     return struct.pack(">BHH", function, address, count)
+
+
+def plain_request(port, unit, pdu, timeout=5):
+    """One request on a new plain Modbus TCP connection: the response PDU."""
+    with socket.create_connection(("127.0.0.1", port), timeout=timeout) as s:
+        s.sendall(struct.pack(">HHHB", 1, 0, len(pdu) + 1, unit) + pdu)
+        data = b""
+        while len(data) < 7 or len(data) < 6 + struct.unpack(">H", data[4:6])[0]:
+            chunk = s.recv(512)
+            if not chunk:
+                raise ConnectionError(f"closed by the server after {data!r}")
+            data += chunk
+        return data[7:]
+
+
+def silent(port, source):
+    """A TCP connection to `port` from `source` that says nothing: None when refused."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.settimeout(2)
+    try:
+        s.bind((source, 0))
+        s.connect(("127.0.0.1", port))
+        return s
+    except OSError:
+        s.close()
+        return None
 
 
 WRITES = [struct.pack(">BHH", 0x05, 0, 0xFF00), struct.pack(">BHH", 0x06, 0, 0x0001),
@@ -482,6 +514,107 @@ class ModbusTls(unittest.TestCase):
             greedy.close()
             keeper.close()
 
+    def test_silent_connections_to_the_tls_port_lock_no_one_out(self):
+        """Issue 23 item 4: silent TCP connections to the TLS port, renewed faster than the
+        handshake deadline frees them, held every max_connections place (64 here) and locked
+        every new client out of both listeners. An attacker at 127.0.0.2 opens one every 30 ms
+        (33/s, 165 per handshake deadline) for 8 s; meanwhile, every 0.2 s, a new plain client
+        and a new operator TLS client connect from 127.0.0.1 and must be served, throughout."""
+        held, stop = [], threading.Event()
+        attack_seconds, at_most = 8.0, 300
+        before = self.metric(
+            'ioportd_modbus_connections_refused_total{reason="too_many_handshakes"}')
+
+        def attack():
+            until = time.monotonic() + attack_seconds
+            while time.monotonic() < until and len(held) < at_most and not stop.is_set():
+                s = silent(self.tls_port, "127.0.0.2")
+                if s:
+                    held.append(s)
+                stop.wait(0.03)
+
+        attacker = threading.Thread(target=attack)
+        started = time.monotonic()
+        attacker.start()
+        rounds, worst_plain, worst_tls, most_handshakes = 0, 0.0, 0.0, 0
+        try:
+            while attacker.is_alive():
+                into = time.monotonic() - started
+                t = time.monotonic()
+                try:
+                    response = plain_request(self.port, 1, read_pdu(0x02, 0, 16))
+                except OSError as error:
+                    self.fail(f"{into:.1f} s into the attack a plain client was not served: "
+                              f"{error!r}")
+                self.assertLess(response[0], 0x80, response.hex())
+                worst_plain = max(worst_plain, time.monotonic() - t)
+                t = time.monotonic()
+                try:
+                    operator = self.client("operator")
+                    try:
+                        self.assertIsNone(operator.exception(1, read_pdu(0x02, 0, 16)))
+                    finally:
+                        operator.close()
+                except (OSError, ssl.SSLError) as error:
+                    self.fail(f"{into:.1f} s into the attack an operator's TLS client was not "
+                              f"served: {error!r}")
+                worst_tls = max(worst_tls, time.monotonic() - t)
+                most_handshakes = max(most_handshakes, self.state()["modbus"]["handshakes"])
+                rounds += 1
+                stop.wait(0.2)
+        finally:
+            stop.set()
+            attacker.join()
+            for s in held:
+                s.close()
+        refused = self.metric(
+            'ioportd_modbus_connections_refused_total{reason="too_many_handshakes"}') - before
+        print(f"\n  {len(held)} silent connections to the TLS port from one address in "
+              f"{attack_seconds:.0f} s: {refused} closed at accept, at most {most_handshakes} "
+              f"handshakes in progress; {rounds} new plain and {rounds} new operator TLS clients "
+              f"served meanwhile, in at most {worst_plain * 1000:.1f} and "
+              f"{worst_tls * 1000:.1f} ms", file=sys.stderr)
+        self.assertGreater(len(held), 200)
+        self.assertGreater(rounds, 20)
+        self.assertLessEqual(most_handshakes, 4)
+        self.assertGreater(refused, 150)
+        self.rig.wait_log(r"refused Modbus client 127\.0\.0\.2: 4 TLS handshakes of this address "
+                          r"in progress \(logged once a minute per address and reason\)")
+
+    def test_handshakes_from_many_addresses_stop_at_max_handshakes(self):
+        """Five addresses with 8 silent connections each to the TLS port: 16 handshakes
+        (tls.max_handshakes' default) are held, the others closed at accept; plain clients and a
+        TLS client connected before are served; once they go, new TLS clients are again."""
+        keeper = self.client("operator")
+        held = []
+        try:
+            for _ in range(8):
+                for host in range(5):
+                    s = silent(self.tls_port, f"127.0.1.{host + 1}")
+                    if s:
+                        held.append(s)
+            eventually(lambda: self.state()["modbus"]["handshakes"] == 16, 5,
+                       lambda: f"16 handshakes held: {self.state()['modbus']}")
+            self.rig.wait_log(r"refused Modbus client 127\.0\.1\.\d: tls\.max_handshakes \(16\) "
+                              r"TLS handshakes in progress")
+            self.assertLess(plain_request(self.port, 1, read_pdu(0x02, 0, 16))[0], 0x80)
+            self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
+        finally:
+            for s in held:
+                s.close()
+        eventually(lambda: self.state()["modbus"]["handshakes"] == 0, 5, "the handshakes gone")
+        fresh = self.client("viewer")
+        self.assertIsNone(fresh.exception(1, read_pdu(0x02, 0, 1)))
+        fresh.close()
+        keeper.close()
+
+    def test_plain_modbus_beside_tls_is_a_warning_in_the_log_and_on_the_status_page(self):
+        warning = (r'plain Modbus TCP \(modbus\.listen "127\.0\.0\.1:0"\) bypasses the roles of '
+                   r"Modbus/TCP Security: any client that reaches it may read and write every unit")
+        self.rig.wait_log(r" warning " + warning)
+        self.assertTrue(any(re.match(warning, w) for w in self.state()["warnings"]),
+                        self.state()["warnings"])
+
     def test_a_thousand_half_open_tls_connections_cost_the_others_nothing(self):
         keeper = self.client("operator")
         hello = client_hello(self.certs)
@@ -497,9 +630,18 @@ class ModbusTls(unittest.TestCase):
                 self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
                 worst = max(worst, time.monotonic() - t)
             self.assertLess(worst, 0.5)
-            self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: max_connections \(64\) reached")
+            # 4 handshakes at once from one address; the rest are closed at accept.
+            self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: 4 TLS handshakes of this "
+                              r"address in progress")
+            self.assertLessEqual(self.state()["modbus"]["handshakes"], 4)
+            # Another address is served at once; this one once the 4 handshake deadlines passed.
+            other = TlsClient(self.tls_port, self.certs.context("viewer"), source="127.0.0.3")
+            try:
+                self.assertIsNone(other.exception(1, read_pdu(0x02, 0, 1)))
+            finally:
+                other.close()
             opened = time.monotonic()
-            # Each held a place until its handshake deadline; then a new client gets one.
+
             def served():
                 try:
                     fresh = self.client("viewer")
@@ -514,8 +656,8 @@ class ModbusTls(unittest.TestCase):
             eventually(served, 10, "a new TLS client served after the handshake deadline",
                        interval=0.2)
             print(f"\n  1000 half-open TLS connections: an operator's 50 reads took at most "
-                  f"{worst * 1000:.1f} ms; a new client served {time.monotonic() - opened:.1f} s "
-                  f"later", file=sys.stderr)
+                  f"{worst * 1000:.1f} ms; a client of another address served at once, a new one "
+                  f"of theirs {time.monotonic() - opened:.1f} s later", file=sys.stderr)
         finally:
             for s in half_open:
                 s.close()
@@ -619,6 +761,141 @@ class Reload(unittest.TestCase):
         client = self.client("operator")
         self.assertIsNone(client.exception(1, read_pdu(0x02, 0, 1)))
         client.close()
+
+    def test_without_modbus_listen_tls_turns_plain_modbus_off(self):
+        """Issue 23 item 3: with modbus.tls, the plain listener runs only when modbus.listen is
+        given; given, it is a warning."""
+        self.assertIn("bypasses the roles of Modbus/TCP Security", self.rig.log_text())
+        log = self.rig.reload(config(self.rig, self.certs, plain=None))
+        self.assertIn("SIGHUP: reloaded", log)
+        self.assertIn("Modbus TCP listener closed", log)
+        self.assertNotIn("bypasses the roles", log)
+        with self.assertRaises(ConnectionRefusedError):
+            socket.create_connection(("127.0.0.1", self.port), timeout=5)
+        client = self.client("operator")
+        self.assertIsNone(client.exception(1, read_pdu(0x02, 0, 1)))
+        client.close()
+        http_port = self.rig.listening_port("HTTP")
+        with urllib.request.urlopen(f"http://127.0.0.1:{http_port}/api/v1/state",
+                                    timeout=5) as reply:
+            state = json.load(reply)
+        self.assertEqual(state["warnings"], [])
+        self.assertEqual(state["modbus"]["listen"], "")
+
+
+class Revocation(unittest.TestCase):
+    """Issue 23 item 5: modbus.tls.client_crl, made with openssl ca -revoke and -gencrl, refuses
+    revoked certificates at the handshake and on resumption; a SIGHUP that revokes one closes
+    its connections."""
+
+    def setUp(self):
+        self.dir = tempfile.mkdtemp(prefix="ioportd-tls-crl-")
+        self.addCleanup(shutil.rmtree, self.dir, True)
+        self.certs = make_certificates(self.dir)
+        for name in ("leaked", "victim", "resumer12", "resumer13"):
+            self.certs.client(name, "operator")
+        self.certs.crl()  # none revoked yet
+        self.rig = Rig(self.dir, IOPORTD, IOPORT_SIM)
+        self.addCleanup(self.rig.close)
+        self.rig.start_hub("dim16:0,dom16:0")
+        self.rig.start_id2()
+        self.rig.write_config(self.config())
+        self.rig.start_daemon()
+        self.tls_port = self.rig.listening_port("Modbus/TCP Security (TLS)")
+
+    def config(self):
+        return config(self.rig, self.certs, plain="",
+                      tls_extra=f"    client_crl: {self.certs.path('crl.pem')}\n")
+
+    def client(self, name):
+        return TlsClient(self.tls_port, self.certs.context(name))
+
+    def revoke(self, name):
+        """openssl ca -revoke, -gencrl, SIGHUP: the reload's log."""
+        self.certs.revoke(name)
+        self.certs.crl()
+        log = self.rig.reload(self.config())
+        self.assertIn("SIGHUP: reloaded", log)
+        return log
+
+    def test_a_revoked_certificate_is_refused_at_the_handshake(self):
+        before = self.client("leaked")
+        self.assertIsNone(before.exception(1, read_pdu(0x02, 0, 1)))
+        before.close()
+        self.revoke("leaked")
+        what = refused(self.tls_port, self.certs.context("leaked"))
+        self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: TLS handshake failed: "
+                          r"certificate verify failed.*: certificate revoked")
+        operator = self.client("operator")
+        self.assertIsNone(operator.exception(1, read_pdu(0x02, 0, 1)))
+        operator.close()
+        print(f"\n  a revoked certificate: {what}", file=sys.stderr)
+
+    def test_a_revoked_certificate_cannot_resume_its_session(self):
+        """The session was made before the revocation. OpenSSL does not verify a resumed
+        session's certificate again, and a connection accepted before the reload resumes in the
+        old context's session cache: the server checks the certificate against the new CRL."""
+        for version, name in ((ssl.TLSVersion.TLSv1_2, "resumer12"),
+                              (ssl.TLSVersion.TLSv1_3, "resumer13")):
+            context = self.certs.context(name, maximum_version=version)
+            first = TlsClient(self.tls_port, context)
+            self.assertIsNone(first.exception(1, read_pdu(0x03, 0, 1)))  # 1.3: the ticket
+            session = first.socket.session
+            first.close()
+            # Accepted now, with the context of now; its handshake comes after the reload.
+            raw = socket.create_connection(("127.0.0.1", self.tls_port), timeout=5)
+            mark = self.rig.log_mark()
+            self.revoke(name)
+            again = context.wrap_socket(raw, server_hostname="127.0.0.1", session=session)
+            try:
+                self.assertTrue(again.session_reused, version)
+                client = TlsClient.__new__(TlsClient)
+                client.socket, client.transaction = again, 0
+                client.request(1, read_pdu(0x03, 0, 1))
+                outcome = "served"
+            except (ssl.SSLError, ConnectionError) as error:
+                outcome = f"refused: {error}"
+            finally:
+                again.close()
+            self.assertTrue(outcome.startswith("refused"), f"{version}: {outcome}")
+            self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: TLS session resumed: "
+                              r"certificate revoked \(serial [0-9A-F]+\) by "
+                              r"modbus\.tls\.client_crl", 5, mark)
+            # A new connection cannot resume it in the new context: a full handshake, refused.
+            raw = socket.create_connection(("127.0.0.1", self.tls_port), timeout=5)
+            with self.assertRaises((ssl.SSLError, ConnectionError)):
+                with context.wrap_socket(raw, server_hostname="127.0.0.1",
+                                         session=session) as fresh:
+                    self.assertFalse(fresh.session_reused)
+                    fresh.sendall(struct.pack(">HHHB", 1, 0, 6, 1) + read_pdu(0x03, 0, 1))
+                    if not fresh.recv(1):
+                        raise ConnectionError("closed")
+            raw.close()
+
+    def test_a_sighup_that_revokes_a_certificate_closes_its_connections(self):
+        victim, bystander = self.client("victim"), self.client("operator")
+        self.assertIsNone(victim.exception(1, read_pdu(0x02, 0, 1)))
+        self.assertIsNone(bystander.exception(1, read_pdu(0x02, 0, 1)))
+        log = self.revoke("victim")
+        self.assertRegex(log, r"Modbus/TCP Security client 127\.0\.0\.1:\d+ \(O=Plant,"
+                              r"CN=victim-1\) closed: its certificate \(serial [0-9A-F]+\) is "
+                              r"revoked by the reloaded modbus\.tls\.client_crl")
+        with self.assertRaises((ssl.SSLError, ConnectionError)):
+            victim.request(1, read_pdu(0x02, 0, 1))
+        self.assertIsNone(bystander.exception(1, read_pdu(0x02, 0, 1)))
+        victim.close()
+        bystander.close()
+
+    def test_a_crl_that_is_no_crl_keeps_the_running_configuration(self):
+        operator = self.client("operator")
+        with open(self.certs.path("crl.pem"), "w") as f:
+            f.write("not a CRL\n")
+        log = self.rig.reload(self.config())
+        self.assertRegex(log, r"ioportd\.yaml:\d+: modbus\.tls\.client_crl: .*crl\.pem has no "
+                              r"PEM CRL")
+        self.assertIn("the running configuration is kept", log)
+        self.assertIsNone(operator.exception(1, read_pdu(0x02, 0, 1)))
+        operator.close()
 
 
 if __name__ == "__main__":

@@ -964,6 +964,8 @@ TEST(GatewayConfig, TheProductionExampleServesEveryoneOnPort502) {
     ASSERT_TRUE(config) << describe(config.error());
     EXPECT_EQ(config->modbus.listen_host, "0.0.0.0");
     EXPECT_EQ(config->modbus.listen_port, 502);
+    // The default, not written: uncommenting `tls` turns plain Modbus (no roles) off.
+    EXPECT_FALSE(config->modbus.listen_given);
     EXPECT_TRUE(config->modbus.allow.empty());
     EXPECT_TRUE(config->links.at(0).device.starts_with("/dev/serial/by-id/"));
     EXPECT_EQ(config->links.at(1).protocol, Protocol::id2);
@@ -1034,6 +1036,9 @@ TEST(GatewayConfig, TheTlsSection) {
     EXPECT_EQ(tls.roles.at("viewer").units.count(), 1u);
     EXPECT_TRUE(tls.roles.at("viewer").units.test(1));
     EXPECT_EQ(tls.roles.at("viewer").access, modbus_security::Access::read);
+    EXPECT_EQ(tls.max_handshakes, 16);
+    EXPECT_TRUE(tls.client_crl.empty());
+    EXPECT_TRUE(tls.client_crl_pem.empty());
     // Absent, or without listen: off; the plain listener's default stays.
     const auto off = parse("modbus:\n  tls:\n    certificate: /nonexistent\n" + hub);
     ASSERT_TRUE(off) << describe(off.error());
@@ -1067,7 +1072,9 @@ TEST(GatewayConfigErrors, TheTlsSection) {
                       "modbus.tls.roles.op.x", "unknown key"});
     expect_one_error({files.yaml(roles + "    ciphers: ALL\n"), 10, "modbus.tls.ciphers",
                       "unknown key: allowed here are listen, certificate, key, client_ca, "
-                      "default_role, roles"});
+                      "client_crl, max_handshakes, default_role, roles"});
+    expect_one_error({files.yaml("    max_handshakes: 0\n" + roles), 8, "modbus.tls.max_handshakes",
+                      "out of range: use 1..1024"});
     // The files.
     const auto with = [&](const std::string& certificate, const std::string& key,
                           const std::string& ca) {
@@ -1105,6 +1112,183 @@ TEST(GatewayConfigErrors, TheTlsSection) {
     expect_one_error({"modbus:\n  tls:\n    listen: \"127.0.0.1:802\"\n    key: " + k +
                           "\n    client_ca: " + a + "\n" + roles + hub,
                       3, "modbus.tls.certificate", "missing: the server's certificate"});
+}
+
+// With modbus.tls, plain Modbus (which bypasses the roles) runs only when modbus.listen is given;
+// both on is a warning.
+TEST(GatewayConfig, PlainModbusBesideTlsOnlyWhenListenIsGiven) {
+    const TlsFiles files;
+    const std::string tls =
+        "  tls:\n    listen: \"127.0.0.1:802\"\n    certificate: " + files.certificate.path() +
+        "\n    key: " + files.key.path() + "\n    client_ca: " + files.ca.path() +
+        "\n    max_handshakes: 8\n    roles: { op: { units: all, access: "
+        "read } }\n";
+    const auto implicit = parse("modbus:\n  max_connections: 4\n" + tls + hub);
+    ASSERT_TRUE(implicit) << describe(implicit.error());
+    EXPECT_FALSE(implicit->modbus.plain());
+    EXPECT_FALSE(implicit->modbus.listen_given);
+    EXPECT_EQ(implicit->modbus.tls->max_handshakes, 8);
+    EXPECT_TRUE(warnings(*implicit).empty());
+
+    const auto both = parse("modbus:\n  listen: \"0.0.0.0:502\"\n" + tls + hub);
+    ASSERT_TRUE(both) << describe(both.error());
+    EXPECT_TRUE(both->modbus.plain());
+    EXPECT_TRUE(both->modbus.listen_given);
+    ASSERT_EQ(warnings(*both).size(), 1u);
+    EXPECT_EQ(warnings(*both)[0],
+              "plain Modbus TCP (modbus.listen \"0.0.0.0:502\") bypasses the roles of "
+              "Modbus/TCP Security: any client that reaches it may read and write every unit. "
+              "Remove modbus.listen, or set it to \"\", to serve TLS clients only");
+
+    const auto off = parse("modbus:\n  listen: \"\"\n" + tls + hub);
+    ASSERT_TRUE(off) << describe(off.error());
+    EXPECT_FALSE(off->modbus.plain());
+    EXPECT_TRUE(warnings(*off).empty());
+    // Without TLS the default stays, and nothing is weakened.
+    const auto plain = parse(hub);
+    EXPECT_TRUE(plain->modbus.plain());
+    EXPECT_TRUE(warnings(*plain).empty());
+}
+
+TEST(GatewayConfig, APasswordOverPlainMqttIsAWarning) {
+    const TempFile password("s3cret\n", owner_only);
+    const auto with = [&](const std::string& broker) {
+        return parse("mqtt:\n  broker: \"" + broker +
+                     "\"\n  group_id: g\n  edge_node_id: n\n  password_file: " + password.path() +
+                     "\n" + hub);
+    };
+    const auto plain = with("mqtt://broker.plant.example");
+    ASSERT_TRUE(plain) << describe(plain.error());
+    ASSERT_EQ(warnings(*plain).size(), 1u);
+    EXPECT_NE(warnings(*plain)[0].find("goes to the broker broker.plant.example unencrypted over "
+                                       "mqtt://"),
+              std::string::npos)
+        << warnings(*plain)[0];
+    const auto tls = with("mqtts://broker.plant.example");
+    ASSERT_TRUE(tls) << describe(tls.error());
+    EXPECT_TRUE(warnings(*tls).empty());
+    const auto no_password = parse(
+        "mqtt:\n  broker: \"mqtt://b\"\n  group_id: g\n"
+        "  edge_node_id: n\n" +
+        hub);
+    ASSERT_TRUE(no_password) << describe(no_password.error());
+    EXPECT_TRUE(warnings(*no_password).empty());
+}
+
+// --- client_crl -----------------------------------------------------------------------------
+
+namespace {
+
+// A tls section with `crl` as client_crl (line 7) and `ca` as client_ca.
+std::string with_crl(const TlsFiles& files, const std::string& crl, const std::string& ca = {}) {
+    return "modbus:\n  tls:\n    listen: \"127.0.0.1:802\"\n    certificate: " +
+           files.certificate.path() + "\n    key: " + files.key.path() +
+           "\n    client_ca: " + (ca.empty() ? files.ca.path() : ca) + "\n    client_crl: " + crl +
+           "\n    roles: { op: { units: all, access: read } }\n" + hub;
+}
+
+}  // namespace
+
+TEST(GatewayConfig, AClientCrlIsReadWithTheTlsFiles) {
+    const TlsFiles files;
+    const TempFile crl(test::tls_fixtures::crl_pem, owner_only | perms::group_read);
+    const auto config = parse(with_crl(files, crl.path()));
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->modbus.tls->client_crl, crl.path());
+    EXPECT_EQ(config->modbus.tls->client_crl_pem, test::tls_fixtures::crl_pem);
+}
+
+TEST(GatewayConfigErrors, ABadClientCrl) {
+    const TlsFiles files;
+    const auto error = [&](const std::string& crl, const std::string& fragment,
+                           const std::string& ca = {}) {
+        expect_one_error({with_crl(files, crl, ca), 7, "modbus.tls.client_crl", fragment});
+    };
+    error("/nonexistent/crl.pem", "/nonexistent/crl.pem: No such file or directory");
+    const TempFile hello("hello\n", owner_only);
+    error(hello.path(), "has no PEM CRL (-----BEGIN X509 CRL-----): make one with openssl ca");
+    // A certificate is no CRL.
+    error(files.ca.path(), "has no PEM CRL");
+    std::string broken = test::tls_fixtures::crl_pem;
+    broken[60] = broken[60] == 'A' ? 'B' : 'A';
+    const TempFile damaged(broken, owner_only);
+    error(damaged.path(), "CRL 1 does not parse");
+    // Same issuer name, another key: not signed by client_ca.
+    const TempFile impostor(test::tls_fixtures::impostor_crl_pem, owner_only);
+    error(impostor.path(),
+          "CRL 1 (issuer CN=ioportd unit-test CA) is not signed by a CA of "
+          "client_ca " +
+              files.ca.path());
+    const TempFile expired(test::tls_fixtures::expired_crl_pem, owner_only);
+    error(expired.path(),
+          "CRL 1 (issuer CN=ioportd unit-test CA) expired at 2020-02-01 00:00:00 "
+          "UTC (its nextUpdate)");
+    const TempFile too_big(
+        std::string(test::tls_fixtures::crl_pem) + std::string(std::size_t{1024} * 1024, '\n'),
+        owner_only);
+    error(too_big.path(), "is larger than 1024 KiB: not a PEM CRL");
+    // A second CA in client_ca without a CRL: its clients would all be refused.
+    const TempFile two_cas(std::string(test::tls_fixtures::ca_pem) + test::tls_fixtures::server_pem,
+                           owner_only);
+    const TempFile crl(test::tls_fixtures::crl_pem, owner_only);
+    error(crl.path(), "has no CRL of CN=unit-test gateway, a CA in client_ca " + two_cas.path(),
+          two_cas.path());
+}
+
+// --- Files that grant rights (gateway.md §5.6) -----------------------------------------------
+
+// Each file that grants rights, group- or world-writable, is an error naming it.
+TEST(GatewayConfigErrors, AFileThatGrantsRightsMustNotBeWritableByGroupOrOthers) {
+    const TlsFiles files;
+    const TempFile crl(test::tls_fixtures::crl_pem, owner_only);
+    for (const auto writable : {perms::group_write, perms::others_write}) {
+        const char* who = writable == perms::group_write ? "its group" : "every user";
+        SCOPED_TRACE(who);
+        const TempFile certificate(test::tls_fixtures::server_pem, owner_only | writable);
+        const TempFile key(test::tls_fixtures::server_key, owner_only | writable);
+        const TempFile ca(test::tls_fixtures::ca_pem, owner_only | perms::others_read | writable);
+        const TempFile open_crl(test::tls_fixtures::crl_pem, owner_only | writable);
+        const TempFile password("pw\n", owner_only | writable);
+        const auto tls = [&](const std::string& c, const std::string& k, const std::string& a,
+                             const std::string& r) {
+            return "modbus:\n  tls:\n    listen: \"127.0.0.1:802\"\n    certificate: " + c +
+                   "\n    key: " + k + "\n    client_ca: " + a + "\n    client_crl: " + r +
+                   "\n    roles: { op: { units: all, access: read } }\n" + hub;
+        };
+        const auto& c = files.certificate.path();
+        const auto& k = files.key.path();
+        const auto& a = files.ca.path();
+        const auto& r = crl.path();
+        const auto message = [&](const TempFile& file) {
+            return file.path() + " is writable by " + who;
+        };
+        expect_one_error(
+            {tls(certificate.path(), k, a, r), 4, "modbus.tls.certificate", message(certificate)});
+        expect_one_error({tls(c, key.path(), a, r), 5, "modbus.tls.key", message(key)});
+        expect_one_error({tls(c, k, ca.path(), r), 6, "modbus.tls.client_ca", message(ca)});
+        expect_one_error(
+            {tls(c, k, a, open_crl.path()), 7, "modbus.tls.client_crl", message(open_crl)});
+        expect_one_error(
+            {"mqtt:\n  broker: \"mqtts://b\"\n  group_id: g\n  edge_node_id: n\n"
+             "  password_file: " +
+                 password.path() + "\n" + hub,
+             5, "mqtt.password_file", message(password)});
+        // The configuration itself.
+        const TempFile config(hub, owner_only | perms::group_read | perms::others_read | writable);
+        const auto loaded = load_config(config.path(), identity);
+        ASSERT_FALSE(loaded);
+        ASSERT_EQ(loaded.error().size(), 1u);
+        EXPECT_EQ(loaded.error()[0].file, config.path());
+        EXPECT_EQ(loaded.error()[0].line, 0);
+        EXPECT_EQ(
+            loaded.error()[0].message.find("is writable by " + std::string(who) + " (mode 06"), 0u)
+            << to_string(loaded.error()[0]);
+        EXPECT_NE(loaded.error()[0].message.find("chmod go-w " + config.path()), std::string::npos);
+    }
+    // Readable by all is fine for what is not secret, as the CA above and the config here.
+    const TempFile config(hub, owner_only | perms::group_read | perms::others_read);
+    const auto loaded = load_config(config.path(), identity);
+    EXPECT_TRUE(loaded) << describe(loaded.error());
 }
 
 }  // namespace ioport::config
