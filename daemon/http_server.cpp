@@ -19,7 +19,6 @@ using asio::redirect_error;
 using asio::use_awaitable;
 using asio::ip::tcp;
 
-constexpr auto refusal_log_interval = 60s;
 constexpr auto accept_error_pause = 100ms;
 
 http::response<http::string_body> make_response(unsigned version, bool keep_alive,
@@ -116,12 +115,11 @@ tcp::endpoint HttpServer::local_endpoint() const {
 }
 
 void HttpServer::log_refusal(const std::string& peer, std::string_view why) {
-    const auto now = std::chrono::steady_clock::now();
-    if (refusal_logged_ != std::chrono::steady_clock::time_point{} &&
-        now - refusal_logged_ < refusal_log_interval)
-        return;
-    refusal_logged_ = now;
-    log_.warn({.client = peer}, "refused HTTP client {}: {} (logged once a minute)", peer, why);
+    // One line a minute for every refusal together: the peer's port makes each address new.
+    const auto held = refusals_.admit("", std::chrono::steady_clock::now());
+    if (!held) return;
+    log_.warn({.client = peer}, "refused HTTP client {}: {} (logged once a minute){}", peer, why,
+              held_back(*held));
 }
 
 asio::awaitable<void> HttpServer::accept_loop(Acceptor acceptor) {

@@ -81,7 +81,7 @@ class HttpServer : public std::enable_shared_from_this<HttpServer> {
     Acceptor acceptor_;
     asio::steady_timer accept_retry_;
     std::unordered_set<Connection*> connections_;
-    std::chrono::steady_clock::time_point refusal_logged_{};
+    LogLimiter refusals_;
 };
 
 }  // namespace ioport::daemon

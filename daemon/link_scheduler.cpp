@@ -339,14 +339,12 @@ asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan) {
 // flood, and one line per refusal would be another.
 void LinkScheduler::refuse_busy() {
     ++writes_count_[static_cast<std::size_t>(WriteResult::busy)];
-    ++busy_unlogged_;
-    const auto now = Clock::now();
-    if (busy_logged_ && now - *busy_logged_ < 60s) return;
-    busy_logged_ = now;
+    const auto held = busy_logged_.admit("", Clock::now());
+    if (!held) return;
     log_.warn(fields(),
-              "link {}: {} write(s) refused (Modbus exception 06, DCMD refused): {} writes are "
-              "waiting for the line (max_pending_writes); logged at most once a minute",
-              config_.name, std::exchange(busy_unlogged_, 0), config_.max_pending_writes);
+              "link {}: a write refused (Modbus exception 06, DCMD refused): {} writes are "
+              "waiting for the line (max_pending_writes); logged at most once a minute{}",
+              config_.name, config_.max_pending_writes, held_back(*held));
 }
 
 void LinkScheduler::enter_safe_state() {

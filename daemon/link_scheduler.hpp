@@ -170,9 +170,8 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     PollPlan plan_;
     std::vector<Entry> entries_;
     std::deque<std::shared_ptr<PendingWrite>> writes_;  // at most max_pending_writes
-    bool safe_state_due_ = false;      // sent before anything else the loop does next
-    std::uint64_t busy_unlogged_ = 0;  // refused since the last line about it
-    std::optional<Clock::time_point> busy_logged_;
+    bool safe_state_due_ = false;  // sent before anything else the loop does next
+    LogLimiter busy_logged_;       // refusals for a full queue
     std::array<std::uint64_t, write_result_count> writes_count_{};
     UnitImage image_;
     gateway::UnitState state_;
