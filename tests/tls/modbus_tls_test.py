@@ -52,12 +52,13 @@ def make_certificates(directory):
     return certs
 
 
-def config(rig, certs, plain="127.0.0.1:0", tls_extra="", server="server", max_connections=64):
+def config(rig, certs, plain="127.0.0.1:0", tls_extra="", server="server", max_connections=64,
+           modbus_extra=""):
     """plain=None: no modbus.listen (with tls: no plain listener)."""
     listen = "" if plain is None else f'  listen: "{plain}"\n'
     return f"""modbus:
 {listen}  max_connections: {max_connections}
-  tls:
+{modbus_extra}  tls:
     listen: "127.0.0.1:0"
     certificate: {certs.path(server + '.pem')}
     key: {certs.path(server + '.key')}
@@ -781,6 +782,45 @@ class Reload(unittest.TestCase):
             state = json.load(reply)
         self.assertEqual(state["warnings"], [])
         self.assertEqual(state["modbus"]["listen"], "")
+
+
+class CommLoss(unittest.TestCase):
+    """gateway.md §5.3: only requests a client may make keep the outputs out of their safe
+    state. A client whose certificate has no role is answered 01 on everything: however fast it
+    asks, the safe state comes on time; a viewer's reads, which are served, hold it off."""
+
+    def setUp(self):
+        self.dir = tempfile.mkdtemp(prefix="ioportd-tls-commloss-")
+        self.addCleanup(shutil.rmtree, self.dir, True)
+        self.certs = make_certificates(self.dir)
+        self.rig = Rig(self.dir, IOPORTD, IOPORT_SIM)
+        self.addCleanup(self.rig.close)
+        self.rig.start_hub("dim16:0,dom16:0")
+        self.rig.start_id2()
+        self.rig.write_config(config(self.rig, self.certs,
+                                     modbus_extra="  comm_loss_timeout: 1500ms\n"))
+        self.rig.start_daemon()
+        self.tls_port = self.rig.listening_port("Modbus/TCP Security (TLS)")
+
+    def ask_for(self, name, seconds, expected):
+        """Reads by `name` every 20 ms for `seconds`: the time the loss was logged, or None."""
+        client = TlsClient(self.tls_port, self.certs.context(name))
+        self.addCleanup(client.close)
+        mark = self.rig.log_mark()
+        start = time.monotonic()
+        while time.monotonic() - start < seconds:
+            self.assertEqual(client.exception(1, read_pdu(0x04, 1000, 1)), expected)
+            if "no Modbus request from any client" in self.rig.log_text()[mark:]:
+                return time.monotonic() - start
+            time.sleep(0.02)  # the pace of a polling client
+        return None
+
+    def test_requests_refused_for_lack_of_rights_do_not_hold_off_the_safe_state(self):
+        # The viewer first: served, its reads keep the loss away for longer than the timeout.
+        self.assertIsNone(self.ask_for("viewer", 2.5, None), "a viewer's reads did not count")
+        declared = self.ask_for("norole", 6, ILLEGAL_FUNCTION)
+        self.assertIsNotNone(declared, "requests answered 01 held off the safe state for 6 s")
+        self.assertLess(declared, 1.5 + 1.5)
 
 
 class Revocation(unittest.TestCase):
