@@ -496,6 +496,9 @@ class Loader {
     void read_role_units(const Entry& entry, const std::string& path, modbus_security::Role& role);
     void check_role_units(const GatewayConfig& config);
     void read_allow(const Fields& fields, std::vector<Network>& allow);
+    template <class T, class Parse>
+    void read_list(const Fields& fields, std::string_view name, std::string_view list_example,
+                   std::string_view item_example, Parse parse, std::vector<T>& items);
     void read_http(const Entry& entry, std::optional<HttpSettings>& http);
     void read_server_names(const Fields& fields, std::vector<std::string>& names);
     void read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt);
@@ -801,28 +804,8 @@ void Loader::read_http(const Entry& entry, std::optional<HttpSettings>& http) {
 }
 
 void Loader::read_server_names(const Fields& f, std::vector<std::string>& names) {
-    const Entry* entry = f.find("server_names");
-    if (entry == nullptr || entry->value.IsNull()) return;  // "server_names:" alone: none
-    const std::string key = f.key("server_names");
-    if (!entry->value.IsSequence()) {
-        add(entry->line, key,
-            fmt::format("expected a list of host names such as [\"gateway.plant.example\"], "
-                        "found {}",
-                        kind(entry->value)));
-        return;
-    }
-    std::size_t index = 0;
-    for (const auto& item : entry->value) {
-        const std::string item_key = fmt::format("{}[{}]", key, index++);
-        const int line = std::max(line_of(item), entry->line);
-        auto name = item.IsScalar() ? server_name(item.Scalar())
-                                    : Parsed<std::string>(Unexpected(fmt::format(
-                                          "expected a host name, found {}", kind(item))));
-        if (name)
-            names.push_back(*std::move(name));
-        else
-            add(line, item_key, std::move(name).error());
-    }
+    read_list(f, "server_names", "a list of host names such as [\"gateway.plant.example\"]",
+              "a host name", server_name, names);
 }
 
 void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
@@ -890,14 +873,21 @@ void Loader::check_sparkplug_ids(const GatewayConfig& config) {
 }
 
 void Loader::read_allow(const Fields& f, std::vector<Network>& allow) {
-    const Entry* entry = f.find("allow");
-    if (entry == nullptr || entry->value.IsNull()) return;  // "allow:" alone is the empty list
-    const std::string key = f.key("allow");
+    read_list(f, "allow", "a list of networks such as [\"10.0.0.0/8\", \"127.0.0.1\"]",
+              "a network such as 10.0.0.0/8", parse_network, allow);
+}
+
+// A list of scalars, each parsed; `key:` alone or absent is the empty list. Every bad item is
+// an error of its own, at its line.
+template <class T, class Parse>
+void Loader::read_list(const Fields& f, std::string_view name, std::string_view list_example,
+                       std::string_view item_example, Parse parse, std::vector<T>& items) {
+    const Entry* entry = f.find(name);
+    if (entry == nullptr || entry->value.IsNull()) return;
+    const std::string key = f.key(name);
     if (!entry->value.IsSequence()) {
         add(entry->line, key,
-            fmt::format("expected a list of networks such as [\"10.0.0.0/8\", \"127.0.0.1\"], "
-                        "found {}",
-                        kind(entry->value)));
+            fmt::format("expected {}, found {}", list_example, kind(entry->value)));
         return;
     }
     std::size_t index = 0;
@@ -905,15 +895,14 @@ void Loader::read_allow(const Fields& f, std::vector<Network>& allow) {
         const std::string item_key = fmt::format("{}[{}]", key, index++);
         const int line = std::max(line_of(item), entry->line);
         if (!item.IsScalar()) {
-            add(line, item_key,
-                fmt::format("expected a network such as 10.0.0.0/8, found {}", kind(item)));
+            add(line, item_key, fmt::format("expected {}, found {}", item_example, kind(item)));
             continue;
         }
-        auto network = parse_network(item.Scalar());
-        if (network)
-            allow.push_back(*std::move(network));
+        auto parsed = parse(item.Scalar());
+        if (parsed)
+            items.push_back(*std::move(parsed));
         else
-            add(line, item_key, std::move(network).error());
+            add(line, item_key, std::move(parsed).error());
     }
 }
 
