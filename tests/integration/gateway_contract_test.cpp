@@ -153,6 +153,60 @@ Bytes write_multiple(std::uint8_t function, std::uint16_t address, std::uint16_t
     return pdu(function, {address, quantity}, tail);
 }
 
+// Clients that each write holding register 0 of unit 1 at once, with `first_value` + their
+// index, as a burst of SCADA writes arrives: every request is sent before any is answered.
+class WriteBurst {
+  public:
+    struct Answer {
+        int exception = -1;    // 0 for a normal response, -1 for none within the deadline
+        milliseconds after{};  // since the burst was sent
+    };
+    WriteBurst(std::uint16_t port, std::uint16_t count, std::uint16_t first_value)
+        : first_value_(first_value) {
+        for (std::uint16_t i = 0; i < count; ++i)
+            clients_.push_back(std::make_unique<RawClient>(port));
+    }
+    std::uint16_t value(std::size_t i) const {
+        return static_cast<std::uint16_t>(first_value_ + i);
+    }
+    // False, after a failure, when a client is not connected or a write cannot be sent.
+    bool send() {
+        sent_ = Clock::now();
+        for (std::size_t i = 0; i < clients_.size(); ++i) {
+            const auto request = pdu(fc_write_register, {0, value(i)});
+            if (!clients_[i]->connected() ||
+                !clients_[i]->send(adu(static_cast<std::uint16_t>(i), 1, request))) {
+                ADD_FAILURE() << "write " << i << " could not be sent";
+                return false;
+            }
+        }
+        return true;
+    }
+    Clock::time_point sent() const { return sent_; }
+    // Each client's answer, in whatever order they come: every client is polled until each has
+    // its answer or `deadline` passed.
+    std::vector<Answer> answers(milliseconds deadline = 5s) {
+        std::vector<Answer> answers(clients_.size());
+        const auto until = Clock::now() + deadline;
+        for (std::size_t left = clients_.size(); left > 0 && Clock::now() < until;) {
+            for (std::size_t i = 0; i < clients_.size(); ++i) {
+                if (answers[i].exception >= 0) continue;
+                const auto response = clients_[i]->receive(1ms);
+                if (!response) continue;
+                answers[i] = {response->exception(),
+                              std::chrono::duration_cast<milliseconds>(Clock::now() - sent_)};
+                --left;
+            }
+        }
+        return answers;
+    }
+
+  private:
+    std::uint16_t first_value_;
+    std::vector<std::unique_ptr<RawClient>> clients_;
+    Clock::time_point sent_{};
+};
+
 // The exception code of a raw request, 0 for a normal response, -1 for none at all.
 int exception_of(RawClient& client, std::uint8_t unit, const Bytes& request) {
     const auto response = client.ask(unit, request);
@@ -568,41 +622,25 @@ TEST_F(PendingWritesTest, AWriteThatFindsTheQueueFullAnswers06AtOnceAndIsNeverAp
     hub.ctl("fault dom16:0 delay 60ms");  // answers, slowly: the writes queue
     hub.ctl("log clear");
     constexpr std::uint16_t writers = 12;
-    std::vector<std::unique_ptr<RawClient>> clients;
-    for (std::uint16_t i = 0; i < writers; ++i) {
-        clients.push_back(std::make_unique<RawClient>(gateway.port()));
-        ASSERT_TRUE(clients.back()->connected());
-    }
-    const auto sent = Clock::now();
-    for (std::uint16_t i = 0; i < writers; ++i)
-        ASSERT_TRUE(clients[i]->send(
-            adu(i, 1, pdu(fc_write_register, {0, static_cast<std::uint16_t>(0x1000 + i)}))));
+    WriteBurst burst(gateway.port(), writers, 0x1000);
+    ASSERT_TRUE(burst.send());
     std::vector<std::uint16_t> confirmed;
     std::vector<std::uint16_t> refused;
     milliseconds slowest_refusal{0};
     milliseconds last_confirmation{0};
-    // Answered in whatever order: each client is polled until every one has its answer.
-    std::vector<bool> answered(writers, false);
-    const auto deadline = Clock::now() + 5s;
-    for (std::size_t left = writers; left > 0 && Clock::now() < deadline;) {
-        for (std::uint16_t i = 0; i < writers; ++i) {
-            if (answered[i]) continue;
-            const auto response = clients[i]->receive(1ms);
-            if (!response) continue;
-            answered[i] = true;
-            --left;
-            const auto value = static_cast<std::uint16_t>(0x1000 + i);
-            if (response->exception() == 0x06) {
-                refused.push_back(value);
-                slowest_refusal = std::max(slowest_refusal, since(sent));
-            } else {
-                EXPECT_EQ(response->exception(), 0) << "write " << i;
-                confirmed.push_back(value);
-                last_confirmation = std::max(last_confirmation, since(sent));
-            }
+    const auto answers = burst.answers();
+    for (std::size_t i = 0; i < writers; ++i) {
+        const auto [exception, after] = answers[i];
+        ASSERT_GE(exception, 0) << "write " << i << " was not answered within 5 s";
+        if (exception == 0x06) {
+            refused.push_back(burst.value(i));
+            slowest_refusal = std::max(slowest_refusal, after);
+        } else {
+            EXPECT_EQ(exception, 0) << "write " << i;
+            confirmed.push_back(burst.value(i));
+            last_confirmation = std::max(last_confirmation, after);
         }
     }
-    ASSERT_EQ(confirmed.size() + refused.size(), writers) << "writes not answered within 5 s";
     // One in flight and four waiting; the rest refused before the first was confirmed.
     figure("confirmed / refused with 06", fmt::format("{} / {}", confirmed.size(), refused.size()));
     EXPECT_LE(confirmed.size(), 5U);
@@ -1384,25 +1422,19 @@ TEST_F(CommLossQueueTest, WritesWaitingWhenTheSafeStateIsDueAreDroppedNeverAppli
     hub.ctl("log clear");
     // 2.4 s of writes, longer than the 1.5 s timeout; within max_connections (32).
     constexpr std::uint16_t writers = 30;
-    std::vector<std::unique_ptr<RawClient>> clients;
-    for (std::uint16_t i = 0; i < writers; ++i) {
-        clients.push_back(std::make_unique<RawClient>(gateway.port()));
-        ASSERT_TRUE(clients.back()->connected());
-    }
-    const auto sent = Clock::now();
-    for (std::uint16_t i = 0; i < writers; ++i)
-        ASSERT_TRUE(clients[i]->send(
-            adu(i, 1, pdu(fc_write_register, {0, static_cast<std::uint16_t>(0x2000 + i)}))));
+    WriteBurst burst(gateway.port(), writers, 0x2000);
+    ASSERT_TRUE(burst.send());
     ASSERT_TRUE(sim_becomes("dom16:0", "1", 10s));
-    const auto safe_after = since(sent);
+    const auto safe_after = since(burst.sent());
     int confirmed = 0;
     int dropped = 0;
-    for (std::uint16_t i = 0; i < writers; ++i) {
-        const auto response = clients[i]->receive(5s);
-        ASSERT_TRUE(response) << "write " << i << " was not answered";
-        (response->exception() == target_failed ? dropped : confirmed) += 1;
-        EXPECT_TRUE(response->exception() == 0 || response->exception() == target_failed)
-            << "write " << i << ": " << response->exception();
+    const auto answers = burst.answers();
+    for (std::size_t i = 0; i < writers; ++i) {
+        const auto exception = answers[i].exception;
+        ASSERT_GE(exception, 0) << "write " << i << " was not answered within 5 s";
+        (exception == target_failed ? dropped : confirmed) += 1;
+        EXPECT_TRUE(exception == 0 || exception == target_failed)
+            << "write " << i << ": " << exception;
     }
     figure("writes confirmed / dropped for the safe state",
            fmt::format("{} / {}", confirmed, dropped));
