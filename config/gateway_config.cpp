@@ -1245,12 +1245,11 @@ std::vector<std::string> warnings(const GatewayConfig& config) {
     std::vector<std::string> found;
     const auto& modbus = config.modbus;
     if (modbus.plain() && modbus.tls) {
-        const bool v6 = modbus.listen_host.find(':') != std::string::npos;
         found.push_back(fmt::format(
-            "plain Modbus TCP (modbus.listen \"{}{}{}:{}\") bypasses the roles of Modbus/TCP "
+            "plain Modbus TCP (modbus.listen \"{}\") bypasses the roles of Modbus/TCP "
             "Security: any client that reaches it may {} every unit. Remove modbus.listen, or set "
             "it to \"\", to serve TLS clients only",
-            v6 ? "[" : "", modbus.listen_host, v6 ? "]" : "", modbus.listen_port,
+            host_port(modbus.listen_host, modbus.listen_port),
             modbus.read_only ? "read" : "read and write"));
     }
     if (const auto& mqtt = config.mqtt; mqtt && !mqtt->tls && !mqtt->password.empty())
@@ -1275,6 +1274,11 @@ bool contains(const Network& network, const ip::address& client) {
     const ip::network_v6 host(address, 128);
     // is_subnet_of() is true for strictly smaller networks only: a /128 is its own host.
     return host == network.network || host.is_subnet_of(network.network);
+}
+
+std::string host_port(std::string_view host, unsigned port) {
+    return host.find(':') != std::string_view::npos ? fmt::format("[{}]:{}", host, port)
+                                                    : fmt::format("{}:{}", host, port);
 }
 
 }  // namespace ioport::config

@@ -145,7 +145,7 @@ struct LinkConfig {
     int max_pending_writes = 64;
     std::vector<ModuleConfig> modules;  // ioport only, in file order
     // Read Device Identification objects by id as `identity:` sets them; "" = ioportd's own
-    // (daemon/identity.hpp). MajorMinorRevision is always the version.
+    // (daemon/modbus/device_identity.hpp). MajorMinorRevision is always the version.
     modbus::DeviceIdentity identity{};
     int line = 0;
     friend bool operator==(const LinkConfig& a, const LinkConfig& b) {
@@ -204,5 +204,7 @@ ConfigResult load_config(const std::filesystem::path& path,
 // Whether a client at `address` lies in `network`. IPv4 clients, also as IPv4-mapped IPv6
 // addresses (::ffff:a.b.c.d), match IPv4 networks.
 bool contains(const Network& network, const boost::asio::ip::address& address);
+// "10.0.0.5:502", "[::1]:502": an IPv6 address in brackets, as a listen key or a URL takes it.
+std::string host_port(std::string_view host, unsigned port);
 
 }  // namespace ioport::config

@@ -6,7 +6,7 @@
 #include <fmt/ranges.h>
 
 #include "config/duration.hpp"
-#include "daemon/status_pages.hpp"
+#include "daemon/http/render.hpp"
 
 namespace ioport::daemon {
 
@@ -14,14 +14,22 @@ Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig co
     : executor_(executor), config_(std::move(config)), log_(log) {}
 
 std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) {
-    return std::make_shared<LinkScheduler>(executor_, link, config_.modbus.word_order, log_,
-                                           events_);
+    auto made = std::make_shared<LinkScheduler>(executor_, link, log_);
+    std::erase_if(recorded_, [](const auto& entry) { return entry.first.expired(); });
+    recorded_.emplace_back(made, made->subscribe([this](const Change& change) {
+        if (change.event) events_.add(*change.event);
+    }));
+    return made;
 }
 
 std::shared_ptr<HttpServer> Gateway::make_http(const config::HttpSettings& settings) {
     return std::make_shared<HttpServer>(
         executor_, settings, host_name_, log_,
-        [this](const Route& route) { return render_page(*this, route); });
+        [this](const Route& route) { return render_page(view(), route); });
+}
+
+GatewayView Gateway::view() const {
+    return {config_, links_, *server_, sparkplug_.get(), events_, started_};
 }
 
 Result<> Gateway::start() {
@@ -29,7 +37,7 @@ Result<> Gateway::start() {
         links_.push_back(make_link(link));
     // Comm loss reaches the links running then: a reload replaces links_, not this callback.
     server_ =
-        std::make_unique<ModbusServer>(executor_, config_.modbus, links_, log_, events_, [this] {
+        std::make_shared<ModbusServer>(executor_, config_.modbus, links_, log_, events_, [this] {
             for (auto& link : links_)
                 link->enter_safe_state();
         });
@@ -87,7 +95,7 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     const bool modbus_changed = !(next.modbus == config_.modbus);
     const bool http_changed = next.http != config_.http;
     const bool mqtt_changed = next.mqtt != config_.mqtt;
-    ModbusServer::Units links;
+    Links links;
     struct {
         std::vector<std::string> kept, restarted, added, removed;
     } names;
@@ -182,26 +190,6 @@ std::optional<asio::ip::tcp::endpoint> Gateway::http_endpoint() const {
     return http_->local_endpoint();
 }
 
-Health Gateway::health() const {
-    Health health;
-    const auto add = [&](const std::string& reason) {
-        health.ok = false;
-        if (!health.reason.empty()) health.reason += "; ";
-        health.reason += reason;
-    };
-    for (const auto& link : links_) {
-        const auto& name = link->config().name;
-        if (!link->port_open()) {
-            add(fmt::format("link {}: port {} not open", name, link->config().device));
-            continue;
-        }
-        for (const auto& module : link->modules())
-            if (module.status != gateway::ModuleStatus::online)
-                add(fmt::format("link {}: {} {}", name, module.name, status_text(module.status)));
-    }
-    return health;
-}
-
 std::string Gateway::summary() const {
     int up = 0;
     int online = 0;
@@ -232,19 +220,14 @@ std::string units_of(const modbus_security::Role& role) {
     return units;
 }
 
-std::string host_port(const std::string& host, std::uint16_t port) {
-    return host.find(':') != std::string::npos ? fmt::format("[{}]:{}", host, port)
-                                               : fmt::format("{}:{}", host, port);
-}
-
 }  // namespace
 
-std::string describe(const config::GatewayConfig& config) {
+std::string check_config_text(const config::GatewayConfig& config) {
     const auto& modbus = config.modbus;
     std::string text = fmt::format(
         "Modbus TCP {}, at most {} clients, idle timeout {}, keepalive {}, {}{}, word order "
         "{}, stale {}\n",
-        modbus.plain() ? "on " + host_port(modbus.listen_host, modbus.listen_port)
+        modbus.plain() ? "on " + config::host_port(modbus.listen_host, modbus.listen_port)
         : modbus.tls && !modbus.listen_given ? "off (modbus.tls is on and modbus.listen not given)"
                                              : "off",
         modbus.max_connections, format_duration(modbus.idle_timeout),
@@ -261,7 +244,7 @@ std::string describe(const config::GatewayConfig& config) {
             tls->client_ca,
             tls->client_crl.empty() ? std::string()
                                     : fmt::format(", revoked ones in {}", tls->client_crl),
-            host_port(tls->listen_host, tls->listen_port), tls->certificate,
+            config::host_port(tls->listen_host, tls->listen_port), tls->certificate,
             tls->default_role.empty() ? "none" : tls->default_role, tls->max_handshakes,
             config::per_address_handshakes);
         for (const auto& [name, role] : tls->roles)
@@ -273,7 +256,7 @@ std::string describe(const config::GatewayConfig& config) {
     }
     if (const auto& http = config.http)
         text += fmt::format("HTTP (status page, /metrics, /healthz) on {}, {}\n",
-                            host_port(http->listen_host, http->listen_port),
+                            config::host_port(http->listen_host, http->listen_port),
                             http->allow.empty()
                                 ? "any client"
                                 : fmt::format("{} allowed networks", http->allow.size()));

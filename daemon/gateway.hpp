@@ -11,19 +11,14 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
-#include "daemon/events.hpp"
-#include "daemon/http_server.hpp"
-#include "daemon/link_scheduler.hpp"
-#include "daemon/modbus_server.hpp"
-#include "daemon/sparkplug_node.hpp"
+#include "daemon/core/events.hpp"
+#include "daemon/core/link_scheduler.hpp"
+#include "daemon/http/http_server.hpp"
+#include "daemon/http/render.hpp"
+#include "daemon/modbus/modbus_server.hpp"
+#include "daemon/sparkplug/sparkplug_node.hpp"
 
 namespace ioport::daemon {
-
-// /healthz (gateway.md §5.4): every link's port open and every module online.
-struct Health {
-    bool ok = true;
-    std::string reason;  // "link hub0: port not open; link hub1: dim16 2 no answer"
-};
 
 class Gateway {
   public:
@@ -47,20 +42,15 @@ class Gateway {
     std::string summary() const;
     // Every link's loop is making progress (see LinkScheduler::progressing).
     bool healthy() const;
-    Health health() const;
 
     // What the HTTP side shows.
-    const ModbusServer::Units& links() const { return links_; }
-    const ModbusServer& modbus() const { return *server_; }
+    GatewayView view() const;
     EventLog& events() { return events_; }
-    const EventLog& events() const { return events_; }
-    std::chrono::system_clock::time_point started() const { return started_; }
-    // The Sparkplug edge node; null when MQTT is off.
-    const SparkplugNode* sparkplug() const { return sparkplug_.get(); }
     // The HTTP server's address; nullopt when it is off.
     std::optional<asio::ip::tcp::endpoint> http_endpoint() const;
 
   private:
+    // A new link, its events recorded in the event log.
     std::shared_ptr<LinkScheduler> make_link(const config::LinkConfig& link);
     std::shared_ptr<HttpServer> make_http(const config::HttpSettings& settings);
     // A reload's first HTTP step: binds the new address, if it moved (into next_http_).
@@ -75,15 +65,17 @@ class Gateway {
     Log& log_;
     const std::string host_name_ = machine_host_name();  // read once: HTTP's Host check
     EventLog events_;
+    // The event log's own: one per link still alive (a removed link may finish a write).
+    std::vector<std::pair<std::weak_ptr<LinkScheduler>, LinkScheduler::Subscription>> recorded_;
     std::chrono::system_clock::time_point started_ = std::chrono::system_clock::now();
-    ModbusServer::Units links_;
-    std::unique_ptr<ModbusServer> server_;
+    Links links_;
+    std::shared_ptr<ModbusServer> server_;
     std::shared_ptr<HttpServer> http_;
     std::shared_ptr<HttpServer> next_http_;  // bound by prepare_http(), taken by apply_http()
     std::shared_ptr<SparkplugNode> sparkplug_;
 };
 
 // The lines printed by --check-config: the links, their modules and the Modbus front.
-std::string describe(const config::GatewayConfig& config);
+std::string check_config_text(const config::GatewayConfig& config);
 
 }  // namespace ioport::daemon

@@ -8,10 +8,8 @@ namespace ioport::daemon {
 
 using asio::ip::tcp;
 
-std::string describe(const tcp::endpoint& endpoint) {
-    const auto address = endpoint.address();
-    return address.is_v6() ? fmt::format("[{}]:{}", address.to_string(), endpoint.port())
-                           : fmt::format("{}:{}", address.to_string(), endpoint.port());
+std::string host_port(const tcp::endpoint& endpoint) {
+    return config::host_port(endpoint.address().to_string(), endpoint.port());
 }
 
 bool allowed(const std::vector<config::Network>& allow, const asio::ip::address& address) {
@@ -46,7 +44,7 @@ Result<Acceptor> listen_tcp(const asio::any_io_executor& executor, const std::st
         // The key first: with a Modbus and an HTTP listener, the address alone does not say
         // which line of the configuration to change.
         return fail(Errc::io_error, fmt::format("{}: cannot listen on {}: {}: {}", key,
-                                                describe(endpoint), ec.message(), hint));
+                                                host_port(endpoint), ec.message(), hint));
     }
     return acceptor;
 }

@@ -24,6 +24,6 @@ Result<Acceptor> listen_tcp(const asio::any_io_executor& executor, const std::st
 bool allowed(const std::vector<config::Network>& allow, const asio::ip::address& address);
 
 // "10.0.0.5:50123", "[::1]:50123".
-std::string describe(const asio::ip::tcp::endpoint& endpoint);
+std::string host_port(const asio::ip::tcp::endpoint& endpoint);
 
 }  // namespace ioport::daemon

@@ -27,10 +27,10 @@ namespace ioport::daemon {
 
 using config::LogLevel;
 
-// A client's write that reached a device: the audit trail (gateway.md §5.4, issue 16).
+// A write that reached a link: the audit trail (gateway.md §5.4, issue 16).
 struct WriteAudit {
-    std::string_view function{};  // the Modbus function code, "6"; "DCMD" for Sparkplug
-    std::string_view address{};   // the first register or coil, "0"; the Sparkplug metric
+    std::string_view function{};  // the Modbus function code, "6"; "DCMD"; "safe" (comm loss)
+    std::string_view address{};   // the first register or coil, "0"; the metric; the module
     std::string_view value{};     // what was written: "1", "0x00FF", "1 0 1", "10 20 30"
     std::string_view result{};    // confirmed, error_ack, no_answer, link_down
     long long latency_us = 0;     // request received → outcome known

@@ -11,10 +11,10 @@
 
 #include "config/gateway_config.hpp"
 #include "daemon/gateway.hpp"
+#include "daemon/http/render.hpp"
 #include "daemon/log.hpp"
 #include "daemon/options.hpp"
 #include "daemon/service_notifier.hpp"
-#include "daemon/status_pages.hpp"
 
 namespace {
 
@@ -179,7 +179,8 @@ int main(int argc, char** argv) {
     if (!config) return 1;
     switch (options->mode) {
         case Options::Mode::check_config:
-            std::cout << options->config_path << ": valid\n" << ioport::daemon::describe(*config);
+            std::cout << options->config_path << ": valid\n"
+                      << ioport::daemon::check_config_text(*config);
             return 0;
         case Options::Mode::print_map:
             return print_map(*config, options->map_format);

@@ -1,5 +1,5 @@
-// Fuzz target: the HTTP side's routes, Host check and query parsing (daemon/http_route.hpp), and
-// the writers of its two text formats (daemon/exposition.hpp) on arbitrary bytes.
+// Fuzz target: the HTTP side's routes, Host check and query parsing (daemon/http/http_route.hpp),
+// and the writers of its two text formats (daemon/http/exposition.hpp) on arbitrary bytes.
 //
 // Input: a request line, "METHOD TARGET" up to the first LF or TAB (split at its first space;
 // with no space, the whole line is the method and the target is empty), then, after a TAB, its
@@ -44,8 +44,8 @@
 #include <string_view>
 #include <vector>
 
-#include "daemon/exposition.hpp"
-#include "daemon/http_route.hpp"
+#include "daemon/http/exposition.hpp"
+#include "daemon/http/http_route.hpp"
 #include "fuzz/fuzz.hpp"
 
 namespace ioport::fuzz {

@@ -7,9 +7,9 @@
 // gateway::plan() decides everything else, a write's changes are merged and stored as
 // LinkScheduler::apply does once the device answered, FC 23's read part is decided by
 // gateway::read_back() once its write is done, libmodbus builds the response through the
-// daemon's own ReplyBuilder, and each response is counted with gateway::count_response into the
-// unit's traffic, which a read of the diagnostics stores with gateway::store_front, and into
-// /metrics' counts (gateway::RequestCounts), every response, as ModbusServer::count does.
+// daemon's own ReplyBuilder, and each response is counted once, into gateway::RequestCounts, which
+// keeps /metrics' counts and each unit's traffic (a read of the diagnostics stores it with
+// gateway::store_front), as ModbusServer::count does.
 //
 // Input: a scenario of `scenario_length` bytes, then the stream.
 //   byte 0     bit 0 read_only, bit 1 stale: hold, bit 2 only the hub is configured (so unit ids
@@ -68,8 +68,8 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
-#include "daemon/identity.hpp"
-#include "daemon/modbus_reply.hpp"
+#include "daemon/modbus/device_identity.hpp"
+#include "daemon/modbus/modbus_reply.hpp"
 #include "fuzz/fuzz.hpp"
 #include "protocol/device_identification.hpp"
 #include "protocol/gateway_map.hpp"
@@ -162,7 +162,7 @@ modbus::DeviceIdentity spec_identity(const config::LinkConfig& link) {
     return identity;
 }
 
-// What the daemon answers (daemon/identity.hpp), checked against the spec's objects.
+// What the daemon answers (daemon/modbus/device_identity.hpp), checked against the spec's objects.
 modbus::DeviceIdentity unit_identity(const config::LinkConfig& link) {
     auto identity = daemon::device_identity(link, version);
     check(identity == spec_identity(link),
@@ -218,7 +218,6 @@ struct Unit {
     daemon::UnitImage image;
     std::array<std::uint16_t, slot_count> desired{};  // outputs: last confirmed value
     modbus::DeviceIdentity identity;
-    gateway::Traffic traffic;  // as the server keeps it: gateway::count_response
     gateway::Traffic counted;  // as gateway.md §5.1 counts: the harness's own
 };
 
@@ -757,9 +756,8 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
         Bytes reply(bytes.begin() + modbus::mbap_length, bytes.end());
         check_metrics(unit, pdu[0], reply);
         if (unit != nullptr) {
-            gateway::count_response(unit->traffic, pdu[0], reply);
             count_as_spec(unit->counted, pdu[0], reply);
-            const auto& traffic = unit->traffic;
+            const auto& traffic = metrics_.traffic(unit->link->unit_id);
             check(same_traffic(traffic, unit->counted), "responses count as gateway.md §5.1 says");
             check(traffic.requests >= traffic.exceptions, "requests >= exceptions");
             check(traffic.writes_confirmed + traffic.writes_failed <= traffic.requests,
@@ -830,8 +828,10 @@ void Harness::handle(std::span<const std::uint8_t> adu) {
         const auto counted = unit->counted;  // before this request: it does not count itself
         if (read->diagnostics) {
             refresh_diagnostics(*unit);
-            gateway::store_front(unit->image.tables(),
-                                 {unit->traffic, 1, since_previous_, comm_loss_}, word_order_);
+            gateway::store_front(
+                unit->image.tables(),
+                {metrics_.traffic(unit->link->unit_id), 1, since_previous_, comm_loss_},
+                word_order_);
         }
         const auto reply = answered(replies_->reply(request, unit->image.mapping()));
         const auto image = snapshot(unit->image.tables());

@@ -37,6 +37,8 @@ struct LinkCounters {
     std::uint64_t error_ack = 0;
     std::uint64_t opens = 0;  // successful opens of the port
     std::uint64_t transactions_failed() const { return no_answer + bad_answer + error_ack; }
+    // Opens after the first: how often the port was lost and came back.
+    std::uint64_t reopens() const { return opens > 0 ? opens - 1 : 0; }
     void count_failure(Errc code) {
         switch (failure_of(code)) {
             case Failure::no_answer:

@@ -8,22 +8,22 @@
 
 namespace ioport {
 
+// One hex digit, either case.
+constexpr std::optional<unsigned> hex_digit(char c) {
+    if (c >= '0' && c <= '9') return static_cast<unsigned>(c - '0');
+    if (c >= 'A' && c <= 'F') return static_cast<unsigned>(c - 'A' + 10);
+    if (c >= 'a' && c <= 'f') return static_cast<unsigned>(c - 'a' + 10);
+    return std::nullopt;
+}
+
 // Exactly four hex digits, either case; nothing else.
 constexpr std::optional<std::uint16_t> parse_hex4(std::string_view digits) {
     if (digits.size() != 4) return std::nullopt;
     unsigned value = 0;
     for (const char c : digits) {
-        unsigned nibble = 0;
-        if (c >= '0' && c <= '9') {
-            nibble = static_cast<unsigned>(c - '0');
-        } else if (c >= 'A' && c <= 'F') {
-            nibble = static_cast<unsigned>(c - 'A' + 10);
-        } else if (c >= 'a' && c <= 'f') {
-            nibble = static_cast<unsigned>(c - 'a' + 10);
-        } else {
-            return std::nullopt;
-        }
-        value = value << 4 | nibble;
+        const auto nibble = hex_digit(c);
+        if (!nibble) return std::nullopt;
+        value = value << 4 | *nibble;
     }
     return static_cast<std::uint16_t>(value);
 }

@@ -51,6 +51,8 @@ std::string label_text(int label) {
 
 void RequestCounts::count(int unit_id, std::uint8_t function,
                           std::span<const std::uint8_t> response) {
+    if (unit_id >= 0)
+        count_response(traffic_[static_cast<std::size_t>(unit_id) & 0xFF], function, response);
     const int unit = unit_label(unit_id);
     ++requests_[{unit, function_label(function)}];
     if (response.size() >= 2 && (response[0] & 0x80U) != 0)

@@ -7,11 +7,14 @@
 // holds by construction rather than by what the server happens to answer.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <map>
 #include <span>
 #include <string>
 #include <utility>
+
+#include "protocol/gateway_map.hpp"
 
 namespace ioport::gateway {
 
@@ -28,8 +31,10 @@ int exception_label(std::uint8_t code);
 // "3", "other".
 std::string label_text(int label);
 
-// The counters of both families. Only folded labels are keys, so that however many requests of
-// whatever kind arrive, there are at most 248 x 11 request series and 248 x 8 exception series.
+// The Modbus server's one count of its responses: both /metrics families and each unit's
+// traffic registers (§5.1) are read from here. Only folded labels are keys, so that however many
+// requests of whatever kind arrive, there are at most 248 x 11 request series and 248 x 8
+// exception series.
 class RequestCounts {
   public:
     using Counts = std::map<std::pair<int, int>, std::uint64_t>;
@@ -39,10 +44,15 @@ class RequestCounts {
     void count(int unit_id, std::uint8_t function, std::span<const std::uint8_t> response);
     const Counts& requests() const { return requests_; }      // by (unit, function) label
     const Counts& exceptions() const { return exceptions_; }  // by (unit, code) label
+    // The traffic of a configured unit id (the single link's aliases 0 and 255 count as its own).
+    const Traffic& traffic(int unit_id) const {
+        return traffic_[static_cast<std::size_t>(unit_id) & 0xFF];
+    }
 
   private:
     Counts requests_;
     Counts exceptions_;
+    std::array<Traffic, 256> traffic_{};
 };
 
 }  // namespace ioport::gateway

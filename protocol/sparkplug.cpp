@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include <fmt/format.h>
+#include <yaml-cpp/yaml.h>
 
 namespace ioport::sparkplug {
 namespace {
@@ -128,18 +129,18 @@ std::string_view to_string(DataType type) {
 }
 
 std::optional<bool> parse_state(std::string_view json) {
-    // The one object Sparkplug defines here, read without a JSON library: its "online" member.
-    const auto key = json.find("\"online\"");
-    if (key == std::string_view::npos || json.find('{') > key) return std::nullopt;
-    auto rest = json.substr(key + 8);
-    const auto colon = rest.find_first_not_of(" \t\r\n");
-    if (colon == std::string_view::npos || rest[colon] != ':') return std::nullopt;
-    rest.remove_prefix(colon + 1);
-    const auto start = rest.find_first_not_of(" \t\r\n");
-    if (start == std::string_view::npos) return std::nullopt;
-    rest.remove_prefix(start);
-    if (rest.starts_with("true")) return true;
-    if (rest.starts_with("false")) return false;
+    // JSON is YAML's flow style, and yaml-cpp, the configuration's reader, bounds the nesting
+    // a hostile payload may try (DeepRecursion). Only the object's own member counts, and only a
+    // JSON boolean: an unquoted true or false, not "true", not YAML's yes.
+    try {
+        const auto state = YAML::Load(std::string(json));
+        if (!state.IsMap()) return std::nullopt;
+        const auto online = state["online"];
+        if (!online.IsScalar() || online.Tag() != "?") return std::nullopt;
+        if (online.Scalar() == "true") return true;
+        if (online.Scalar() == "false") return false;
+    } catch (const YAML::Exception&) {
+    }
     return std::nullopt;
 }
 
@@ -342,9 +343,11 @@ Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std
         plan.reset_counter = *reset != 0;
         return plan;
     }
-    const auto max = spec->type == DataType::boolean  ? 1u
-                     : spec->type == DataType::uint16 ? 0xFFFFu
-                                                      : 7u;  // colour, pos, neg: 0..7
+    // The metric's type bounds the number; the module's own rule (validate_output_value, as for
+    // a Modbus write) bounds the value.
+    const auto max = spec->type == DataType::boolean ? 1u
+                     : spec->type == DataType::uint8 ? 0xFFu
+                                                     : 0xFFFFu;
     auto number = command_value(name, spec->type, value, max);
     if (!number) return Unexpected(number.error());
     const auto v = static_cast<std::uint16_t>(*number);
@@ -359,6 +362,8 @@ Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std
     } else if (name == "neg") {
         change.mask = 0x00FF;
     }
+    if (auto valid = validate_output_value(module->type, change.value); !valid)
+        return refused(name, valid.error().message);
     plan.changes.push_back(change);
     return plan;
 }

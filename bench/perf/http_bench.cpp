@@ -24,7 +24,7 @@
 
 #include "bench/perf/benchmarks.hpp"
 #include "bench/perf/load.hpp"
-#include "daemon/trend.hpp"
+#include "daemon/core/trend.hpp"
 #include "sim/control_client.hpp"
 
 namespace ioport::bench {

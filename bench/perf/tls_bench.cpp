@@ -23,7 +23,7 @@
 #include "bench/perf/load.hpp"
 #include "bench/perf/tls_client.hpp"
 #include "config/gateway_config.hpp"
-#include "daemon/modbus_tls.hpp"
+#include "daemon/modbus/modbus_tls.hpp"
 
 namespace ioport::bench {
 namespace {

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """A stand-in for ioportd's HTTP API (issue 16), so the status page can be developed and tested
-without the daemon: it serves daemon/status_page/index.html at / and JSON that follows
+without the daemon: it serves daemon/http/status_page/index.html at / and JSON that follows
 /work/notes/state_schema.md (GET api/v1/state, GET api/v1/trends), with values that move.
 
 Everything is also served under /ioportd/, to check that the page only uses relative URLs, as

@@ -4,7 +4,7 @@
 // a noisy line causes never is.
 #include <gtest/gtest.h>
 
-#include "daemon/link_scheduler.hpp"
+#include "daemon/core/link_scheduler.hpp"
 #include "tests/support/pty_pair.hpp"
 
 namespace ioport::daemon {
@@ -45,8 +45,8 @@ class LinkWatchdog : public ::testing::Test {
 
 TEST_F(LinkWatchdog, ALoopThatStopsActingIsStuckOneTimeoutAndTheSlackLater) {
     const auto timeout = 200ms;
-    auto link = std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout),
-                                                gateway::WordOrder::big, log, events);
+    auto link =
+        std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout), log);
     const auto before = Clock::now();
     link->start();
     ASSERT_TRUE(run_until(io, [&] { return !device.requests().empty(); }));
@@ -62,8 +62,8 @@ TEST_F(LinkWatchdog, ALoopThatStopsActingIsStuckOneTimeoutAndTheSlackLater) {
 // line takes 11 × (10 timeouts of noise + 1): 5.5 s. Every moment of it is progress.
 TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
     const auto timeout = 50ms;
-    auto link = std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout),
-                                                gateway::WordOrder::big, log, events);
+    auto link =
+        std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout), log);
     link->start();
     ASSERT_TRUE(run_until(io, [&] { return !device.requests().empty(); }));
     asio::steady_timer chatter(io);

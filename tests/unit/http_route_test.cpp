@@ -12,11 +12,11 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
-#include "daemon/exposition.hpp"
-#include "daemon/histogram.hpp"
-#include "daemon/http_route.hpp"
-#include "daemon/process_stats.hpp"
-#include "daemon/trend.hpp"
+#include "daemon/core/histogram.hpp"
+#include "daemon/core/trend.hpp"
+#include "daemon/http/exposition.hpp"
+#include "daemon/http/http_route.hpp"
+#include "daemon/http/process_stats.hpp"
 
 namespace ioport::daemon {
 namespace {

@@ -11,7 +11,7 @@
 #include <random>
 #include <vector>
 
-#include "daemon/modbus_reply.hpp"
+#include "daemon/modbus/modbus_reply.hpp"
 
 namespace ioport::daemon {
 namespace {

@@ -1,6 +1,6 @@
 // The order of work on a link (gateway.md §4): client writes, then due refreshes, then poll
 // reads in round-robin; back-off of failing modules; what counts as a poll cycle.
-#include "daemon/poll_plan.hpp"
+#include "daemon/core/poll_plan.hpp"
 
 #include <gtest/gtest.h>
 

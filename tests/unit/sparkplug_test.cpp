@@ -112,6 +112,12 @@ TEST(SparkplugState, TheStateMessageOfSparkplug3) {
     EXPECT_EQ(parse_state(R"({"online": "yes"})"), std::nullopt);
     EXPECT_EQ(parse_state("ONLINE"), std::nullopt);  // Sparkplug 2's plain text
     EXPECT_EQ(parse_state(""), std::nullopt);
+    // A member of a nested object, or the key in a string, is not the state's own.
+    EXPECT_EQ(parse_state(R"({"host": {"online": true}})"), std::nullopt);
+    EXPECT_EQ(parse_state(R"({"note": "\"online\": true", "online": false})"), false);
+    EXPECT_EQ(parse_state(R"({"online": "true"})"), std::nullopt);
+    EXPECT_EQ(parse_state(R"({"online": yes})"), std::nullopt);
+    EXPECT_EQ(parse_state(std::string(100000, '[')), std::nullopt);
     EXPECT_EQ(state_json(true, 5), R"({"online":true,"timestamp":5})");
 }
 
@@ -211,6 +217,7 @@ TEST(SparkplugCommand, TheDeclaredDatatypeMustBeTheMetrics) {
 TEST(SparkplugCommand, RefusedNeverTruncated) {
     const ModuleAddress dom{ModuleType::dom16, 1};
     const ModuleAddress rgb{ModuleType::rgbdm, 0};
+    const ModuleAddress mux{ModuleType::mux8m, 0};
     const ModuleAddress dim{ModuleType::dim16, 0};
     struct Case {
         std::optional<ModuleAddress> module;
@@ -219,7 +226,11 @@ TEST(SparkplugCommand, RefusedNeverTruncated) {
         std::string fragment;
     };
     for (const auto& c : std::vector<Case>{
-             {rgb, "colour", Value(std::uint64_t{8}), "8 is over 7"},
+             // The module's own rule, as for a Modbus write (validate_output_value).
+             {rgb, "colour", Value(std::uint64_t{8}), "rgbdm colour 8 is out of range"},
+             {mux, "pos", Value(std::uint64_t{8}), "mux8m value 0x0800 is out of range"},
+             {mux, "neg", Value(std::uint64_t{255}), "mux8m value 0x00FF is out of range"},
+             {rgb, "colour", Value(std::uint64_t{256}), "256 is over 255"},
              {dom, "word", Value(std::uint64_t{0x10000}), "65536 is over 65535"},
              {dom, "out/3", Value(std::uint64_t{1}), "expected Boolean"},
              {dom, "word", Value(true), "expected UInt16, got Boolean"},

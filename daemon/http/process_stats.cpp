@@ -1,4 +1,4 @@
-#include "daemon/process_stats.hpp"
+#include "daemon/http/process_stats.hpp"
 
 #include <time.h>
 #include <unistd.h>

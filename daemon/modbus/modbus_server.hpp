@@ -24,12 +24,13 @@
 #include <modbus/modbus.h>
 
 #include "config/gateway_config.hpp"
-#include "daemon/events.hpp"
-#include "daemon/histogram.hpp"
-#include "daemon/link_scheduler.hpp"
+#include "daemon/core/events.hpp"
+#include "daemon/core/histogram.hpp"
+#include "daemon/core/link_scheduler.hpp"
 #include "daemon/listener.hpp"
-#include "daemon/modbus_reply.hpp"
-#include "daemon/modbus_tls.hpp"
+#include "daemon/modbus/modbus_reply.hpp"
+#include "daemon/modbus/modbus_tls.hpp"
+#include "daemon/modbus/modbus_unit.hpp"
 #include "link/asio.hpp"
 #include "protocol/request_labels.hpp"
 
@@ -52,7 +53,7 @@ inline constexpr std::array<double, 16> request_duration_bounds{
 
 // What the server counted since it started, for /metrics: kept across reloads.
 struct ModbusStats {
-    gateway::RequestCounts responses;                     // by unit, function and exception
+    gateway::RequestCounts responses;  // by unit, function and exception; each unit's traffic
     Histogram request_duration{request_duration_bounds};  // frame received → response sent
     std::uint64_t refused_not_allowed = 0;
     std::uint64_t refused_too_many = 0;       // max_connections, or out of file descriptors
@@ -70,15 +71,14 @@ struct ClientView {
     std::string role;  // TLS: the client's role, "" for none
 };
 
-class ModbusServer {
+// Owned through a shared_ptr: its coroutines keep it alive (see spawn()).
+class ModbusServer : public std::enable_shared_from_this<ModbusServer> {
   public:
-    using Units = std::vector<std::shared_ptr<LinkScheduler>>;
-
-    // `units`: the links in configuration order; each serves its unit id (and 0 and 255 too when
-    // there is exactly one). `comm_lost`: called when no request has come from any client for
+    // `links`: in configuration order; each serves its unit id (and 0 and 255 too when there is
+    // exactly one). `comm_lost`: called when no request has come from any client for
     // settings.comm_loss_timeout (gateway.md §5.3); not again until a request has come.
     ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                 const Units& units, Log& log, EventLog& events,
+                 const Links& links, Log& log, EventLog& events,
                  std::function<void()> comm_lost = {});
     ModbusServer(const ModbusServer&) = delete;
     ModbusServer& operator=(const ModbusServer&) = delete;
@@ -95,10 +95,10 @@ class ModbusServer {
 
     // A reload in two steps, so that nothing changes unless everything can: prepare() binds the
     // new listen addresses if they differ and makes the new TLS context (certificates read anew);
-    // apply() takes the new settings and units. Connections are kept, but those the new `allow`
+    // apply() takes the new settings and links. Connections are kept, but those the new `allow`
     // refuses; TLS clients keep the role they connected with.
     Result<> prepare(const config::ModbusSettings& next);
-    void apply(config::ModbusSettings next, const Units& units);
+    void apply(config::ModbusSettings next, const Links& links);
 
     // Clients connected now, plain or past their TLS handshake: what max_connections bounds.
     std::size_t connections() const { return connections_.size() - handshakes_; }
@@ -131,7 +131,7 @@ class ModbusServer {
     Result<Acceptor> listen(const config::ModbusSettings& settings, Transport transport);
     Result<> prepare(const config::ModbusSettings& next, Transport transport);
     void apply(const config::ModbusSettings& next, Transport transport);
-    void set_units(const Units& units);
+    void set_units(const Links& links);
     void accept_on(Transport transport, Acceptor acceptor);
     void close(Listener& listener);
     asio::awaitable<void> accept_loop(Transport transport, Acceptor acceptor);
@@ -141,15 +141,19 @@ class ModbusServer {
     // connection is to be closed.
     asio::awaitable<bool> handshake(Connection& connection);
     asio::awaitable<std::size_t> read_some(Connection& connection, boost::system::error_code& ec);
+    std::size_t write_now(Connection& connection, const Bytes& response,
+                          boost::system::error_code& ec);
     asio::awaitable<boost::system::error_code> send_rest(Connection& connection,
                                                          std::span<const std::uint8_t> rest);
+    void forget(Connection& connection);
     asio::awaitable<void> watch(ConnectionPtr connection);
+    void spawn(std::string_view what, std::function<asio::awaitable<void>()> coroutine);
     // A write that must reach the device before its response.
     struct Write {
-        std::shared_ptr<LinkScheduler> unit;  // held: a reload may replace the link meanwhile
+        std::shared_ptr<ModbusUnit> unit;  // held: a reload may replace the link meanwhile
         gateway::WritePlan plan;
-        PaddedRequest request;              // what the response is built from
-        std::span<const std::uint8_t> pdu;  // in the connection's buffer, for the audit
+        PaddedRequest request;  // what the response is built from
+        WriteOrigin origin;     // taken from the request before the connection's buffer moves on
     };
     // A response, or nullopt when none can be built (libmodbus failed).
     using Response = std::optional<Bytes>;
@@ -177,11 +181,10 @@ class ModbusServer {
                std::span<const std::uint8_t> response, Clock::time_point received);
     // A request the client's role does not allow, logged the first time on a connection.
     void log_role_refusal(Connection& connection, int unit_id, std::uint8_t function);
-    // The audit trail of a write that reached a device.
-    void audit(const Connection& connection, const Write& write, WriteResult result,
-               Clock::time_point received);
+    // Who asked for a write and what, for the link's audit record.
+    static WriteOrigin origin(const Connection& connection, std::span<const std::uint8_t> pdu);
     // Registers 1010-1020 of `unit`, as of now.
-    void store_front(LinkScheduler& unit) const;
+    void store_front(ModbusUnit& unit) const;
     // Why a client just accepted is closed at once, and the counter of that reason.
     struct Refusal {
         std::uint64_t* counted;
@@ -203,7 +206,7 @@ class ModbusServer {
     Log& log_;
     EventLog& events_;
     ModbusStats stats_;
-    std::array<std::shared_ptr<LinkScheduler>, 256> units_{};
+    std::array<std::shared_ptr<ModbusUnit>, 256> units_{};
     Listener plain_;
     Listener tls_;
     asio::steady_timer accept_retry_;
@@ -216,9 +219,6 @@ class ModbusServer {
     std::size_t max_clients_ = 0;  // max_connections, or fewer when descriptors are short
     std::size_t ports_ = 0;
     bool stopping_ = false;
-    // §5.1, by the unit id of the link that answered (the single-link aliases 0 and 255 count as
-    // its own): kept across reloads, as a unit is the client's view.
-    std::array<gateway::Traffic, 256> traffic_{};
     Clock::time_point last_request_ = Clock::now();  // any request: 1019
     Clock::time_point last_contact_ = Clock::now();  // a request keeps_contact() counts
     std::chrono::microseconds since_previous_{};

@@ -27,12 +27,12 @@ std::string_view to_string(EventKind kind);
 
 struct Event {
     std::uint64_t seq = 0;  // 1, 2, … since start: lets a reader tell new events from seen ones
-    std::chrono::system_clock::time_point time;
+    std::chrono::system_clock::time_point time{};
     EventKind kind = EventKind::reload;
-    std::string link;
-    std::string module;
-    std::string client;
-    std::string text;  // the log line's message
+    std::string link{};
+    std::string module{};
+    std::string client{};
+    std::string text{};  // the log line's message
 };
 
 class EventLog {
@@ -41,6 +41,8 @@ class EventLog {
 
     void add(EventKind kind, std::string_view link, std::string_view module,
              std::string_view client, std::string text);
+    // `event` as it happened now: its seq and time are given here.
+    void add(Event event);
     // Oldest first.
     const std::deque<Event>& events() const { return events_; }
 

@@ -1,4 +1,4 @@
-#include "daemon/modbus_reply.hpp"
+#include "daemon/modbus/modbus_reply.hpp"
 
 #include <sys/socket.h>
 #include <unistd.h>

@@ -1,4 +1,4 @@
-#include "daemon/modbus_server.hpp"
+#include "daemon/modbus/modbus_server.hpp"
 
 #include <linux/sockios.h>
 #include <netinet/in.h>
@@ -12,7 +12,7 @@
 #include <openssl/ssl.h>
 
 #include "config/duration.hpp"
-#include "daemon/descriptors.hpp"
+#include "daemon/file_descriptors.hpp"
 #include "daemon/listener.hpp"
 #include "protocol/device_identification.hpp"
 
@@ -28,9 +28,36 @@ constexpr auto accept_error_pause = 100ms;
 // that vanished (power cut, cable pulled) is closed within twice `keepalive`.
 constexpr int keepalive_probes = 3;
 
-using KeepaliveIdle = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPIDLE>;
-using KeepaliveInterval = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPINTVL>;
-using KeepaliveProbes = asio::detail::socket_option::integer<IPPROTO_TCP, TCP_KEEPCNT>;
+// Calls `f` when it goes out of scope, however that happens.
+template <class F>
+class AtExit {
+  public:
+    explicit AtExit(F f) : f_(std::move(f)) {}
+    ~AtExit() { f_(); }
+    AtExit(const AtExit&) = delete;
+    AtExit& operator=(const AtExit&) = delete;
+
+  private:
+    F f_;
+};
+
+// A TCP-level integer option, as Asio's SettableSocketOption requirements describe one: Asio
+// names the portable options only.
+template <int Name>
+class TcpOption {
+  public:
+    explicit TcpOption(int value) : value_(value) {}
+    int level(const tcp& /*protocol*/) const { return IPPROTO_TCP; }
+    int name(const tcp& /*protocol*/) const { return Name; }
+    const void* data(const tcp& /*protocol*/) const { return &value_; }
+    std::size_t size(const tcp& /*protocol*/) const { return sizeof(value_); }
+
+  private:
+    int value_;
+};
+using KeepaliveIdle = TcpOption<TCP_KEEPIDLE>;
+using KeepaliveInterval = TcpOption<TCP_KEEPINTVL>;
+using KeepaliveProbes = TcpOption<TCP_KEEPCNT>;
 
 }  // namespace
 
@@ -39,7 +66,7 @@ struct ModbusServer::Connection {
         : plain(std::move(s)),
           timer(plain.get_executor()),
           address(from.address()),
-          peer(describe(from)),
+          peer(host_port(from)),
           tls_context(std::move(context)),
           handshaking(tls_context != nullptr) {
         if (tls_context) tls = make_tls_stream(std::move(plain), *tls_context);
@@ -134,7 +161,7 @@ struct ModbusServer::Connection {
 };
 
 ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                           const Units& units, Log& log, EventLog& events,
+                           const Links& links, Log& log, EventLog& events,
                            std::function<void()> comm_lost)
     : executor_(executor),
       settings_(std::move(settings)),
@@ -145,15 +172,26 @@ ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::Modbus
       scratch_(scratch_mapping()),
       comm_lost_(std::move(comm_lost)),
       comm_loss_timer_(executor) {
-    set_units(units);
+    set_units(links);
 }
 
-void ModbusServer::set_units(const Units& units) {
-    ports_ = units.size();
-    units_.fill(nullptr);
-    for (const auto& unit : units)
-        units_[static_cast<std::size_t>(unit->config().unit_id)] = unit;
-    if (units.size() == 1) units_[0] = units_[255] = units.front();
+// A link that stays (and the word order with it) keeps its unit and image; a new or restarted
+// one gets a unit of its own, filled from what the link knows.
+void ModbusServer::set_units(const Links& links) {
+    ports_ = links.size();
+    std::array<std::shared_ptr<ModbusUnit>, 256> units{};
+    for (const auto& link : links) {
+        const auto id = static_cast<std::size_t>(link->config().unit_id);
+        auto& unit = units[id];
+        if (const auto& old = units_[id];
+            old && old->link_ptr() == link && old->word_order() == settings_.word_order)
+            unit = old;
+        else
+            unit = std::make_shared<ModbusUnit>(link, settings_.word_order);
+    }
+    if (links.size() == 1)
+        units[0] = units[255] = units[static_cast<std::size_t>(links.front()->config().unit_id)];
+    units_ = std::move(units);
 }
 
 ModbusServer::~ModbusServer() = default;
@@ -233,8 +271,8 @@ void ModbusServer::answered_request(bool contact) {
 bool ModbusServer::keeps_contact(const Connection& c, std::span<const std::uint8_t> adu) const {
     const auto& unit = units_[adu[modbus::mbap_length - 1]];
     if (!unit) return false;
-    return !c.tls ||
-           modbus_security::permits(c.rights, unit->config().unit_id, adu[modbus::mbap_length]);
+    return !c.tls || modbus_security::permits(c.rights, unit->link().config().unit_id,
+                                              adu[modbus::mbap_length]);
 }
 
 void ModbusServer::arm_comm_loss() {
@@ -242,7 +280,9 @@ void ModbusServer::arm_comm_loss() {
         return;
     comm_loss_armed_ = true;
     comm_loss_timer_.expires_at(last_contact_ + settings_.comm_loss_timeout);
-    comm_loss_timer_.async_wait([this](const boost::system::error_code& ec) { comm_loss_due(ec); });
+    comm_loss_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
+        if (const auto self = weak.lock()) self->comm_loss_due(ec);
+    });
 }
 
 void ModbusServer::comm_loss_due(const boost::system::error_code& ec) {
@@ -265,12 +305,12 @@ void ModbusServer::comm_loss_due(const boost::system::error_code& ec) {
 
 int ModbusServer::counted_unit(std::span<const std::uint8_t> adu) const {
     const auto& unit = units_[adu[modbus::mbap_length - 1]];
-    return unit ? unit->config().unit_id : -1;
+    return unit ? unit->link().config().unit_id : -1;
 }
 
-void ModbusServer::store_front(LinkScheduler& unit) const {
-    const auto id = static_cast<std::size_t>(unit.config().unit_id);
-    gateway::store_front(unit.tables(), {traffic_[id], connections(), since_previous_, comm_loss_},
+void ModbusServer::store_front(ModbusUnit& unit) const {
+    const auto& traffic = stats_.responses.traffic(unit.link().config().unit_id);
+    gateway::store_front(unit.tables(), {traffic, connections(), since_previous_, comm_loss_},
                          settings_.word_order);
 }
 
@@ -301,7 +341,7 @@ void ModbusServer::accept_on(Transport transport, Acceptor acceptor) {
     close(l);
     l.acceptor = std::move(acceptor);
     boost::system::error_code ec;
-    const auto where = describe(l.acceptor->local_endpoint(ec));
+    const auto where = host_port(l.acceptor->local_endpoint(ec));
     const char* read_only = settings_.read_only ? ", read-only" : "";
     switch (transport) {
         case Transport::tcp:
@@ -318,7 +358,8 @@ void ModbusServer::accept_on(Transport transport, Acceptor acceptor) {
                       settings_.tls->client_crl.empty() ? "" : ", revocations from client_crl");
             break;
     }
-    asio::co_spawn(executor_, accept_loop(transport, l.acceptor), asio::detached);
+    spawn("accepting Modbus clients",
+          [this, transport, acceptor = l.acceptor] { return accept_loop(transport, acceptor); });
 }
 
 Result<> ModbusServer::prepare(const config::ModbusSettings& next) {
@@ -370,10 +411,10 @@ void ModbusServer::apply(const config::ModbusSettings& next, Transport transport
     }
 }
 
-void ModbusServer::apply(config::ModbusSettings next, const Units& units) {
+void ModbusServer::apply(config::ModbusSettings next, const Links& links) {
     settings_ = std::move(next);
     policy_ = {settings_.read_only, settings_.stale};
-    set_units(units);
+    set_units(links);
     make_room();
     if (comm_loss_armed_)
         comm_loss_timer_.cancel();  // re-armed with the new timeout, or not at all
@@ -561,9 +602,26 @@ asio::awaitable<void> ModbusServer::accept_loop(Transport transport, Acceptor ac
         if (connection->handshaking) begin_handshake(*connection);
         log_.debug({.client = connection->peer}, "Modbus client {} connected ({} open)",
                    connection->peer, connections_.size());
-        asio::co_spawn(executor_, serve(connection), asio::detached);
-        asio::co_spawn(executor_, watch(connection), asio::detached);
+        spawn("serving a Modbus client", [this, connection] { return serve(connection); });
+        spawn("watching a Modbus client", [this, connection] { return watch(connection); });
     }
+}
+
+// The server is kept alive by every coroutine of its own, as the HTTP server and the links are:
+// a reload or a stop may let go of it while a connection still finishes. An exception that
+// escapes one is a bug, logged rather than lost; what it held is released by its destructors.
+void ModbusServer::spawn(std::string_view what, std::function<asio::awaitable<void>()> coroutine) {
+    asio::co_spawn(
+        executor_,
+        [self = shared_from_this(), coroutine = std::move(coroutine)] { return coroutine(); },
+        [self = shared_from_this(), what = std::string(what)](const std::exception_ptr& error) {
+            if (!error) return;
+            try {
+                std::rethrow_exception(error);
+            } catch (const std::exception& e) {
+                self->log_.error({}, "{} failed: {}", what, e.what());
+            }
+        });
 }
 
 asio::awaitable<void> ModbusServer::watch(ConnectionPtr c) {
@@ -664,6 +722,28 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
     co_return true;
 }
 
+// However serve ends (an exception included), the connection leaves the set that shut_down()
+// and the pages walk.
+void ModbusServer::forget(Connection& c) {
+    c.close();
+    end_handshake(c);
+    connections_.erase(&c);
+}
+
+// Nearly always the socket takes a response at once: written then and there, without an
+// asynchronous operation and its completion (nor a coroutine frame). What it did not take is
+// send_rest()'s.
+std::size_t ModbusServer::write_now(Connection& c, const Bytes& response,
+                                    boost::system::error_code& ec) {
+    std::size_t written = 0;
+    if (!c.tls)
+        written = c.plain.write_some(asio::buffer(response), ec);
+    else if (c.nothing_queued())
+        written = c.tls->write_some(asio::buffer(response), ec);
+    if (ec == asio::error::would_block) ec = {};
+    return written;
+}
+
 // GCC 12 reports Asio's coroutine frame, allocated and freed by awaitable_frame_base's own
 // operator new and delete, as a mismatched new/delete (GCC bug 109224), or not, depending on
 // unrelated members of this class. Nothing here allocates by hand.
@@ -672,6 +752,7 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
 #pragma GCC diagnostic ignored "-Wmismatched-new-delete"
 #endif
 asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
+    const AtExit forget_it([this, &c] { forget(*c); });
     std::string why = "closed by the client";
     if (c->tls && !co_await handshake(*c)) {
         why = "no TLS session";
@@ -706,15 +787,8 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
                 response = std::move(std::get<Response>(answered));
             }
             if (response && c->open) {
-                // Nearly always the socket takes a response at once: written then and there,
-                // without an asynchronous operation and its completion.
                 boost::system::error_code ec;
-                std::size_t written = 0;
-                if (!c->tls)
-                    written = c->plain.write_some(asio::buffer(*response), ec);
-                else if (c->nothing_queued())
-                    written = c->tls->write_some(asio::buffer(*response), ec);
-                if (ec == asio::error::would_block) ec = {};
+                const auto written = write_now(*c, *response, ec);
                 if (!ec && written < response->size())
                     ec = co_await send_rest(*c, std::span(*response).subspan(written));
                 if (ec && c->open) why = fmt::format("sending a response: {}", ec.message());
@@ -752,8 +826,6 @@ asio::awaitable<void> ModbusServer::serve(ConnectionPtr c) {
         c->end += n;
         c->last_activity = Clock::now();
     }
-    c->close();
-    connections_.erase(c.get());
     log_.debug({.client = c->peer}, "Modbus client {} disconnected: {}", c->peer, why);
 }
 #if defined(__GNUC__) && !defined(__clang__)
@@ -767,8 +839,8 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
     if (!unit)
         return built(c, replies_->exception(request, modbus::Exception::gateway_path_unavailable));
     const auto pdu = adu.subspan(modbus::mbap_length);
-    if (c.tls && !modbus_security::permits(c.rights, unit->config().unit_id, pdu[0])) {
-        log_role_refusal(c, unit->config().unit_id, pdu[0]);
+    if (c.tls && !modbus_security::permits(c.rights, unit->link().config().unit_id, pdu[0])) {
+        log_role_refusal(c, unit->link().config().unit_id, pdu[0]);
         return built(c, replies_->exception(request, modbus::Exception::illegal_function));
     }
     // Identification is the unit's, not its devices': it answers with the port down and in
@@ -778,7 +850,7 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
         if (!identification) return built(c, replies_->exception(request, identification.error()));
         return ReplyBuilder::framed(request, *identification);
     }
-    auto plan = gateway::plan(unit->state(), policy_, pdu);
+    auto plan = gateway::plan(unit->link().state(), policy_, pdu);
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
         return built(c, replies_->exception(request, *exception));
     if (const auto* read = std::get_if<gateway::ReadPlan>(&plan)) {
@@ -786,7 +858,7 @@ std::variant<ModbusServer::Response, ModbusServer::Write> ModbusServer::answer(
         if (read->diagnostics) store_front(*unit);
         return built(c, replies_->reply(request, image));
     }
-    return Write{unit, std::get<gateway::WritePlan>(std::move(plan)), request, pdu};
+    return Write{unit, std::get<gateway::WritePlan>(std::move(plan)), request, origin(c, pdu)};
 }
 
 void ModbusServer::log_role_refusal(Connection& c, int unit_id, std::uint8_t function) {
@@ -805,51 +877,34 @@ void ModbusServer::log_role_refusal(Connection& c, int unit_id, std::uint8_t fun
 void ModbusServer::count(int unit_id, std::span<const std::uint8_t> adu,
                          std::span<const std::uint8_t> response, Clock::time_point received) {
     const auto pdu = response.subspan(modbus::mbap_length);
-    const std::uint8_t function = adu[modbus::mbap_length];
-    if (unit_id >= 0)
-        gateway::count_response(traffic_[static_cast<std::size_t>(unit_id)], function, pdu);
-    stats_.responses.count(unit_id, function, pdu);
+    stats_.responses.count(unit_id, adu[modbus::mbap_length], pdu);
     stats_.request_duration.observe(std::chrono::duration<double>(Clock::now() - received).count());
 }
 
-void ModbusServer::audit(const Connection& c, const Write& write, WriteResult result,
-                         Clock::time_point received) {
-    const auto request = modbus::parse_request(write.pdu);
-    if (!request) return;  // planned as a write, so it parses
-    const auto values = modbus::written_values(*request);
-    const auto& link = write.unit->config();
-    const auto function = std::to_string(static_cast<int>(request->function));
-    const auto address = std::to_string(request->address);
-    const WriteAudit audit{
-        .function = function,
-        .address = address,
-        .value = values,
-        .result = to_string(result),
-        .latency_us =
-            std::chrono::duration_cast<std::chrono::microseconds>(Clock::now() - received).count()};
-    auto text =
-        fmt::format("write by {} to unit {} ({}): FC {:0>2} address {} values {}: {} in {} ms",
-                    c.peer, link.unit_id, link.name, function, address, values, audit.result,
-                    static_cast<double>(audit.latency_us) / 1000);
-    log_.notice({.link = link.name, .unit = link.unit_id, .client = c.peer, .audit = &audit}, "{}",
-                text);
-    events_.add(EventKind::write, link.name, {}, c.peer, std::move(text));
+WriteOrigin ModbusServer::origin(const Connection& c, std::span<const std::uint8_t> pdu) {
+    WriteOrigin origin{.client = c.peer, .asked = c.last_activity};
+    const auto request = modbus::parse_request(pdu);
+    if (!request) return origin;  // planned as a write, so it parses
+    origin.function = std::to_string(static_cast<int>(request->function));
+    origin.address = std::to_string(request->address);
+    origin.value = modbus::written_values(*request);
+    origin.request = fmt::format("FC {:0>2} address {} values {}", origin.function, origin.address,
+                                 origin.value);
+    return origin;
 }
 
 asio::awaitable<ModbusServer::Response> ModbusServer::write(Connection& c, Write write) {
     // FC 23 reads these once its write is done.
     const auto read_address = write.plan.read_address;
     const auto read_quantity = write.plan.read_quantity;
-    const auto received = c.last_activity;
-    const bool reaches_device = !write.plan.changes.empty() || write.plan.reset_counter;
-    const auto result = co_await write.unit->write(write.plan);
-    // A refusal for a full queue is not audited one by one: the link logs them as a flood.
-    if (reaches_device && result != WriteResult::busy) audit(c, write, result, received);
+    const auto result =
+        co_await write.unit->link().write(std::move(write.plan), std::move(write.origin));
     if (!c.open) co_return std::nullopt;
     if (const auto failed = exception_of(result))
         co_return built(c, replies_->exception(write.request, *failed));
     if (read_quantity == 0) co_return built(c, replies_->reply(write.request, scratch_.get()));
-    const auto plan = gateway::read_back(write.unit->state(), policy_, read_address, read_quantity);
+    const auto plan =
+        gateway::read_back(write.unit->link().state(), policy_, read_address, read_quantity);
     if (const auto* exception = std::get_if<modbus::Exception>(&plan))
         co_return built(c, replies_->exception(write.request, *exception));
     co_return built(c, ReplyBuilder::read_back(write.request, read_address, read_quantity,

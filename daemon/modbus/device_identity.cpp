@@ -1,4 +1,4 @@
-#include "daemon/identity.hpp"
+#include "daemon/modbus/device_identity.hpp"
 
 #include <algorithm>
 

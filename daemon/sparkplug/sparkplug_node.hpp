@@ -17,10 +17,10 @@
 // sends every birth again with the same bdSeq, at most once a second (requests in between are
 // served by one rebirth at the end of that second). DCMD writes take the gateway's one write path
 // (sparkplug::plan_command, then LinkScheduler::write): validated, confirmed by the device,
-// counted and audited like a Modbus write; the new value is published when the device confirmed
-// it, not before. With modbus.read_only nothing is written; a DCMD naming more metrics than the
-// device has writable ones is refused whole, before it is decoded. A clean stop publishes NDEATH,
-// then disconnects.
+// counted and audited by the link like a Modbus write; the new value is published when the device
+// confirmed it, not before. With modbus.read_only nothing is written; a DCMD naming more metrics
+// than the device has writable ones is refused whole, before it is decoded. A clean stop publishes
+// NDEATH, then disconnects.
 //
 // Everything from the broker is hostile: its strings reach the log escaped (printable), and the
 // lines a host can cause at any rate (refused commands) go through one LogLimiter.
@@ -34,10 +34,10 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
-#include "daemon/events.hpp"
-#include "daemon/link_scheduler.hpp"
+#include "daemon/core/events.hpp"
+#include "daemon/core/link_scheduler.hpp"
 #include "daemon/log.hpp"
-#include "daemon/mqtt_client.hpp"
+#include "daemon/sparkplug/mqtt_client.hpp"
 #include "protocol/sparkplug.hpp"
 
 namespace ioport::daemon {
@@ -65,8 +65,6 @@ struct SparkplugStats {
 
 class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
   public:
-    using Links = std::vector<std::shared_ptr<LinkScheduler>>;
-
     // `next_bdseq`: of the first CONNECT; a node that replaces another (a reload that changed
     // the MQTT settings) goes on from the old one's, as bdSeq counts every CONNECT of the process.
     static Result<std::shared_ptr<SparkplugNode>> create(const asio::any_io_executor& executor,
@@ -116,6 +114,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void watch_links();
     void connecting();
     void connected();
+    void subscribe(const std::string& topic, std::string_view what);
     void disconnected();
     void message(std::string_view topic, std::span<const std::uint8_t> payload);
     void node_command(std::span<const std::uint8_t> payload);
@@ -124,7 +123,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void device_command(Device& device, const sparkplug::Metric& metric);
     void refuse(std::string_view key, const LogFields& fields, std::string text);
     void birth();
-    void device_birth(Device& device, const ModuleView& view);
+    void device_birth(Device& device, const ModuleState& view);
     void changed(const LinkScheduler* link, int slot);
     void update(Device& device);
     void link_data(bool counters);

@@ -1,4 +1,4 @@
-#include "daemon/http_server.hpp"
+#include "daemon/http/http_server.hpp"
 
 #include <unistd.h>
 
@@ -56,7 +56,7 @@ std::string machine_host_name() {
 
 struct HttpServer::Connection {
     Connection(tcp::socket socket, const tcp::endpoint& from)
-        : stream(std::move(socket)), address(from.address()), peer(describe(from)) {}
+        : stream(std::move(socket)), address(from.address()), peer(host_port(from)) {}
     beast::tcp_stream stream;
     asio::ip::address address;
     std::string peer;
@@ -86,7 +86,7 @@ Result<> HttpServer::start() {
     if (!acceptor) return Unexpected(acceptor.error());
     acceptor_ = std::move(*acceptor);
     log_.info({}, "HTTP on http://{}/ (status page, /metrics, /healthz)",
-              describe(local_endpoint()));
+              host_port(local_endpoint()));
     asio::co_spawn(executor_, accept_loop(acceptor_), asio::detached);
     return {};
 }
@@ -138,12 +138,12 @@ asio::awaitable<void> HttpServer::accept_loop(Acceptor acceptor) {
         const auto peer = socket.remote_endpoint(ec);
         if (ec) continue;
         if (connections_.size() >= max_http_connections) {
-            log_refusal(describe(peer),
+            log_refusal(host_port(peer),
                         fmt::format("{} HTTP connections open", max_http_connections));
             continue;  // the socket closes as it goes out of scope
         }
         if (!allowed(settings_.allow, peer.address())) {
-            log_refusal(describe(peer), "not in http.allow");
+            log_refusal(host_port(peer), "not in http.allow");
             continue;
         }
         socket.set_option(tcp::no_delay(true), ec);

@@ -1,10 +1,11 @@
-// One serial link and the Modbus unit it serves: the port, its polling coroutine, the unit's
-// process image and the queue of client writes. Everything runs on the one io_context; the
-// Modbus server reads the image directly and awaits writes.
+// One serial link: the port, its polling coroutine, the modules' part of the read model
+// (core/model.hpp) and the queue of writes. Everything runs on the one io_context; transports
+// read the model and subscribe to its changes, and every write, whichever transport asked for it,
+// comes through write(): validated by the transport's planner, queued here, audited here once.
 //
 // The loop: open the port (retrying at 100 ms doubling to 2 s), restore the outputs, then do
-// what the PollPlan says next — client writes, due refreshes, poll reads — one transaction at
-// a time. A lost port fails the queued writes with 0B and goes back to opening.
+// what the PollPlan says next — the safe state when due, writes, due refreshes, poll reads — one
+// transaction at a time. A lost port fails the queued writes (link_down) and goes back to opening.
 //
 // Owned through a shared_ptr: the loop and a client's write keep it alive, so a reload can drop
 // a link while they still finish.
@@ -18,14 +19,12 @@
 #include <string>
 #include <vector>
 
-#include <modbus/modbus.h>
-
 #include "config/gateway_config.hpp"
-#include "daemon/events.hpp"
+#include "daemon/core/events.hpp"
+#include "daemon/core/model.hpp"
+#include "daemon/core/poll_plan.hpp"
+#include "daemon/core/trend.hpp"
 #include "daemon/log.hpp"
-#include "daemon/modbus_reply.hpp"
-#include "daemon/poll_plan.hpp"
-#include "daemon/trend.hpp"
 #include "link/asio.hpp"
 #include "link/serial_link.hpp"
 #include "protocol/gateway_map.hpp"
@@ -37,33 +36,9 @@ inline constexpr std::chrono::microseconds max_reopen_delay = 2s;
 // What a loaded machine may add to a wait before the loop runs again.
 inline constexpr std::chrono::microseconds watchdog_slack = 1s;
 
-// How a client's write ended: the result label of ioportd_writes_total and the audit's RESULT.
-// `busy`: refused at once, max_pending_writes were waiting; `dropped`: still waiting when the
-// communication-loss safe state was due (gateway.md §5.3). Neither sent anything.
-enum class WriteResult { confirmed, error_ack, no_answer, link_down, busy, dropped };
-inline constexpr std::size_t write_result_count = 6;
-std::string_view to_string(WriteResult result);  // "confirmed", "error_ack", …
-// What a Modbus request answers: nothing (confirmed), 04 (error ack), 06 (busy) or 0B.
-std::optional<modbus::Exception> exception_of(WriteResult result);
-
-// A configured module as /metrics, /api/v1/state and the status page show it.
-struct ModuleView {
-    std::string name;                        // "dim16 0", "ID-2"
-    std::optional<ModuleAddress> address{};  // nullopt: the ID-2
-    int slot = 0;
-    gateway::ModuleStatus status = gateway::ModuleStatus::not_polled;
-    std::optional<Clock::time_point> last_good{};
-    std::optional<Reading> reading{};       // input modules: the last good reading
-    std::optional<std::uint16_t> output{};  // output modules: the state the device confirmed
-    std::optional<bool> stop{};             // the ID-2's stop input
-    std::optional<std::uint16_t> count{};   // the ID-2's counter
-    const Trend* trend = nullptr;           // analog modules
-};
-
 class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
   public:
-    LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
-                  gateway::WordOrder word_order, Log& log, EventLog& events);
+    LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link, Log& log);
     LinkScheduler(const LinkScheduler&) = delete;
     LinkScheduler& operator=(const LinkScheduler&) = delete;
 
@@ -78,17 +53,15 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     void stop();
 
     const config::LinkConfig& config() const { return config_; }
-    // The objects this unit answers Read Device Identification with.
-    const modbus::DeviceIdentity& identity() const { return identity_; }
+    // The port and every slot's status, as the Modbus map's planner decides requests by.
     const gateway::UnitState& state() const { return state_; }
-    // The image, with the time-dependent diagnostics brought up to date when `diagnostics`.
-    modbus_mapping_t* image(bool diagnostics);
-    const gateway::Tables& tables() const { return image_.tables(); }
     // Sends a validated write and completes when the device acknowledged it or it failed.
     // Counted in writes() when it reached the link: an empty plan is confirmed at once. Refused
     // at once (busy) when max_pending_writes are waiting: a flood of writes, from whichever
-    // path, must neither grow without bound nor be applied hours after it was asked for.
-    asio::awaitable<WriteResult> write(gateway::WritePlan plan);
+    // path, must neither grow without bound nor be applied hours after it was asked for. A write
+    // that reached the link is audited once its outcome is known: logged (with the journal's
+    // audit fields) and told to the subscribers as a Change::Kind::write, in `origin`'s words.
+    asio::awaitable<WriteResult> write(gateway::WritePlan plan, WriteOrigin origin);
     // Communication loss (gateway.md §5.3): every output module's safe value becomes its desired
     // state and is sent next, after the transaction in flight; the writes still waiting are
     // dropped, as the clients that asked for them fell silent. With the port down it is the
@@ -97,22 +70,24 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
 
     bool port_open() const { return state_.port_open; }
     int modules_online() const;
-    std::vector<ModuleView> modules() const;
-    // The module of `slot` (the ID-2's is 0); nullopt when none is configured there.
-    std::optional<ModuleView> module_at(int slot) const;
-    // `observer` is called on the loop, at once, whenever a module's status or values may have
-    // changed (a transaction recorded, an output confirmed, the port lost): `slot`, or -1 for
-    // every module. It must not block; it may compare and publish. Each subscriber has its own
-    // place: dropping the Subscription ends its calls and no other's (a node replaced by a reload
-    // may outlive its successor's subscriptions while a command of its own finishes).
-    using Observer = std::function<void(int slot)>;
+    // The read model: the configured modules in configuration order (the ID-2: one).
+    const std::vector<ModuleState>& modules() const { return modules_; }
+    // The module of `slot` (the ID-2's is 0); null when none is configured there.
+    const ModuleState* module_at(int slot) const;
+    // `observer` is called on the loop, at once, with every Change: a module's values stored,
+    // its status changed, the port opened or lost, a write audited. It must not block; it may
+    // compare and publish. Each subscriber has its own place: dropping the Subscription ends its
+    // calls and no other's (a node replaced by a reload may outlive its successor's
+    // subscriptions while a command of its own finishes).
+    using Observer = std::function<void(const Change& change)>;
     using Subscription = std::shared_ptr<const Observer>;
     [[nodiscard]] Subscription subscribe(Observer observer);
-    // Client writes by WriteResult.
+    // Writes by WriteResult: the clients', and the safe state of a communication loss.
     const std::array<std::uint64_t, write_result_count>& writes() const { return writes_count_; }
     const LinkCounters& counters() const { return link_.counters(); }
     // The last complete poll cycle; 0 before the first.
     std::chrono::microseconds last_cycle() const { return plan_.last_cycle(); }
+    std::uint64_t cycles() const { return plan_.cycles(); }
     // The loop is not stuck: it is asleep until a poll or reopen is due, or its serial link
     // acted within the longest wait the link ever makes (one timeout) and a second to spare for
     // a busy machine. A whole step may take far longer on a noisy line, and that is not a stall.
@@ -122,6 +97,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     struct Entry {
         Target target;  // a module, or an ID-2 command
         int slot;
+        std::size_t module = 0;     // its place in modules_
         std::uint16_t desired = 0;  // outputs: last confirmed value, `initial`, or `safe`
         std::uint16_t initial = 0;
         std::uint16_t safe = 0;
@@ -129,9 +105,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
         // the ID-2's slot 0, which its two reads share (slot_status).
         gateway::ModuleStatus status = gateway::ModuleStatus::not_polled;
         std::optional<Clock::time_point> last_good{};
-        std::optional<Reading> reading{};          // inputs and the ID-2's reads
-        std::optional<std::uint16_t> confirmed{};  // outputs
-        std::shared_ptr<Trend> trend{};            // analog modules
+        std::shared_ptr<Trend> trend{};  // analog modules
     };
     struct PendingWrite;
 
@@ -145,6 +119,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     asio::awaitable<WriteResult> apply(const gateway::OutputChange& change);
     asio::awaitable<WriteResult> reset_counter();
     void confirmed(std::size_t entry, std::uint16_t value);
+    void store(std::size_t entry, const Reading& reading);
     asio::awaitable<void> sleep_until(Clock::time_point when);
     asio::awaitable<void> set_outputs_to_initial();
     asio::awaitable<void> send_safe_state();
@@ -155,16 +130,14 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     void update_slot(const Entry& changed, const Error* error);
     void set_status(int slot, gateway::ModuleStatus status, const Error* error);
     void port_lost(const Error& error);
-    void notify(int slot);
+    void notify(const Change& change);
+    void audit(const WriteOrigin& origin, WriteResult result);
     void fail_pending_writes(WriteResult outcome);
     void refuse_busy();
     std::optional<std::size_t> entry_of(ModuleAddress module) const;
 
     config::LinkConfig config_;
-    modbus::DeviceIdentity identity_;
-    gateway::WordOrder word_order_;
     Log& log_;
-    EventLog& events_;
     SerialLink link_;
     asio::steady_timer wake_;
     PollPlan plan_;
@@ -173,9 +146,9 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     bool safe_state_due_ = false;  // sent before anything else the loop does next
     LogLimiter busy_logged_;       // refusals for a full queue
     std::array<std::uint64_t, write_result_count> writes_count_{};
-    UnitImage image_;
     gateway::UnitState state_;
-    std::array<std::optional<Clock::time_point>, slot_count> last_good_{};  // by slot
+    std::vector<ModuleState> modules_;
+    std::array<int, slot_count> module_of_slot_{};  // index into modules_, -1: none
     bool stopping_ = false;
     std::optional<config::OnShutdown> finishing_;
     std::function<void()> finished_;
@@ -184,5 +157,15 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     Clock::time_point woke_ = Clock::now();  // started, or last woke from a sleep
     std::optional<Clock::time_point> asleep_until_;
 };
+
+// The running links, in configuration order.
+using Links = std::vector<std::shared_ptr<LinkScheduler>>;
+
+// /healthz (gateway.md §5.4): every link's port open and every module online.
+struct Health {
+    bool ok = true;
+    std::string reason;  // "link hub0: port not open; link hub1: dim16 2 no answer"
+};
+Health health(const Links& links);
 
 }  // namespace ioport::daemon

@@ -1,4 +1,4 @@
-#include "daemon/exposition.hpp"
+#include "daemon/http/exposition.hpp"
 
 #include <array>
 #include <charconv>

@@ -1,15 +1,14 @@
-#include "daemon/status_pages.hpp"
+#include "daemon/http/render.hpp"
 
 #include <ctime>
 
 #include <fmt/format.h>
 
-#include "daemon/exposition.hpp"
+#include "daemon/http/exposition.hpp"
 
 namespace ioport::daemon {
 namespace {
 
-using gateway::ModuleStatus;
 using SystemClock = std::chrono::system_clock;
 
 constexpr std::string_view text_plain = "text/plain; charset=utf-8";
@@ -29,7 +28,7 @@ double seconds(std::chrono::microseconds duration) {
 }
 
 // The age of a module's last good transaction, as of `now`.
-std::optional<double> age(const ModuleView& module, Clock::time_point now) {
+std::optional<double> age(const ModuleState& module, Clock::time_point now) {
     if (!module.last_good) return std::nullopt;
     return std::chrono::duration<double>(now - *module.last_good).count();
 }
@@ -52,7 +51,7 @@ struct Channel {
 
 // The input channels of a module that has been read: dim16/lim16 inputs 0..15 as 0/1, analog
 // channels in engineering units, the ID-2's stop input and count.
-std::vector<Channel> input_channels(const ModuleView& module) {
+std::vector<Channel> input_channels(const ModuleState& module) {
     std::vector<Channel> channels;
     if (!module.address) {
         if (module.stop) channels.push_back({"stop", *module.stop ? 1.0 : 0.0});
@@ -74,7 +73,7 @@ std::vector<Channel> input_channels(const ModuleView& module) {
     return channels;
 }
 
-void link_families(Exposition& out, const ModbusServer::Units& links) {
+void link_families(Exposition& out, const Links& links) {
     out.family("ioportd_link_up", "gauge", "1 while the link's serial port is open");
     for (const auto& link : links)
         out.sample("ioportd_link_up", {{"link", link->config().name}}, link->port_open() ? 1 : 0);
@@ -94,11 +93,9 @@ void link_families(Exposition& out, const ModbusServer::Units& links) {
     }
     out.family("ioportd_link_reopens_total", "counter",
                "Times the serial port was opened again after the first open");
-    for (const auto& link : links) {
-        const auto opens = link->counters().opens;
+    for (const auto& link : links)
         out.sample("ioportd_link_reopens_total", {{"link", link->config().name}},
-                   opens > 0 ? opens - 1 : 0);
-    }
+                   link->counters().reopens());
     out.family("ioportd_link_cycle_seconds", "gauge",
                "Duration of the last complete poll cycle (0 before the first)");
     for (const auto& link : links)
@@ -114,24 +111,20 @@ void link_families(Exposition& out, const ModbusServer::Units& links) {
                 link->writes()[r]);
 }
 
-void module_families(Exposition& out, const ModbusServer::Units& links) {
+void module_families(Exposition& out, const Links& links) {
     const auto now = Clock::now();
-    std::vector<std::vector<ModuleView>> modules;
-    modules.reserve(links.size());
-    for (const auto& link : links)
-        modules.push_back(link->modules());
     out.family("ioportd_module_status", "gauge",
                "Module status (gateway.md 2.3): 1 online, 2 no answer, 3 bad answer or error "
                "ack, 4 not polled yet");
     for (std::size_t l = 0; l < links.size(); ++l)
-        for (const auto& module : modules[l])
+        for (const auto& module : links[l]->modules())
             out.sample("ioportd_module_status",
                        {{"link", links[l]->config().name}, {"module", module.name}},
                        static_cast<int>(module.status));
     out.family("ioportd_module_age_seconds", "gauge",
                "Time since the module's last good transaction (absent before the first)");
     for (std::size_t l = 0; l < links.size(); ++l)
-        for (const auto& module : modules[l])
+        for (const auto& module : links[l]->modules())
             if (const auto seconds = age(module, now))
                 out.sample("ioportd_module_age_seconds",
                            {{"link", links[l]->config().name}, {"module", module.name}}, *seconds);
@@ -139,7 +132,7 @@ void module_families(Exposition& out, const ModbusServer::Units& links) {
                "Last good reading of an input channel: 0/1 for digital inputs, engineering "
                "units for analog channels (%, A, V), the ID-2's stop (0/1) and count");
     for (std::size_t l = 0; l < links.size(); ++l)
-        for (const auto& module : modules[l])
+        for (const auto& module : links[l]->modules())
             for (const auto& channel : input_channels(module))
                 out.sample("ioportd_input_value",
                            {{"link", links[l]->config().name},
@@ -150,7 +143,7 @@ void module_families(Exposition& out, const ModbusServer::Units& links) {
                "Output state the device last confirmed: the dom16 word, the rgbdm colour code, "
                "the mux8m setting (pos << 8 | neg)");
     for (std::size_t l = 0; l < links.size(); ++l)
-        for (const auto& module : modules[l])
+        for (const auto& module : links[l]->modules())
             if (module.output)
                 out.sample("ioportd_output_value",
                            {{"link", links[l]->config().name}, {"module", module.name}},
@@ -235,7 +228,7 @@ void process_families(Exposition& out, const ProcessStats& process) {
     out.sample("process_start_time_seconds", {}, process.start_time_seconds);
 }
 
-void module_values(Json& json, const ModuleView& module) {
+void module_values(Json& json, const ModuleState& module) {
     if (!module.address) {
         json.key("stop");
         module.stop ? json.value(*module.stop) : json.null();
@@ -312,7 +305,7 @@ void link_json(Json& json, const LinkScheduler& link, Clock::time_point now) {
         .member("bad_answer", c.bad_answer)
         .member("error_ack", c.error_ack)
         .end_object();
-    json.member("reopens", c.opens > 0 ? c.opens - 1 : 0);
+    json.member("reopens", c.reopens());
     json.key("writes").begin_object();
     for (std::size_t r = 0; r < write_result_count; ++r)
         json.member(to_string(static_cast<WriteResult>(r)), link.writes()[r]);
@@ -339,8 +332,8 @@ void modbus_json(Json& json, const ModbusServer& server) {
     const auto& settings = server.settings();
     json.key("modbus")
         .begin_object()
-        .member("listen", settings.plain() ? describe(server.local_endpoint()) : std::string())
-        .member("tls_listen", settings.tls ? describe(server.tls_endpoint()) : std::string())
+        .member("listen", settings.plain() ? host_port(server.local_endpoint()) : std::string())
+        .member("tls_listen", settings.tls ? host_port(server.tls_endpoint()) : std::string())
         .member("connections", static_cast<std::uint64_t>(server.connections()))
         .member("handshakes", static_cast<std::uint64_t>(server.handshakes()))
         .member("max_connections", settings.max_connections)
@@ -437,56 +430,40 @@ std::string map_html(std::span<const gateway::MapRow> rows) {
 
 }  // namespace
 
-std::string_view status_text(ModuleStatus status) {
-    switch (status) {
-        case ModuleStatus::not_configured:
-            return "not configured";
-        case ModuleStatus::online:
-            return "online";
-        case ModuleStatus::no_answer:
-            return "no answer";
-        case ModuleStatus::bad_answer:
-            return "bad answer";
-        case ModuleStatus::not_polled:
-            return "not polled yet";
-    }
-    return "unknown";
-}
-
-std::string render_metrics(const Gateway& gateway, const ProcessStats& process) {
+std::string render_metrics(const GatewayView& gateway, const ProcessStats& process) {
     Exposition out;
     out.family("ioportd_build_info", "gauge", "Always 1; the version in its label");
     out.sample("ioportd_build_info", {{"version", IOPORTD_VERSION}}, 1);
-    link_families(out, gateway.links());
-    module_families(out, gateway.links());
-    modbus_families(out, gateway.modbus());
-    sparkplug_families(out, gateway.sparkplug());
+    link_families(out, gateway.links);
+    module_families(out, gateway.links);
+    modbus_families(out, gateway.modbus);
+    sparkplug_families(out, gateway.sparkplug);
     process_families(out, process);
     return out.take();
 }
 
-std::string render_state(const Gateway& gateway) {
+std::string render_state(const GatewayView& gateway) {
     const auto now = Clock::now();
-    const auto health = gateway.health();
+    const auto health = daemon::health(gateway.links);
     Json json;
     json.begin_object()
         .member("version", IOPORTD_VERSION)
         .member("time", rfc3339(SystemClock::now()))
-        .member("started", rfc3339(gateway.started()));
+        .member("started", rfc3339(gateway.started));
     json.key("health").begin_object().member("ok", health.ok).member("reason", health.reason);
     json.end_object();
     json.key("warnings").begin_array();
-    for (const auto& warning : config::warnings(gateway.config()))
+    for (const auto& warning : config::warnings(gateway.config))
         json.value(warning);
     json.end_array();
-    modbus_json(json, gateway.modbus());
-    sparkplug_json(json, gateway.sparkplug());
+    modbus_json(json, gateway.modbus);
+    sparkplug_json(json, gateway.sparkplug);
     json.key("links").begin_array();
-    for (const auto& link : gateway.links())
+    for (const auto& link : gateway.links)
         link_json(json, *link, now);
     json.end_array();
     json.key("events").begin_array();
-    for (const auto& event : gateway.events().events())
+    for (const auto& event : gateway.events.events())
         json.begin_object()
             .member("seq", event.seq)
             .member("time", rfc3339(event.time))
@@ -500,14 +477,14 @@ std::string render_state(const Gateway& gateway) {
     return json.take();
 }
 
-std::string render_trends(const Gateway& gateway) {
+std::string render_trends(const GatewayView& gateway) {
     Json json;
     json.begin_object()
         .member("interval_seconds", static_cast<int>(Trend::interval.count()))
         .member("span_seconds",
                 static_cast<int>(Trend::interval.count() * static_cast<int>(Trend::capacity)));
     json.key("series").begin_array();
-    for (const auto& link : gateway.links()) {
+    for (const auto& link : gateway.links) {
         for (const auto& module : link->modules()) {
             if (!module.trend || !module.address) continue;
             const auto type = module.address->type;
@@ -558,7 +535,7 @@ std::string render_map(const config::GatewayConfig& config, MapFormat format) {
     return map_html(rows);
 }
 
-HttpResponse render_page(const Gateway& gateway, const Route& route) {
+HttpResponse render_page(const GatewayView& gateway, const Route& route) {
     switch (route.page) {
         case Page::status:
             return {200, "text/html; charset=utf-8", std::string(status_page_html)};
@@ -570,7 +547,7 @@ HttpResponse render_page(const Gateway& gateway, const Route& route) {
             return {200, "text/plain; version=0.0.4; charset=utf-8",
                     render_metrics(gateway, read_process_stats())};
         case Page::health: {
-            const auto health = gateway.health();
+            const auto health = daemon::health(gateway.links);
             return {health.ok ? 200u : 503u, std::string(text_plain),
                     (health.ok ? std::string("ok") : health.reason) + "\n"};
         }
@@ -579,7 +556,7 @@ HttpResponse render_page(const Gateway& gateway, const Route& route) {
                     route.format == MapFormat::html  ? "text/html; charset=utf-8"
                     : route.format == MapFormat::csv ? "text/csv; charset=utf-8"
                                                      : "text/markdown; charset=utf-8",
-                    render_map(gateway.config(), route.format)};
+                    render_map(gateway.config, route.format)};
     }
     return {404, std::string(text_plain), "no such page\n"};
 }

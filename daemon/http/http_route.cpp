@@ -1,4 +1,4 @@
-#include "daemon/http_route.hpp"
+#include "daemon/http/http_route.hpp"
 
 #include <algorithm>
 #include <array>
@@ -6,6 +6,8 @@
 
 #include <fmt/format.h>
 #include <boost/asio/ip/address.hpp>
+
+#include "protocol/hex.hpp"
 
 namespace ioport::daemon {
 namespace {
@@ -23,13 +25,6 @@ constexpr std::array<Path, 6> paths{{{"/", Page::status},
 
 constexpr std::string_view index_hint =
     "pages here: / (status), /api/v1/state, /api/v1/trends, /metrics, /healthz, /map";
-
-std::optional<int> hex_digit(char c) {
-    if (c >= '0' && c <= '9') return c - '0';
-    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
-    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
-    return std::nullopt;
-}
 
 // Percent-decoding of a query component; nullopt for a malformed escape.
 std::optional<std::string> decoded(std::string_view text) {

@@ -1,4 +1,4 @@
-#include "daemon/mqtt_client.hpp"
+#include "daemon/sparkplug/mqtt_client.hpp"
 
 #include <mosquitto.h>
 
@@ -44,9 +44,8 @@ MqttClient::~MqttClient() {
 }
 
 std::string MqttClient::broker() const {
-    const bool v6 = settings_.host.find(':') != std::string::npos;
-    return fmt::format("{}://{}{}{}:{}", settings_.tls ? "mqtts" : "mqtt", v6 ? "[" : "",
-                       settings_.host, v6 ? "]" : "", settings_.port);
+    return fmt::format("{}://{}", settings_.tls ? "mqtts" : "mqtt",
+                       config::host_port(settings_.host, settings_.port));
 }
 
 Result<> MqttClient::configure() {
@@ -83,10 +82,15 @@ Result<> MqttClient::configure() {
     return {};
 }
 
-void MqttClient::set_will(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
-                          bool retain) {
-    mosquitto_will_set(client_, std::string(topic).c_str(), static_cast<int>(payload.size()),
-                       payload.data(), qos, retain);
+Result<> MqttClient::set_will(std::string_view topic, std::span<const std::uint8_t> payload,
+                              int qos, bool retain) {
+    const int rc =
+        mosquitto_will_set(client_, std::string(topic).c_str(), static_cast<int>(payload.size()),
+                           payload.data(), qos, retain);
+    if (rc != MOSQ_ERR_SUCCESS)
+        return fail(Errc::invalid_argument,
+                    fmt::format("the will on {}: {}", printable(topic), mosquitto_error(rc)));
+    return {};
 }
 
 void MqttClient::start() {
@@ -253,9 +257,13 @@ bool MqttClient::publish(std::string_view topic, std::span<const std::uint8_t> p
     return true;
 }
 
-void MqttClient::subscribe(std::string_view pattern, int qos) {
-    mosquitto_subscribe(client_, nullptr, std::string(pattern).c_str(), qos);
+Result<> MqttClient::subscribe(std::string_view pattern, int qos) {
+    const int rc = mosquitto_subscribe(client_, nullptr, std::string(pattern).c_str(), qos);
     watch();
+    if (rc != MOSQ_ERR_SUCCESS)
+        return fail(Errc::io_error,
+                    fmt::format("subscribing to {}: {}", printable(pattern), mosquitto_error(rc)));
+    return {};
 }
 
 void MqttClient::stop(std::chrono::milliseconds deadline, std::function<void()> done) {

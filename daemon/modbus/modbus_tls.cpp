@@ -1,4 +1,4 @@
-#include "daemon/modbus_tls.hpp"
+#include "daemon/modbus/modbus_tls.hpp"
 
 #include <memory>
 
@@ -34,8 +34,7 @@ Unexpected<Error> failed(const config::TlsSettings& settings, std::string_view w
 // The CA's certificates, also named to clients in the certificate request so that a client
 // with several certificates picks the right one.
 Result<> trust_client_ca(SSL_CTX* context, const config::TlsSettings& settings) {
-    const openssl::Bio bio(BIO_new_mem_buf(settings.client_ca_pem.data(),
-                                           static_cast<int>(settings.client_ca_pem.size())));
+    const auto bio = openssl::memory(settings.client_ca_pem);
     X509_STORE* store = SSL_CTX_get_cert_store(context);
     int count = 0;
     while (const openssl::Certificate ca{PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr)}) {

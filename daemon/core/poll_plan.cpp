@@ -1,4 +1,4 @@
-#include "daemon/poll_plan.hpp"
+#include "daemon/core/poll_plan.hpp"
 
 #include <algorithm>
 

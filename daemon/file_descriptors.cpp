@@ -1,4 +1,4 @@
-#include "daemon/descriptors.hpp"
+#include "daemon/file_descriptors.hpp"
 
 #include <sys/resource.h>
 

@@ -1,4 +1,4 @@
-#include "daemon/sparkplug_node.hpp"
+#include "daemon/sparkplug/sparkplug_node.hpp"
 
 #include <fmt/format.h>
 
@@ -26,7 +26,7 @@ std::uint32_t wire(DataType type) {
     return static_cast<std::uint32_t>(type);
 }
 
-sparkplug::ModuleValues values_of(const ModuleView& view) {
+sparkplug::ModuleValues values_of(const ModuleState& view) {
     return {view.reading, view.output, view.stop, view.count};
 }
 
@@ -134,8 +134,9 @@ void SparkplugNode::watch_links() {
     const std::weak_ptr<SparkplugNode> weak = shared_from_this();
     subscriptions_.clear();
     for (const auto& link : links_)
-        subscriptions_.push_back(link->subscribe([weak, raw = link.get()](int slot) {
-            if (auto self = weak.lock()) self->changed(raw, slot);
+        subscriptions_.push_back(link->subscribe([weak, raw = link.get()](const Change& change) {
+            if (change.kind == Change::Kind::write) return;  // its values come as their own change
+            if (auto self = weak.lock()) self->changed(raw, change.slot);
         }));
 }
 
@@ -201,9 +202,12 @@ void SparkplugNode::connecting() {
     bdseq_ = next_bdseq_;
     next_bdseq_ = (next_bdseq_ + 1) % 256;
     const auto death = death_payload();
-    client_->set_will(
+    const auto will = client_->set_will(
         sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id), death, 1,
         false);
+    if (!will)
+        log_.error({}, "Sparkplug: {}: a lost session will not be announced by NDEATH",
+                   will.error().message);
 }
 
 void SparkplugNode::connected() {
@@ -212,14 +216,20 @@ void SparkplugNode::connected() {
         device.born = false;
     const auto& group = settings_.group_id;
     const auto& node = settings_.edge_node_id;
-    client_->subscribe(sparkplug::topic(group, MessageType::ncmd, node), 1);
-    client_->subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+"), 1);
+    subscribe(sparkplug::topic(group, MessageType::ncmd, node), "commands (NCMD)");
+    subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+"), "commands (DCMD)");
     if (!settings_.primary_host_id.empty()) {
         host_online_ = false;  // until its STATE says so (retained, so it comes at once)
-        client_->subscribe(sparkplug::state_topic(settings_.primary_host_id), 1);
+        subscribe(sparkplug::state_topic(settings_.primary_host_id), "the primary host's STATE");
         return;
     }
     birth();
+}
+
+void SparkplugNode::subscribe(const std::string& topic, std::string_view what) {
+    if (auto subscribed = client_->subscribe(topic, 1); !subscribed)
+        log_.error({}, "Sparkplug: {}: {} will not arrive in this session",
+                   subscribed.error().message, what);
 }
 
 void SparkplugNode::disconnected() {
@@ -253,7 +263,7 @@ ioport::daemon::SparkplugNode::LinkMetrics SparkplugNode::link_metrics(
     const LinkScheduler& link) const {
     const auto& c = link.counters();
     return {link.config().name, link.port_open(), c.transactions_ok, c.transactions_failed(),
-            c.opens > 0 ? c.opens - 1 : 0};
+            c.reopens()};
 }
 
 void SparkplugNode::birth() {
@@ -298,7 +308,7 @@ void SparkplugNode::birth() {
               devices_.size());
 }
 
-void SparkplugNode::device_birth(Device& device, const ModuleView& view) {
+void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
     const auto now = now_ms();
     auto values = sparkplug::module_values(type_of(device.module), values_of(view));
     Payload payload{now, next_seq(), {}};
@@ -540,43 +550,25 @@ void SparkplugNode::device_command(Device& device, const Metric& metric) {
                            printable(plan.error().message, 4 * shown_bytes)));
         return;
     }
-    const auto started = std::chrono::steady_clock::now();
+    WriteOrigin origin{.client = "sparkplug",
+                       .function = "DCMD",
+                       .address = address,
+                       .value = value,
+                       .request = fmt::format("DCMD {} = {}", address, value)};
     asio::co_spawn(
         executor_,
-        [self = shared_from_this(), link = device.link, plan = std::move(*plan), address, value,
-         started, device_id = device.id]() mutable -> asio::awaitable<void> {
-            const bool reaches_device = !plan.changes.empty() || plan.reset_counter;
-            const auto result = co_await link->write(std::move(plan));
-            if (!reaches_device) co_return;
-            if (result == WriteResult::busy) {
-                // Never queued, never sent: a refusal like the others, not an audited write.
-                ++self->stats_.commands_refused;
-                self->refuse(fmt::format("{} busy", device_id),
-                             {link->config().name, link->config().unit_id, {}, "sparkplug"},
-                             fmt::format("Sparkplug DCMD {} = {} refused: {} writes are waiting "
-                                         "for link {} (max_pending_writes)",
-                                         address, value, link->config().max_pending_writes,
-                                         link->config().name));
-                co_return;
-            }
-            const WriteAudit audit{
-                .function = "DCMD",
-                .address = address,
-                .value = value,
-                .result = to_string(result),
-                .latency_us = std::chrono::duration_cast<std::chrono::microseconds>(
-                                  std::chrono::steady_clock::now() - started)
-                                  .count()};
-            auto text = fmt::format("write by sparkplug to unit {} ({}): DCMD {} = {}: {} in {} ms",
-                                    link->config().unit_id, link->config().name, address, value,
-                                    audit.result, static_cast<double>(audit.latency_us) / 1000);
-            self->log_.notice({.link = link->config().name,
-                               .unit = link->config().unit_id,
-                               .client = "sparkplug",
-                               .audit = &audit},
-                              "{}", text);
-            self->events_.add(EventKind::write, link->config().name, {}, "sparkplug",
-                              std::move(text));
+        [self = shared_from_this(), link = device.link, plan = std::move(*plan),
+         origin = std::move(origin), device_id = device.id]() mutable -> asio::awaitable<void> {
+            const auto what = origin.request;
+            const auto result = co_await link->write(std::move(plan), std::move(origin));
+            if (result != WriteResult::busy) co_return;  // audited by the link
+            // Never queued, never sent: a refusal like the others, not an audited write.
+            ++self->stats_.commands_refused;
+            self->refuse(fmt::format("{} busy", device_id),
+                         {link->config().name, link->config().unit_id, {}, "sparkplug"},
+                         fmt::format("Sparkplug {} refused: {} writes are waiting for link {} "
+                                     "(max_pending_writes)",
+                                     what, link->config().max_pending_writes, link->config().name));
         },
         asio::detached);
 }

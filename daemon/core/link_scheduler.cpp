@@ -1,8 +1,6 @@
-#include "daemon/link_scheduler.hpp"
+#include "daemon/core/link_scheduler.hpp"
 
 #include <algorithm>
-
-#include "daemon/identity.hpp"
 
 namespace ioport::daemon {
 namespace {
@@ -10,7 +8,6 @@ namespace {
 using asio::redirect_error;
 using asio::use_awaitable;
 using gateway::ModuleStatus;
-using modbus::Exception;
 
 std::vector<PollEntry> poll_entries(const config::LinkConfig& link) {
     std::vector<PollEntry> entries;
@@ -64,40 +61,6 @@ WriteResult worse(WriteResult a, WriteResult b) {
 
 }  // namespace
 
-std::string_view to_string(WriteResult result) {
-    switch (result) {
-        case WriteResult::confirmed:
-            return "confirmed";
-        case WriteResult::error_ack:
-            return "error_ack";
-        case WriteResult::no_answer:
-            return "no_answer";
-        case WriteResult::link_down:
-            return "link_down";
-        case WriteResult::busy:
-            return "busy";
-        case WriteResult::dropped:
-            return "dropped";
-    }
-    return "unknown";
-}
-
-std::optional<Exception> exception_of(WriteResult result) {
-    switch (result) {
-        case WriteResult::confirmed:
-            return std::nullopt;
-        case WriteResult::error_ack:
-            return Exception::server_device_failure;
-        case WriteResult::busy:
-            return Exception::server_device_busy;
-        case WriteResult::no_answer:
-        case WriteResult::link_down:
-        case WriteResult::dropped:
-            break;
-    }
-    return Exception::gateway_target_failed;
-}
-
 struct LinkScheduler::PendingWrite {
     PendingWrite(const asio::any_io_executor& executor, gateway::WritePlan write_plan)
         : plan(std::move(write_plan)), done(executor, Clock::time_point::max()) {}
@@ -108,33 +71,39 @@ struct LinkScheduler::PendingWrite {
 };
 
 LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
-                             gateway::WordOrder word_order, Log& log, EventLog& events)
+                             Log& log)
     : config_(link),
-      identity_(device_identity(link, IOPORTD_VERSION)),
-      word_order_(word_order),
       log_(log),
-      events_(events),
       link_(executor, link_settings(link)),
       wake_(executor),
       plan_(poll_entries(link)) {
     state_.kind =
         link.protocol == config::Protocol::id2 ? gateway::UnitKind::id2 : gateway::UnitKind::ioport;
     state_.status.fill(ModuleStatus::not_configured);
+    module_of_slot_.fill(-1);
     if (state_.kind == gateway::UnitKind::id2) {
         entries_ = {{.target = id2::Command::stop_input, .slot = 0},
                     {.target = id2::Command::count, .slot = 0}};
         state_.status[0] = ModuleStatus::not_polled;
+        modules_.push_back({.name = "ID-2"});
+        module_of_slot_[0] = 0;
     }
     for (const auto& module : link.modules) {
+        const int at = slot(module.address);
         entries_.push_back({.target = module.address,
-                            .slot = slot(module.address),
+                            .slot = at,
+                            .module = modules_.size(),
                             .desired = module.initial,
                             .initial = module.initial,
                             .safe = module.safe});
         if (is_analog(module.address.type)) entries_.back().trend = std::make_shared<Trend>();
-        state_.status[static_cast<std::size_t>(slot(module.address))] = ModuleStatus::not_polled;
+        module_of_slot_[static_cast<std::size_t>(at)] = static_cast<int>(modules_.size());
+        modules_.push_back({.name = to_string(module.address),
+                            .address = module.address,
+                            .slot = at,
+                            .trend = entries_.back().trend.get()});
+        state_.status[static_cast<std::size_t>(at)] = ModuleStatus::not_polled;
     }
-    (void)image(true);
 }
 
 void LinkScheduler::start() {
@@ -187,10 +156,12 @@ bool LinkScheduler::try_open() {
             fmt::format("link {}: {} open at {} baud, unit {}{}", config_.name, config_.device,
                         config_.baud, config_.unit_id, link_.low_latency() ? ", low latency" : "");
         log_.info(fields(), "{}", text);
-        events_.add(EventKind::port_up, config_.name, {}, {}, std::move(text));
         state_.port_open = true;
         last_open_error_.clear();
         plan_.port_opened(Clock::now());
+        const Event event{
+            .kind = EventKind::port_up, .link = config_.name, .text = std::move(text)};
+        notify({.kind = Change::Kind::port, .event = &event});
         return true;
     }
     if (opened.error().message != last_open_error_) {
@@ -289,17 +260,23 @@ asio::awaitable<Result<Reading>> LinkScheduler::transact(std::size_t entry, std:
 
 asio::awaitable<void> LinkScheduler::poll(std::size_t entry) {
     const auto result = co_await transact(entry, 0);
-    if (result) {
-        auto& polled = entries_[entry];
-        if (const auto* command = std::get_if<id2::Command>(&polled.target))
-            gateway::store_id2(image_.tables(), *command, result->raw[0]);
-        else
-            gateway::store_reading(image_.tables(), std::get<ModuleAddress>(polled.target), *result,
-                                   word_order_);
-        polled.reading = *result;
-        if (polled.trend) polled.trend->add(std::chrono::system_clock::now(), result->raw);
-    }
+    if (result) store(entry, *result);
     record(entry, result);
+}
+
+void LinkScheduler::store(std::size_t index, const Reading& reading) {
+    const auto& entry = entries_[index];
+    auto& module = modules_[entry.module];
+    if (const auto* command = std::get_if<id2::Command>(&entry.target)) {
+        if (*command == id2::Command::stop_input)
+            module.stop = reading.raw[0] != 0;
+        else
+            module.count = reading.raw[0];
+    } else {
+        module.reading = reading;
+    }
+    if (entry.trend) entry.trend->add(std::chrono::system_clock::now(), reading.raw);
+    notify({.kind = Change::Kind::values, .slot = entry.slot});
 }
 
 asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
@@ -310,15 +287,15 @@ asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
 }
 
 void LinkScheduler::confirmed(std::size_t entry, std::uint16_t value) {
-    entries_[entry].confirmed = value;
-    gateway::store_output(image_.tables(), std::get<ModuleAddress>(entries_[entry].target), value);
-    notify(entries_[entry].slot);
+    modules_[entries_[entry].module].output = value;
+    notify({.kind = Change::Kind::values, .slot = entries_[entry].slot});
 }
 
-asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan) {
+asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan, WriteOrigin origin) {
     if (plan.changes.empty() && !plan.reset_counter) co_return WriteResult::confirmed;
     if (!state_.port_open || stopping_ || finishing_) {
         ++writes_count_[static_cast<std::size_t>(WriteResult::link_down)];
+        audit(origin, WriteResult::link_down);
         co_return WriteResult::link_down;
     }
     if (writes_.size() >= static_cast<std::size_t>(config_.max_pending_writes)) {
@@ -332,7 +309,31 @@ asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan) {
     boost::system::error_code ec;
     if (!pending->finished) co_await pending->done.async_wait(redirect_error(use_awaitable, ec));
     ++writes_count_[static_cast<std::size_t>(pending->outcome)];
+    audit(origin, pending->outcome);
     co_return pending->outcome;
+}
+
+// The one audit record of a write, whichever transport asked for it. A refusal for a full queue
+// is not audited one by one: refuse_busy() logs them as the flood they are.
+void LinkScheduler::audit(const WriteOrigin& origin, WriteResult result) {
+    const WriteAudit audit{.function = origin.function,
+                           .address = origin.address,
+                           .value = origin.value,
+                           .result = to_string(result),
+                           .latency_us = std::chrono::duration_cast<std::chrono::microseconds>(
+                                             Clock::now() - origin.asked)
+                                             .count()};
+    auto text = fmt::format("write by {} to unit {} ({}): {}: {} in {} ms", origin.client,
+                            config_.unit_id, config_.name, origin.request, audit.result,
+                            static_cast<double>(audit.latency_us) / 1000);
+    log_.notice(
+        {.link = config_.name, .unit = config_.unit_id, .client = origin.client, .audit = &audit},
+        "{}", text);
+    const Event event{.kind = EventKind::write,
+                      .link = config_.name,
+                      .client = origin.client,
+                      .text = std::move(text)};
+    notify({.kind = Change::Kind::write, .event = &event});
 }
 
 // Counted, and logged at most once a minute with the number refused meanwhile: the writer is a
@@ -373,12 +374,23 @@ asio::awaitable<void> LinkScheduler::send_safe_state() {
     for (std::size_t i = 0; i < entries_.size() && link_.is_open() && !stopping_; ++i) {
         const auto* module = std::get_if<ModuleAddress>(&entries_[i].target);
         if (module == nullptr || !is_output(module->type)) continue;
+        // A write like a client's, on the gateway's own behalf: audited and counted as one.
+        const auto name = to_string(*module);
+        const auto value = fmt::format("0x{:04X}", entries_[i].safe);
+        const WriteOrigin origin{.client = "communication loss",
+                                 .function = "safe",
+                                 .address = name,
+                                 .value = value,
+                                 .request = fmt::format("safe value {} to {}", value, name)};
         const auto result = co_await transact(i, entries_[i].safe);
         if (result) {
             confirmed(i, entries_[i].safe);
             ++sent;
         }
         record(i, result);
+        const auto outcome = result ? WriteResult::confirmed : write_failure(result.error());
+        ++writes_count_[static_cast<std::size_t>(outcome)];
+        audit(origin, outcome);
     }
     log_.info(fields(), "link {}: {} output module(s) set to their safe values", config_.name,
               sent);
@@ -418,7 +430,7 @@ asio::awaitable<WriteResult> LinkScheduler::apply(const gateway::OutputChange& c
 asio::awaitable<WriteResult> LinkScheduler::reset_counter() {
     if (!link_.is_open()) co_return WriteResult::link_down;
     const auto result = co_await link_.transact(make_exchange(id2::Command::reset));
-    // A confirmed reset shows in the image with the next read of the count. A failed one is a
+    // A confirmed reset shows in the model with the next read of the count. A failed one is a
     // failure of the device like any other, and leaves the count in doubt: stale until read.
     if (result) co_return WriteResult::confirmed;
     record(id2_count_entry, result);
@@ -433,7 +445,6 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
         entry.status = ModuleStatus::online;
         entry.last_good = now;
         update_slot(entry, nullptr);
-        notify(entry.slot);
         return;
     }
     const auto& error = result.error();
@@ -453,7 +464,6 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
     }
     plan_.done(index, false, now);
     update_slot(entry, &error);
-    notify(entry.slot);
 }
 
 void LinkScheduler::update_slot(const Entry& changed, const Error* error) {
@@ -468,7 +478,7 @@ void LinkScheduler::update_slot(const Entry& changed, const Error* error) {
                         ? std::optional(std::min(*last_good, *other.last_good))
                         : std::nullopt;
     }
-    last_good_[static_cast<std::size_t>(changed.slot)] = last_good;
+    modules_[changed.module].last_good = last_good;
     set_status(changed.slot, status, error);
 }
 
@@ -477,18 +487,23 @@ void LinkScheduler::set_status(int slot_index, ModuleStatus status, const Error*
     if (current == status) return;
     const bool was_online = current == ModuleStatus::online;
     current = status;
-    const auto what = state_.kind == gateway::UnitKind::id2 ? std::string("ID-2")
-                                                            : to_string(module_at_slot(slot_index));
+    auto& module =
+        modules_[static_cast<std::size_t>(module_of_slot_[static_cast<std::size_t>(slot_index)])];
+    module.status = status;
+    Event event{.link = config_.name, .module = module.name};
     if (status == ModuleStatus::online) {
-        auto text = fmt::format("link {}: {} online", config_.name, what);
-        log_.info(fields(what), "{}", text);
-        events_.add(EventKind::module_online, config_.name, what, {}, std::move(text));
+        event.kind = EventKind::module_online;
+        event.text = fmt::format("link {}: {} online", config_.name, module.name);
+        log_.info(fields(module.name), "{}", event.text);
     } else if (was_online || error) {
-        auto text = fmt::format("link {}: {} offline: {}", config_.name, what,
-                                error ? error->message : std::string("port closed"));
-        log_.warn(fields(what), "{}", text);
-        events_.add(EventKind::module_offline, config_.name, what, {}, std::move(text));
+        event.kind = EventKind::module_offline;
+        event.text = fmt::format("link {}: {} offline: {}", config_.name, module.name,
+                                 error ? error->message : std::string("port closed"));
+        log_.warn(fields(module.name), "{}", event.text);
     }
+    notify({.kind = Change::Kind::status,
+            .slot = slot_index,
+            .event = event.text.empty() ? nullptr : &event});
 }
 
 void LinkScheduler::port_lost(const Error& error) {
@@ -497,15 +512,17 @@ void LinkScheduler::port_lost(const Error& error) {
     state_.port_open = false;
     auto text = fmt::format("link {}: port down: {}; reopening", config_.name, error.message);
     log_.warn(fields(), "{}", text);
-    events_.add(EventKind::port_down, config_.name, {}, {}, std::move(text));
     // Polled modules answer 0B (or hold) while the port is away; never-polled ones stay 4.
     for (auto& entry : entries_)
         if (entry.status != ModuleStatus::not_polled) entry.status = ModuleStatus::no_answer;
-    for (auto& status : state_.status)
-        if (status != ModuleStatus::not_configured && status != ModuleStatus::not_polled)
-            status = ModuleStatus::no_answer;
+    for (auto& module : modules_) {
+        if (module.status == ModuleStatus::not_polled) continue;
+        module.status = ModuleStatus::no_answer;
+        state_.status[static_cast<std::size_t>(module.slot)] = module.status;
+    }
     fail_pending_writes(WriteResult::link_down);
-    notify(-1);
+    const Event event{.kind = EventKind::port_down, .link = config_.name, .text = std::move(text)};
+    notify({.kind = Change::Kind::port, .event = &event});
 }
 
 LinkScheduler::Subscription LinkScheduler::subscribe(Observer observer) {
@@ -514,11 +531,11 @@ LinkScheduler::Subscription LinkScheduler::subscribe(Observer observer) {
     return subscription;
 }
 
-void LinkScheduler::notify(int slot) {
+void LinkScheduler::notify(const Change& change) {
     std::erase_if(observers_, [](const auto& observer) { return observer.expired(); });
     // By index: an observer may subscribe while called; the call holds its own observer alive.
     for (std::size_t i = 0; i < observers_.size(); ++i)
-        if (const auto observer = observers_[i].lock()) (*observer)(slot);
+        if (const auto observer = observers_[i].lock()) (*observer)(change);
 }
 
 void LinkScheduler::fail_pending_writes(WriteResult outcome) {
@@ -538,71 +555,30 @@ std::optional<std::size_t> LinkScheduler::entry_of(ModuleAddress module) const {
     return std::nullopt;
 }
 
-std::vector<ModuleView> LinkScheduler::modules() const {
-    std::vector<ModuleView> views;
-    if (state_.kind == gateway::UnitKind::id2) {
-        views.push_back(*module_at(0));
-        return views;
-    }
-    views.reserve(entries_.size());
-    for (const auto& entry : entries_)
-        views.push_back(*module_at(entry.slot));
-    return views;
+const ModuleState* LinkScheduler::module_at(int slot_index) const {
+    if (slot_index < 0 || slot_index >= slot_count) return nullptr;
+    const int index = module_of_slot_[static_cast<std::size_t>(slot_index)];
+    return index < 0 ? nullptr : &modules_[static_cast<std::size_t>(index)];
 }
 
-std::optional<ModuleView> LinkScheduler::module_at(int slot_index) const {
-    if (slot_index < 0 || slot_index >= slot_count) return std::nullopt;
-    const auto at = static_cast<std::size_t>(slot_index);
-    if (state_.kind == gateway::UnitKind::id2) {
-        if (slot_index != 0) return std::nullopt;
-        const auto& stop = entries_[0].reading;
-        const auto& count = entries_[id2_count_entry].reading;
-        return ModuleView{.name = "ID-2",
-                          .status = state_.status[0],
-                          .last_good = last_good_[0],
-                          .stop = stop ? std::optional(stop->raw[0] != 0) : std::nullopt,
-                          .count = count ? std::optional(count->raw[0]) : std::nullopt};
+Health health(const Links& links) {
+    Health health;
+    const auto add = [&](const std::string& reason) {
+        health.ok = false;
+        if (!health.reason.empty()) health.reason += "; ";
+        health.reason += reason;
+    };
+    for (const auto& link : links) {
+        const auto& name = link->config().name;
+        if (!link->port_open()) {
+            add(fmt::format("link {}: port {} not open", name, link->config().device));
+            continue;
+        }
+        for (const auto& module : link->modules())
+            if (module.status != ModuleStatus::online)
+                add(fmt::format("link {}: {} {}", name, module.name, status_text(module.status)));
     }
-    const auto entry = entry_of(module_at_slot(slot_index));
-    if (!entry) return std::nullopt;
-    const auto& e = entries_[*entry];
-    return ModuleView{.name = to_string(module_at_slot(slot_index)),
-                      .address = module_at_slot(slot_index),
-                      .slot = slot_index,
-                      .status = state_.status[at],
-                      .last_good = last_good_[at],
-                      .reading = e.reading,
-                      .output = e.confirmed,
-                      .trend = e.trend.get()};
-}
-
-modbus_mapping_t* LinkScheduler::image(bool diagnostics) {
-    if (!diagnostics) return image_.mapping();
-    const auto now = Clock::now();
-    gateway::Diagnostics d;
-    const auto configured = [](ModuleStatus s) { return s != ModuleStatus::not_configured; };
-    const bool all_online =
-        std::all_of(state_.status.begin(), state_.status.end(),
-                    [&](ModuleStatus s) { return !configured(s) || s == ModuleStatus::online; });
-    d.link_state = !state_.port_open ? gateway::LinkState::port_not_open
-                   : all_online      ? gateway::LinkState::all_online
-                                     : gateway::LinkState::some_offline;
-    d.last_cycle = plan_.last_cycle();
-    d.cycles = plan_.cycles();
-    d.transactions_ok = link_.counters().transactions_ok;
-    d.transactions_failed = link_.counters().transactions_failed();
-    d.opens = link_.counters().opens;
-    d.status = state_.status;
-    for (std::size_t i = 0; i < slot_count; ++i) {
-        const auto& good = last_good_[i];
-        d.age_ms[i] =
-            good ? static_cast<std::uint32_t>(std::min<long long>(
-                       std::chrono::duration_cast<std::chrono::milliseconds>(now - *good).count(),
-                       0xFFFFFFFF))
-                 : 0xFFFFFFFF;
-    }
-    gateway::store_diagnostics(image_.tables(), d, word_order_);
-    return image_.mapping();
+    return health;
 }
 
 }  // namespace ioport::daemon

@@ -1,4 +1,4 @@
-#include "daemon/events.hpp"
+#include "daemon/core/events.hpp"
 
 namespace ioport::daemon {
 
@@ -26,9 +26,18 @@ std::string_view to_string(EventKind kind) {
 
 void EventLog::add(EventKind kind, std::string_view link, std::string_view module,
                    std::string_view client, std::string text) {
+    add({.kind = kind,
+         .link = std::string(link),
+         .module = std::string(module),
+         .client = std::string(client),
+         .text = std::move(text)});
+}
+
+void EventLog::add(Event event) {
     if (events_.size() == capacity) events_.pop_front();
-    events_.push_back({next_seq_++, std::chrono::system_clock::now(), kind, std::string(link),
-                       std::string(module), std::string(client), std::move(text)});
+    event.seq = next_seq_++;
+    event.time = std::chrono::system_clock::now();
+    events_.push_back(std::move(event));
 }
 
 }  // namespace ioport::daemon

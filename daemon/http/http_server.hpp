@@ -18,7 +18,7 @@
 #include <unordered_set>
 
 #include "config/gateway_config.hpp"
-#include "daemon/http_route.hpp"
+#include "daemon/http/http_route.hpp"
 #include "daemon/listener.hpp"
 #include "daemon/log.hpp"
 #include "link/asio.hpp"

@@ -55,13 +55,15 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
 
     // Connects, and reconnects whenever the connection is lost (1 s doubling to 30 s).
     void start();
-    // Sets the will of the next CONNECT.
-    void set_will(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
-                  bool retain);
+    // Sets the will of the next CONNECT; fails when libmosquitto refuses it (a topic or payload
+    // it does not take).
+    Result<> set_will(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
+                      bool retain);
     // False, and counted in dropped(), when not connected or the queue is full.
     bool publish(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
                  bool retain);
-    void subscribe(std::string_view pattern, int qos);
+    // Fails when the SUBSCRIBE cannot be queued (not connected, out of memory).
+    Result<> subscribe(std::string_view pattern, int qos);
     // The clean end: what is queued is sent, then DISCONNECT (so the broker keeps the will), then
     // `done`; at once when not connected. Not within `deadline`: the socket is closed anyway.
     void stop(std::chrono::milliseconds deadline, std::function<void()> done);

@@ -1,0 +1,39 @@
+// The pages of the HTTP side (gateway.md §5.4), rendered from the running gateway on each
+// request: nothing is kept for them but the counters, events and trends that the links and the
+// Modbus server keep anyway.
+#pragma once
+
+#include <string>
+
+#include "config/gateway_config.hpp"
+#include "daemon/core/link_scheduler.hpp"
+#include "daemon/http/http_server.hpp"
+#include "daemon/http/process_stats.hpp"
+#include "daemon/modbus/modbus_server.hpp"
+#include "daemon/sparkplug/sparkplug_node.hpp"
+
+namespace ioport::daemon {
+
+// What the pages render: the running gateway's parts, read-only, for the one request being
+// answered (the gateway owns them all; a reload may replace them between requests).
+struct GatewayView {
+    const config::GatewayConfig& config;
+    const Links& links;
+    const ModbusServer& modbus;
+    const SparkplugNode* sparkplug;  // null when MQTT is off
+    const EventLog& events;
+    std::chrono::system_clock::time_point started;
+};
+
+// The status page: daemon/http/status_page/index.html, embedded at build time.
+extern const std::string_view status_page_html;
+
+HttpResponse render_page(const GatewayView& gateway, const Route& route);
+
+std::string render_metrics(const GatewayView& gateway, const ProcessStats& process);
+std::string render_state(const GatewayView& gateway);
+std::string render_trends(const GatewayView& gateway);
+// The register map of the running configuration, as --print-map prints it, or as an HTML page.
+std::string render_map(const config::GatewayConfig& config, MapFormat format);
+
+}  // namespace ioport::daemon
