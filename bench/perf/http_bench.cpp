@@ -465,6 +465,87 @@ TrendsShape trends_shape(const std::string& json) {
     return shape;
 }
 
+// Eight simulators (every type, 8 of each, 115200 baud, turnaround 0) whose analog values change
+// once a second, and an ioportd with its HTTP side polling them.
+struct EightLinks {
+    EightLinks(const Environment& env, const std::vector<ModuleAddress>& modules) {
+        std::vector<std::string> controls;
+        ready = true;
+        for (int i = 0; i < 8; ++i) {
+            const auto link = dir / fmt::format("tty{}", i);
+            controls.push_back(dir / fmt::format("ctl{}", i));
+            sims.push_back(std::make_unique<SimProcess>(
+                env, link, modules,
+                std::vector<std::string>{"--baud", "115200", "--turnaround", "0", "--control",
+                                         controls.back()}));
+            ready = ready && sims.back()->ready();
+            links.push_back({link, 115200, modules});
+        }
+        gateway.emplace(env, dir, gateway_yaml(links, 300, true));
+        http_port = gateway->started() ? gateway->http_port() : std::uint16_t{0};
+        ready =
+            ready && gateway->started() && http_port != 0 && gateway->wait_until_polling(8, 60s);
+        if (!ready) return;
+        changer.emplace(controls, modules);
+        std::this_thread::sleep_for(env.quick ? 100ms : 1s);
+    }
+
+    TempDir dir;
+    std::vector<std::unique_ptr<SimProcess>> sims;
+    std::vector<LinkSpec> links;
+    std::optional<Gateway> gateway;
+    std::optional<ValueChanger> changer;
+    std::uint16_t http_port = 0;
+    bool ready = false;
+};
+
+// What polling costs with no client, to take off: a fraction of a core.
+double idle_cpu_fraction(const Environment& env, const Gateway& gateway) {
+    const auto idle_before = cpu_time(gateway.pid());
+    const auto idle_start = Clock::now();
+    std::this_thread::sleep_for(env.window(3s));
+    return microseconds(cpu_time(gateway.pid()) - idle_before) / 1e6 /
+           seconds(Clock::now() - idle_start);
+}
+
+// --baseline: an earlier ioportd on eight links of its own beside this one, and the same scrapes
+// of both in alternating rounds, so that the machine's noise falls on both alike.
+void baseline_scrapes(const Environment& env, const std::vector<ModuleAddress>& modules, int n,
+                      const EightLinks& ours) {
+    auto baseline_env = env;
+    baseline_env.binaries.ioportd = env.binaries.baseline;
+    EightLinks theirs(baseline_env, modules);
+    if (!theirs.ready) {
+        fmt::print("\nThe baseline {} did not start.\n", env.binaries.baseline);
+        return;
+    }
+    constexpr int rounds = 4;
+    const int per_round = std::max(n / rounds, 3);
+    fmt::print(
+        "\nAgainst the baseline {}: both polling eight links of their own, the same scrapes in "
+        "{} alternating rounds of {}:\n\n",
+        env.binaries.baseline, rounds, per_round);
+    const Table table({"page", "ioportd CPU ms/scrape", "baseline", "ratio"});
+    for (const auto page : {"/metrics", "/api/v1/state"}) {
+        const auto& headers =
+            std::string_view(page) == "/metrics" ? prometheus_headers : browser_headers;
+        HttpClient our_client(ours.http_port, headers);
+        HttpClient their_client(theirs.http_port, headers);
+        double our_ms = 0;
+        double their_ms = 0;
+        for (int r = 0; r < rounds; ++r) {
+            our_ms += scrape_cost(*ours.gateway, our_client, page, per_round, 0).gross_ms;
+            their_ms += scrape_cost(*theirs.gateway, their_client, page, per_round, 0).gross_ms;
+        }
+        table.row({page, fmt::format("{:.3f}", our_ms / rounds),
+                   fmt::format("{:.3f}", their_ms / rounds),
+                   fmt::format("**{:.3f}**", our_ms / their_ms)});
+        machine_line(fmt::format(
+            R"({{"bench":"http_scrape_baseline","page":"{}","cpu_ms":{:.4f},"baseline_cpu_ms":{:.4f},"ratio":{:.4f}}})",
+            page, our_ms / rounds, their_ms / rounds, our_ms / their_ms));
+    }
+}
+
 std::vector<Verdict> eight_links(const Environment& env) {
     fmt::print(
         "\n### 6b. One scrape's CPU with 8 links × 72 modules\n\nEight simulators (every type, "
@@ -474,41 +555,17 @@ std::vector<Verdict> eight_links(const Environment& env) {
         "and /proc/PID/stat's 10 ms ticks as a check) ÷ their number. \"Net\" takes off what "
         "polling the 8 links cost meanwhile, at the rate measured with no client just before.\n");
     std::vector<Verdict> verdicts;
-    TempDir dir;
     const auto modules = every_module();
-    std::vector<std::unique_ptr<SimProcess>> sims;
-    std::vector<LinkSpec> links;
-    std::vector<std::string> controls;
-    bool ready = true;
-    for (int i = 0; i < 8; ++i) {
-        const auto link = dir / fmt::format("tty{}", i);
-        controls.push_back(dir / fmt::format("ctl{}", i));
-        sims.push_back(std::make_unique<SimProcess>(
-            env, link, modules,
-            std::vector<std::string>{"--baud", "115200", "--turnaround", "0", "--control",
-                                     controls.back()}));
-        ready = ready && sims.back()->ready();
-        links.push_back({link, 115200, modules});
-    }
     const auto started = Clock::now();
-    Gateway gateway(env, dir, gateway_yaml(links, 300, true));
-    const std::uint16_t http_port = gateway.started() ? gateway.http_port() : std::uint16_t{0};
-    if (!ready || !gateway.started() || http_port == 0 || !gateway.wait_until_polling(8, 60s))
-        return {{"6b. scrape CPU", "did not start", "< 5 ms", false}};
-    ValueChanger changer(controls, modules);
-    std::this_thread::sleep_for(env.quick ? 100ms : 1s);
+    EightLinks bus(env, modules);
+    if (!bus.ready) return {{"6b. scrape CPU", "did not start", "< 5 ms", false}};
+    auto& gateway = *bus.gateway;
+    const auto& links = bus.links;
     const auto at_start = memory(gateway.pid());
+    const double idle_fraction = idle_cpu_fraction(env, gateway);
 
-    // What polling costs with no client, to take off.
-    const auto idle_window = env.window(3s);
-    const auto idle_before = cpu_time(gateway.pid());
-    const auto idle_start = Clock::now();
-    std::this_thread::sleep_for(idle_window);
-    const double idle_fraction = microseconds(cpu_time(gateway.pid()) - idle_before) / 1e6 /
-                                 seconds(Clock::now() - idle_start);
-
-    HttpClient prometheus(http_port, prometheus_headers);
-    HttpClient browser(http_port, browser_headers);
+    HttpClient prometheus(bus.http_port, prometheus_headers);
+    HttpClient browser(bus.http_port, browser_headers);
     const int n = env.quick ? 3 : static_cast<int>(200 * env.scale);
     const auto metrics = scrape_cost(gateway, prometheus, "/metrics", n, idle_fraction);
     const auto state = scrape_cost(gateway, browser, "/api/v1/state", n, idle_fraction);
@@ -605,13 +662,15 @@ std::vector<Verdict> eight_links(const Environment& env) {
                             fmt::format("{:.1f} MiB", mib(full->peak_kib)), "<= 16 MiB",
                             full->peak_kib <= std::size_t{16} * 1024});
     }
-    if (changer.failed() > 0)
-        fmt::print("\nThe simulators refused {} value changes.\n", changer.failed());
+    if (bus.changer->failed() > 0)
+        fmt::print("\nThe simulators refused {} value changes.\n", bus.changer->failed());
     machine_line(fmt::format(
         R"({{"bench":"http_memory","links":8,"modules_per_link":72,"analog_modules":{},"trend_bytes":{},"rings_bytes":{},"rss_start_mib":{:.2f},"peak_after_scrapes_mib":{:.2f},"trends_bytes_now":{},"trends_points_now":{},"trends_bytes_full_computed":{},"peak_full_computed_mib":{:.2f},"peak_full_measured_mib":{},"trends_bytes_full_measured":{},"value_ticks":{}}})",
         analog, sizeof(daemon::Trend), rings, mib(at_start.rss_kib), mib(after_scrapes.peak_kib),
         trends.bytes, shape.points, full_trends, mib(full_peak_kib),
-        full ? fmt::format("{:.2f}", mib(full->peak_kib)) : "null", full_bytes, changer.ticks()));
+        full ? fmt::format("{:.2f}", mib(full->peak_kib)) : "null", full_bytes,
+        bus.changer->ticks()));
+    if (!env.binaries.baseline.empty()) baseline_scrapes(env, modules, n, bus);
     return verdicts;
 }
 

@@ -27,8 +27,10 @@ its target. Asserts nothing: exit status 0 unless a program could not be started
                     figures mean nothing
   --scale X         multiply every measured window by X (default 1)
   --ioportd PATH    the ioportd to measure (default: the one built beside this program)
-  --baseline PATH   benchmark 4 also measures this ioportd (an earlier build) in the same
-                    alternating rounds, and prints CPU per request and rate against it
+  --baseline PATH   benchmarks 4, 6b and 7b also measure this ioportd (an earlier build) in
+                    the same run: 4 in the same alternating rounds (CPU per request and rate
+                    against it), 6b its CPU per scrape right after, 7b its CPU with MQTT on over
+                    the same windows
   --no-pin          do not pin servers and clients to CPUs 1 and 0
   --no-latency-hold let idle CPUs halt during benchmarks 1-4 as well (see WakeupLatencyHold
                     in harness.hpp): their figures then include the hypervisor's wake-ups

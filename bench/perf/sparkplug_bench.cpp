@@ -38,11 +38,15 @@ std::string node_id(int i) {
     return fmt::format("node{}", i);
 }
 
-std::string mqtt_yaml(std::uint16_t broker_port, std::string_view node) {
+std::string mqtt_yaml(std::uint16_t broker_port, std::string_view node,
+                      std::string_view group_id = group) {
     return fmt::format(
         "mqtt:\n  broker: \"mqtt://127.0.0.1:{}\"\n  group_id: {}\n  edge_node_id: {}\n",
-        broker_port, group, node);
+        broker_port, group_id, node);
 }
+
+// --baseline's edge node publishes in a group of its own, which the tally does not count.
+constexpr std::string_view baseline_group = "bench-baseline";
 
 sim::SimulatorSettings timed(int baud) {
     sim::SimulatorSettings settings;
@@ -472,6 +476,23 @@ std::vector<Verdict> publication_cost(const Environment& env) {
                gateway_yaml({{dir / "tty-on", 115200, bus}}, 300, false,
                             mqtt_yaml(broker.port(), node_id(0))));
     Gateway off(env, dir_off, gateway_yaml({{dir / "tty-off", 115200, bus}}, 300));
+    // --baseline: the earlier ioportd, MQTT on, on the same broker and the same changing input,
+    // over the same windows.
+    std::optional<TempDir> dir_base;
+    std::optional<InProcessSim> sim_base;
+    std::optional<Gateway> base;
+    if (!env.binaries.baseline.empty()) {
+        auto baseline_env = env;
+        baseline_env.binaries.ioportd = env.binaries.baseline;
+        dir_base.emplace();
+        sim_base.emplace(*dir_base / "tty", bus, timed(115200), env.placement.client_cpu);
+        base.emplace(baseline_env, *dir_base,
+                     gateway_yaml({{*dir_base / "tty", 115200, bus}}, 300, false,
+                                  mqtt_yaml(broker.port(), node_id(0), baseline_group)));
+        if (!sim_base->ready() || !base->started() || !base->wait_until_polling())
+            return {{"7b. CPU of publication", "the baseline ioportd did not start", "", false}};
+        sim_base->wander(analog, period);
+    }
     if (!sim_on.ready() || !sim_off.ready() || !subscriber.ready() || !on.started() ||
         !off.started() || !on.wait_until_polling() || !off.wait_until_polling() ||
         !wait_for(
@@ -491,7 +512,8 @@ std::vector<Verdict> publication_cost(const Environment& env) {
     const Table cpu_table({"window", "ioportd on, CPU", "ioportd off, CPU", "on ÷ off", "DDATA/s",
                            "KiB/s at the subscriber", "broker CPU"});
     std::vector<double> ratios;
-    std::chrono::nanoseconds total_on{}, total_off{}, total_broker{};
+    std::vector<double> baseline_ratios;
+    std::chrono::nanoseconds total_on{}, total_off{}, total_broker{}, total_base{};
     Tally::Counts total_counts;
     double total_seconds = 0;
     for (int i = 0; i < windows; ++i) {
@@ -499,8 +521,15 @@ std::vector<Verdict> publication_cost(const Environment& env) {
         const auto on_before = cpu_time(on.pid());
         const auto off_before = cpu_time(off.pid());
         const auto broker_before = cpu_time(broker.pid());
+        const auto base_before = base ? cpu_time(base->pid()) : std::chrono::nanoseconds{};
         const auto start = Clock::now();
         std::this_thread::sleep_for(window);
+        if (base) {
+            const auto cpu_base = cpu_time(base->pid()) - base_before;
+            total_base += cpu_base;
+            baseline_ratios.push_back(microseconds(cpu_time(on.pid()) - on_before) /
+                                      std::max(microseconds(cpu_base), 1.0));
+        }
         const auto cpu_on = cpu_time(on.pid()) - on_before;
         const auto cpu_off = cpu_time(off.pid()) - off_before;
         const auto cpu_broker = cpu_time(broker.pid()) - broker_before;
@@ -545,6 +574,16 @@ std::vector<Verdict> publication_cost(const Environment& env) {
         analog.size(), period.count(), total_seconds, on_pct, off_pct, on_pct / off_pct, cpu_ratio,
         ddata_per_s, static_cast<double>(total_counts.bytes) / total_seconds, us_per_ddata,
         broker_pct, total_counts.lost));
+    if (base) {
+        const double base_pct = microseconds(total_base) / 1e4 / total_seconds;
+        fmt::print(
+            "\nAgainst the baseline {} (MQTT on, the same input, the same windows): {:.2f} % ÷ "
+            "{:.2f} % of a core = {:.3f}× (median of the windows {:.3f}×).\n",
+            env.binaries.baseline, on_pct, base_pct, on_pct / base_pct, median(baseline_ratios));
+        machine_line(fmt::format(
+            R"({{"bench":"sparkplug_cpu_baseline","cpu_on_pct":{:.3f},"cpu_baseline_pct":{:.3f},"ratio_total":{:.4f},"ratio_median":{:.4f}}})",
+            on_pct, base_pct, on_pct / base_pct, median(baseline_ratios)));
+    }
 
     // b2. Modbus at 64 connections, on the one and then the other.
     constexpr int connections = 64;
