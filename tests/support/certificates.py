@@ -1,6 +1,7 @@
-"""Certificates for the Modbus/TCP Security tests (gateway.md §5.6), made with the commands the
-README gives a person ("Securing Modbus"): a CA, the gateway's certificate, clients with a role
-in extension 1.3.6.1.4.1.50316.802.1. Keys are 0640, as ioportd refuses a key others can read.
+"""Certificates for the Modbus/TCP Security tests (gateway.md §5.6), made with the commands
+docs/tls.md gives a person ("Making the certificates"): a CA, the gateway's certificate, clients
+with a role in extension 1.3.6.1.4.1.50316.802.1. Keys are 0640, as ioportd refuses a key others
+can read.
 
     certs = Certificates(directory)       # ca.pem/key, server.pem/key (CN gateway1)
     certs.client("operator", "operator")  # operator.pem/key
@@ -15,7 +16,7 @@ import subprocess
 
 ROLE_OID = "1.3.6.1.4.1.50316.802.1"
 
-# The least `openssl ca` needs to revoke certificates and issue CRLs: the README's recipe.
+# The least `openssl ca` needs to revoke certificates and issue CRLs: docs/tls.md's recipe.
 CA_CONFIG = """[ca]
 default_ca = plant
 [plant]

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Modbus/TCP Security (gateway.md §5.6) against the real daemon on the simulators, with
-certificates made here by openssl, as the README tells a person to make them: a CA, a server
+certificates made here by openssl, as docs/tls.md tells a person to make them: a CA, a server
 certificate, clients with the roles operator, viewer and line2 (unit 2 only), one with a role no
 one configured, one without a role, one expired and one from another CA.
 
