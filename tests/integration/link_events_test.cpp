@@ -10,6 +10,7 @@ namespace ioport::daemon {
 namespace {
 
 using test::PtyDevice;
+using test::run_until;
 
 config::LinkConfig hub_link(const std::string& device) {
     config::LinkConfig link;
@@ -19,14 +20,6 @@ config::LinkConfig hub_link(const std::string& device) {
     link.modules = {config::ModuleConfig{.address = {ModuleType::dim16, 0}},
                     config::ModuleConfig{.address = {ModuleType::dom16, 0}}};
     return link;
-}
-
-bool run_until(asio::io_context& io, const std::function<bool()>& condition,
-               std::chrono::milliseconds deadline = 5s) {
-    const auto end = Clock::now() + deadline;
-    while (!condition() && Clock::now() < end)
-        io.run_one_for(10ms);
-    return condition();
 }
 
 // A hub whose dim16 0 reads `input` and whose dom16 0 acknowledges what it is sent.

@@ -11,6 +11,7 @@ namespace ioport::daemon {
 namespace {
 
 using test::PtyDevice;
+using test::run_until;
 
 config::LinkConfig hub_link(const std::string& device, std::chrono::microseconds timeout) {
     config::LinkConfig link;
@@ -20,15 +21,6 @@ config::LinkConfig hub_link(const std::string& device, std::chrono::microseconds
     link.retries = 10;  // the most the configuration allows
     link.modules = {config::ModuleConfig{.address = {ModuleType::dim16, 0}}};
     return link;
-}
-
-// Runs `io` until `condition` holds; false if not within `deadline`.
-bool run_until(asio::io_context& io, const std::function<bool()>& condition,
-               std::chrono::milliseconds deadline = 2s) {
-    const auto end = Clock::now() + deadline;
-    while (!condition() && Clock::now() < end)
-        io.run_one_for(10ms);
-    return condition();
 }
 
 class LinkWatchdog : public ::testing::Test {

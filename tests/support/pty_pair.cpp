@@ -105,4 +105,12 @@ void run_until_done(asio::io_context& io, const std::function<asio::awaitable<vo
     EXPECT_TRUE(done) << "the test did not finish within " << deadline.count() << " ms";
 }
 
+bool run_until(asio::io_context& io, const std::function<bool()>& condition,
+               std::chrono::milliseconds deadline) {
+    const auto end = std::chrono::steady_clock::now() + deadline;
+    while (!condition() && std::chrono::steady_clock::now() < end)
+        io.run_one_for(std::chrono::milliseconds(10));
+    return condition();
+}
+
 }  // namespace ioport::test

@@ -53,4 +53,8 @@ class PtyDevice {
 void run_until_done(asio::io_context& io, const std::function<asio::awaitable<void>()>& test,
                     std::chrono::milliseconds deadline = 10s);
 
+// Runs `io` until `condition` holds; false if not within `deadline`.
+bool run_until(asio::io_context& io, const std::function<bool()>& condition,
+               std::chrono::milliseconds deadline = 5s);
+
 }  // namespace ioport::test
