@@ -36,7 +36,7 @@ struct Binaries {
     std::string baseline;  // --baseline: an earlier ioportd, measured beside it in benchmark 4
     // The MQTT broker of benchmark 7 (--mosquitto); without it benchmark 7 says so and skips.
     std::string mosquitto = "/usr/sbin/mosquitto";
-    // Benchmark 8 makes its certificates with it, as the README tells an operator to.
+    // Benchmark 8 makes its certificates with it, as docs/tls.md tells an operator to.
     std::string openssl = "/usr/bin/openssl";
 };
 

@@ -1,5 +1,5 @@
 // Benchmark 8, what Modbus/TCP Security costs (issue 18, gateway.md §5.6), on an ioportd with both
-// listeners on, plain and TLS, and certificates made here with the openssl command as the README
+// listeners on, plain and TLS, and certificates made here with the openssl command as docs/tls.md
 // tells an operator to (EC P-256, a client certificate with the operator role):
 // a. the reads of benchmark 4 on 1, 8 and 64 long-lived connections, over TLS and over plain
 //    TCP in alternating pairs of rounds: ioportd's CPU per request, requests/s, latency;

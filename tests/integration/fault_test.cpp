@@ -8,8 +8,8 @@
 //   3. every write a client saw acknowledged reached the device (a command carrying it was
 //      applied between request and response), and every write that did not answered an
 //      exception (04 or 0B); a write answered with an exception never became desired state.
-// The figures each scenario measures are printed (and recorded as test properties) for the
-// README's "Faults and recovery".
+// The figures each scenario measures are printed (and recorded as test properties) for
+// docs/faults.md.
 #include <sys/resource.h>
 
 #include <gtest/gtest.h>
@@ -37,7 +37,7 @@ using Clock = std::chrono::steady_clock;
 using std::chrono::milliseconds;
 
 // 50 ms: on a busy 2-core machine the simulator can be starved of CPU for tens of ms, which a
-// master cannot tell from a module answering two timeouts late (see the README).
+// master cannot tell from a module answering two timeouts late (see docs/faults.md).
 constexpr auto serial_timeout = 50ms;
 constexpr int slot_dim16_1 = 1;
 constexpr int slot_dom16_2 = 10;
@@ -129,7 +129,7 @@ TEST_F(Faults, RandomGarbageShortLongLateErrorAckAndSilenceOn1To10PercentOfTrans
     // Every 250 ms each module gets a new fault kind at a new probability between 1 and 10 %.
     // Late answers come 75 ms after the request: after the 50 ms timeout, inside the silence
     // the link waits for after a failure (answers later than twice the timeout cannot be told
-    // from the next module's: see the README).
+    // from the next module's: see docs/faults.md).
     const std::vector<std::string> kinds{"silent", "error-ack", "garbage",
                                          "short",  "long",      "delay"};
     std::mt19937 random(11);

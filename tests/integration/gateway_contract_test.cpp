@@ -542,7 +542,7 @@ TEST_F(ContractTest, WritesToADeadModuleInALoopNeverStarvePollingOrOtherWrites) 
 // poll reads. 16 modules, 7 outputs refreshing every second (the default), three clients writing
 // to a dead dom16 without pause: each write takes (retries + 1) timeouts and a silence (180 ms),
 // so the six live refreshes a second could take every turn between writes, and before this rule
-// they did (dim16 0 was never read). The README states the bound: an input module is read at
+// they did (dim16 0 was never read). docs/faults.md states the bound: an input module is read at
 // least every inputs × 2 × (the longest write + the longest refresh or poll read).
 class WriteStormTest : public Contract {
   protected:
@@ -595,7 +595,7 @@ TEST_F(WriteStormTest, InputsAreReadWithinTheStatedBoundWhileThreeClientsWriteTo
         pace_until(Clock::now() + 50ms);
     }
     writers.stop();
-    // The README's bound: every other turn between two writes is a poll read, so each of n
+    // docs/faults.md's bound: every other turn between two writes is a poll read, so each of n
     // inputs is read within 2n × (W + T), W the longest write (to the silent module: two
     // attempts, each a timeout and a silence) and T the longest other transaction (the silent
     // module's refresh, at worst W). Without the alternation the refreshes took every turn and
@@ -604,7 +604,7 @@ TEST_F(WriteStormTest, InputsAreReadWithinTheStatedBoundWhileThreeClientsWriteTo
     const auto bound = 2 * input_slots.size() * (dead_write + dead_write);
     figure("writes to the dead dom16 in 11 s", std::to_string(dead_writes.load()));
     figure("oldest input module during the storm", fmt::format("{} ms", oldest));
-    figure("the README's bound for 9 inputs", fmt::format("{} ms", bound.count()));
+    figure("docs/faults.md's bound for 9 inputs", fmt::format("{} ms", bound.count()));
     EXPECT_GE(dead_writes, 30) << "the writes did not stream";
     EXPECT_LT(milliseconds(oldest), bound + 500ms)
         << "an input module was starved by the refreshes between the writes";

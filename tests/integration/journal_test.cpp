@@ -254,7 +254,7 @@ links:
 }
 
 // A CA, the server's certificate and a client's with `role` (none when empty), made in `dir` with
-// the README's openssl commands.
+// docs/tls.md's openssl commands.
 void make_certificates(const TempDir& dir, const std::string& role) {
     const std::vector<std::string> ec{
         "openssl", "req",   "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256",

@@ -28,7 +28,7 @@ inline void pace_until(std::chrono::steady_clock::time_point when) {
             when - std::chrono::steady_clock::now(), std::chrono::milliseconds(5)));
 }
 
-// A figure for the README: printed, and kept in the test's XML properties.
+// A figure for the documentation: printed, and kept in the test's XML properties.
 inline void figure(const std::string& name, const std::string& value) {
     ::testing::Test::RecordProperty(name, value);
     std::cout << "[ figure   ] " << name << ": " << value << "\n";
