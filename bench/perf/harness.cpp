@@ -54,6 +54,12 @@ std::chrono::milliseconds Environment::window(std::chrono::milliseconds full) co
         static_cast<std::int64_t>(static_cast<double>(full.count()) * scale));
 }
 
+Environment Environment::baseline() const {
+    auto earlier = *this;
+    earlier.binaries.ioportd = binaries.baseline;
+    return earlier;
+}
+
 void pin_this_thread(std::optional<int> cpu) {
     if (!cpu) return;
     cpu_set_t set;

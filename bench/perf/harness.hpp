@@ -33,7 +33,7 @@ struct Binaries {
     std::string ioportd = IOPORTD_BINARY;
     std::string sim = IOPORT_SIM_BINARY;
     std::string plain_server = PLAIN_SERVER_BINARY;
-    std::string baseline;  // --baseline: an earlier ioportd, measured beside it in benchmark 4
+    std::string baseline;  // --baseline: an earlier ioportd, measured beside it in 4, 6b and 7b
     // The MQTT broker of benchmark 7 (--mosquitto); without it benchmark 7 says so and skips.
     std::string mosquitto = "/usr/sbin/mosquitto";
     // Benchmark 8 makes its certificates with it, as docs/tls.md tells an operator to.
@@ -61,6 +61,8 @@ struct Environment {
     // (0: skip 7c). Never in a --quick run.
     int fleet = 50;
     std::chrono::milliseconds window(std::chrono::milliseconds full) const;
+    // This environment with --baseline's ioportd in place of the one under test.
+    Environment baseline() const;
 };
 
 void pin_this_thread(std::optional<int> cpu);

@@ -512,9 +512,7 @@ double idle_cpu_fraction(const Environment& env, const Gateway& gateway) {
 // of both in alternating rounds, so that the machine's noise falls on both alike.
 void baseline_scrapes(const Environment& env, const std::vector<ModuleAddress>& modules, int n,
                       const EightLinks& ours) {
-    auto baseline_env = env;
-    baseline_env.binaries.ioportd = env.binaries.baseline;
-    EightLinks theirs(baseline_env, modules);
+    EightLinks theirs(env.baseline(), modules);
     if (!theirs.ready) {
         fmt::print("\nThe baseline {} did not start.\n", env.binaries.baseline);
         return;

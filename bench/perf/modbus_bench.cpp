@@ -60,12 +60,10 @@ std::vector<Verdict> modbus_throughput(const Environment& env) {
     std::optional<SimProcess> baseline_sim;
     std::optional<Gateway> baseline;
     if (!env.binaries.baseline.empty()) {
-        auto baseline_env = env;
-        baseline_env.binaries.ioportd = env.binaries.baseline;
         baseline_dir.emplace();
         baseline_sim.emplace(env, *baseline_dir / "tty", modules,
                              std::vector<std::string>{"--baud", "115200", "--turnaround", "0"});
-        baseline.emplace(baseline_env, *baseline_dir,
+        baseline.emplace(env.baseline(), *baseline_dir,
                          gateway_yaml({{*baseline_dir / "tty", 115200, modules}}, 300));
         if (!baseline_sim->ready() || !baseline->started() || !baseline->wait_until_polling())
             return {{"4. Modbus", "the baseline ioportd did not start", "", false}};

@@ -482,11 +482,9 @@ std::vector<Verdict> publication_cost(const Environment& env) {
     std::optional<InProcessSim> sim_base;
     std::optional<Gateway> base;
     if (!env.binaries.baseline.empty()) {
-        auto baseline_env = env;
-        baseline_env.binaries.ioportd = env.binaries.baseline;
         dir_base.emplace();
         sim_base.emplace(*dir_base / "tty", bus, timed(115200), env.placement.client_cpu);
-        base.emplace(baseline_env, *dir_base,
+        base.emplace(env.baseline(), *dir_base,
                      gateway_yaml({{*dir_base / "tty", 115200, bus}}, 300, false,
                                   mqtt_yaml(broker.port(), node_id(0), baseline_group)));
         if (!sim_base->ready() || !base->started() || !base->wait_until_polling())
