@@ -42,10 +42,6 @@ constexpr auto serial_timeout = 50ms;
 constexpr int slot_dim16_1 = 1;
 constexpr int slot_dom16_2 = 10;
 
-milliseconds since(Clock::time_point start) {
-    return std::chrono::duration_cast<milliseconds>(Clock::now() - start);
-}
-
 std::string gateway_config(const std::string& device, const std::string& modbus_extra = "") {
     return fmt::format("modbus:\n  listen: \"127.0.0.1:0\"\n{}\nlinks:\n{}", modbus_extra,
                        bench::hub_link_yaml(device, serial_timeout, 1));
@@ -365,13 +361,6 @@ TEST_F(CommLoss, ScadaFallsSilentWithWritesInFlightNoWriteLostNoValueNobodyAsked
 }
 
 // --- Modbus clients -------------------------------------------------------------------------
-
-Bytes pdu(std::uint8_t function, std::initializer_list<std::uint16_t> words) {
-    Bytes bytes{function};
-    const auto fields = be16(words);
-    bytes.insert(bytes.end(), fields.begin(), fields.end());
-    return bytes;
-}
 
 // Runs `body` over and over in its own thread until stopped; counts its rounds and failures.
 class Misbehaviour {
@@ -717,15 +706,6 @@ class DescriptorLimit {
   private:
     rlimit saved_{};
 };
-
-std::size_t open_descriptors(pid_t pid) {
-    std::size_t count = 0;
-    std::error_code ec;
-    for (auto it = std::filesystem::directory_iterator(fmt::format("/proc/{}/fd", pid), ec);
-         !ec && it != std::filesystem::directory_iterator(); it.increment(ec))
-        ++count;
-    return count;
-}
 
 class ManyConnections : public ::testing::Test {
   protected:

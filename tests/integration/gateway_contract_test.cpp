@@ -53,10 +53,6 @@ constexpr std::uint8_t fc_write_registers = 0x10;
 constexpr std::uint16_t never = 65535;  // 1200 + slot of an unconfigured module
 const std::string missing_device = "/nonexistent/ioportd-test/ttyUSB9";
 
-milliseconds since(Clock::time_point start) {
-    return std::chrono::duration_cast<milliseconds>(Clock::now() - start);
-}
-
 // --- Configurations -------------------------------------------------------------------------
 
 struct Module {
@@ -134,16 +130,6 @@ const std::vector<Module> hub_modules{
 };
 
 // --- Raw Modbus TCP -------------------------------------------------------------------------
-
-// A PDU: the function code, then big-endian words, then raw bytes.
-Bytes pdu(std::uint8_t function, std::initializer_list<std::uint16_t> words,
-          const Bytes& tail = {}) {
-    Bytes bytes{function};
-    const auto fields = be16(words);
-    bytes.insert(bytes.end(), fields.begin(), fields.end());
-    bytes.insert(bytes.end(), tail.begin(), tail.end());
-    return bytes;
-}
 
 // FC15/FC16 with `byte_count` as the byte count field and `data` bytes after it.
 Bytes write_multiple(std::uint8_t function, std::uint16_t address, std::uint16_t quantity,

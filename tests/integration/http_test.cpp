@@ -53,10 +53,6 @@ links:
 
 constexpr std::string_view http_on = R"(http: { listen: "127.0.0.1:0" })";
 
-milliseconds since(Clock::time_point start) {
-    return std::chrono::duration_cast<milliseconds>(Clock::now() - start);
-}
-
 std::string trimmed(std::string text) {
     while (!text.empty() && (text.back() == '\n' || text.back() == '\r'))
         text.pop_back();
@@ -731,12 +727,6 @@ TEST_F(Http, ASlowlorisIsClosedTenSecondsAfterItsFirstByteWhileModbusKeepsAnswer
               << " ms\n";
     EXPECT_EQ(http_get(http_port(), "/healthz").status, 200);
     EXPECT_TRUE(gateway.running());
-}
-
-std::size_t open_descriptors(pid_t pid) {
-    std::error_code ignored;
-    const std::filesystem::directory_iterator fds(fmt::format("/proc/{}/fd", pid), ignored);
-    return static_cast<std::size_t>(std::distance(begin(fds), end(fds)));
 }
 
 TEST_F(Http, AThousandConnectionsAtOnceCostModbusNothingAndTheServerRecovers) {

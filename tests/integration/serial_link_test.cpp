@@ -38,14 +38,14 @@ class SerialLinkTest : public ::testing::Test {
 
 // Runs transactions in order on the test's io_context and returns every outcome with its
 // duration. `between` runs before transaction i (for scripted line noise and the like).
-struct Outcome {
+struct TimedResult {
     Result<Reading> result;
     Clock::duration elapsed;
 };
-std::vector<Outcome> transact_all(asio::io_context& io, SerialLink& link,
-                                  const std::vector<Exchange>& exchanges,
-                                  const std::function<void(std::size_t)>& between = {}) {
-    std::vector<Outcome> outcomes;
+std::vector<TimedResult> transact_all(asio::io_context& io, SerialLink& link,
+                                      const std::vector<Exchange>& exchanges,
+                                      const std::function<void(std::size_t)>& between = {}) {
+    std::vector<TimedResult> outcomes;
     run_until_done(io, [&]() -> asio::awaitable<void> {
         for (std::size_t i = 0; i < exchanges.size(); ++i) {
             if (between) between(i);

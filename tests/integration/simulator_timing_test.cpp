@@ -19,11 +19,11 @@ using Clock = std::chrono::steady_clock;
 TEST(SimulatorTiming, AnswersNoSoonerThanTheModelledLineAllows) {
     constexpr int baud = 38400;
     constexpr int transactions = 100;
-    const ModuleAddress dim0{ModuleType::dim16, 0};
+    const ModuleAddress polled{ModuleType::dim16, 0};
     asio::io_context io;
     test::TempDir dir;
     sim::DeviceModel model(sim::Protocol::ioport, 1);
-    ASSERT_TRUE(model.add(dim0));
+    ASSERT_TRUE(model.add(polled));
     sim::SimulatorSettings settings;
     settings.link_path = dir / "tty";
     settings.baud = baud;
@@ -40,7 +40,7 @@ TEST(SimulatorTiming, AnswersNoSoonerThanTheModelledLineAllows) {
     test::run_until_done(io, [&]() -> asio::awaitable<void> {
         for (int i = 0; i < transactions; ++i) {
             const auto start = Clock::now();
-            const auto reading = co_await link.transact(*make_exchange(dim0));
+            const auto reading = co_await link.transact(*make_exchange(polled));
             EXPECT_TRUE(reading) << reading.error().message;
             round_trips.push_back(Clock::now() - start);
         }

@@ -13,6 +13,7 @@
 #include <array>
 #include <cstdlib>
 #include <cstring>
+#include <iterator>
 
 extern char** environ;
 
@@ -184,6 +185,12 @@ std::string SimProcess::ctl(std::string_view command) {
     auto reply = client_.command(command);
     EXPECT_TRUE(reply) << command << ": " << reply.error().message;
     return reply.value_or("");
+}
+
+std::size_t open_descriptors(pid_t pid) {
+    std::error_code ignored;
+    const std::filesystem::directory_iterator fds("/proc/" + std::to_string(pid) + "/fd", ignored);
+    return static_cast<std::size_t>(std::distance(begin(fds), end(fds)));
 }
 
 }  // namespace ioport::test

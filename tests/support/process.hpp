@@ -52,6 +52,9 @@ class Child {
     std::string buffered_;
 };
 
+// How many descriptors process `pid` has open (0 if /proc cannot tell).
+std::size_t open_descriptors(pid_t pid);
+
 // A temporary directory, removed with everything in it.
 class TempDir {
   public:

@@ -32,6 +32,16 @@ inline Bytes be16(std::initializer_list<std::uint16_t> words) {
 }
 
 // MBAP header (protocol id 0, the length of what follows) and the PDU.
+// A PDU: the function code, then big-endian words, then raw bytes.
+inline Bytes pdu(std::uint8_t function, std::initializer_list<std::uint16_t> words,
+                 const Bytes& tail = {}) {
+    Bytes bytes{function};
+    const auto fields = be16(words);
+    bytes.insert(bytes.end(), fields.begin(), fields.end());
+    bytes.insert(bytes.end(), tail.begin(), tail.end());
+    return bytes;
+}
+
 inline Bytes adu(std::uint16_t transaction, std::uint8_t unit, const Bytes& request) {
     auto bytes = be16({transaction, 0, static_cast<std::uint16_t>(request.size() + 1)});
     bytes.push_back(unit);

@@ -28,6 +28,12 @@ inline void pace_until(std::chrono::steady_clock::time_point when) {
             when - std::chrono::steady_clock::now(), std::chrono::milliseconds(5)));
 }
 
+// How long ago `start` was.
+inline std::chrono::milliseconds since(std::chrono::steady_clock::time_point start) {
+    return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now() -
+                                                                 start);
+}
+
 // A figure for the documentation: printed, and kept in the test's XML properties.
 inline void figure(const std::string& name, const std::string& value) {
     ::testing::Test::RecordProperty(name, value);
