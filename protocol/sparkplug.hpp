@@ -70,6 +70,7 @@ struct Metric {
     // and no value.
     std::uint32_t datatype = 0;
     std::optional<Value> value;  // nullopt: is_null
+    bool is_historical = false;  // a value from the store (gateway.md §6.2), not a current one
     friend bool operator==(const Metric&, const Metric&) = default;
 };
 
@@ -83,6 +84,20 @@ struct Payload {
 std::vector<std::uint8_t> encode(const Payload& payload);
 // Fails with malformed for bytes that are not a Sparkplug B payload.
 Result<Payload> decode(std::span<const std::uint8_t> bytes);
+
+// A DDATA kept while no session could publish it (gateway.md §6.2): the device and the payload
+// as it would have gone out, without seq (given when it is forwarded), its metrics by name (aliases
+// belong to a session) with their acquisition timestamps. The body of a store record
+// (protocol/store_segment.hpp): a version byte (1), the device id's length (2 bytes,
+// little-endian) and bytes, then the encoded payload.
+struct StoredData {
+    std::string device;
+    Payload payload;
+    friend bool operator==(const StoredData&, const StoredData&) = default;
+};
+std::vector<std::uint8_t> encode_stored(const StoredData& data);
+// Fails with malformed for bytes that are not such a body.
+Result<StoredData> decode_stored(std::span<const std::uint8_t> bytes);
 
 // STATE (Sparkplug 3.0 §7.2): {"online": true|false, "timestamp": <ms>}. nullopt when `json` is
 // not such an object.

@@ -1,5 +1,6 @@
 // The payload's wire format: the part of protocol/sparkplug.hpp that needs protobuf, in its own
 // library (ioport_sparkplug) so that only what publishes or decodes payloads links it.
+#include <algorithm>
 #include <limits>
 
 #include <fmt/format.h>
@@ -75,6 +76,7 @@ std::vector<std::uint8_t> encode(const Payload& payload) {
             set_value(m, metric.datatype, *metric.value);
         else
             m.set_is_null(true);
+        if (metric.is_historical) m.set_is_historical(true);
     }
     std::vector<std::uint8_t> bytes(out.ByteSizeLong());
     out.SerializeToArray(bytes.data(), static_cast<int>(bytes.size()));
@@ -97,9 +99,41 @@ Result<Payload> decode(std::span<const std::uint8_t> bytes) {
         if (m.has_timestamp()) metric.timestamp = m.timestamp();
         metric.datatype = m.datatype();
         metric.value = value_of(m);
+        metric.is_historical = m.is_historical();
         payload.metrics.push_back(std::move(metric));
     }
     return payload;
+}
+
+namespace {
+constexpr std::uint8_t stored_version = 1;
+}
+
+std::vector<std::uint8_t> encode_stored(const StoredData& data) {
+    const auto length = std::min(data.device.size(), std::size_t{0xFFFF});
+    const auto payload = encode(data.payload);
+    std::vector<std::uint8_t> bytes;
+    bytes.reserve(3 + length + payload.size());
+    bytes.push_back(stored_version);
+    bytes.push_back(static_cast<std::uint8_t>(length & 0xFF));
+    bytes.push_back(static_cast<std::uint8_t>(length >> 8));
+    bytes.insert(bytes.end(), data.device.data(), data.device.data() + length);
+    bytes.insert(bytes.end(), payload.begin(), payload.end());
+    return bytes;
+}
+
+Result<StoredData> decode_stored(std::span<const std::uint8_t> bytes) {
+    if (bytes.size() < 3 || bytes[0] != stored_version)
+        return fail(Errc::malformed, "not a stored DDATA record (no version 1 header)");
+    const std::size_t length = bytes[1] | std::size_t{bytes[2]} << 8;
+    if (bytes.size() - 3 < length)
+        return fail(Errc::malformed, "a stored DDATA record shorter than its device id");
+    StoredData data;
+    data.device.assign(bytes.begin() + 3, bytes.begin() + 3 + static_cast<std::ptrdiff_t>(length));
+    auto payload = decode(bytes.subspan(3 + length));
+    if (!payload) return Unexpected(payload.error());
+    data.payload = std::move(*payload);
+    return data;
 }
 
 Result<Payload> decode_command(std::span<const std::uint8_t> bytes, std::size_t max_metrics) {

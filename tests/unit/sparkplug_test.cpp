@@ -98,6 +98,45 @@ TEST(SparkplugPayload, DecodesWhatItEncodes) {
     EXPECT_EQ(*decoded, payload);
 }
 
+TEST(SparkplugPayload, AHistoricalMetricSaysSo) {
+    Metric metric{"in/0", std::nullopt, 5, 11, Value(true)};
+    metric.is_historical = true;
+    const Bytes expected{
+        0x08, 0x07,                      // 1 timestamp: 7
+        0x12, 0x0E,                      // 2 metrics: 14 bytes
+        0x0A, 0x04, 'i', 'n', '/', '0',  //   1 name: "in/0"
+        0x18, 0x05,                      //   3 timestamp: 5
+        0x20, 0x0B,                      //   4 datatype: 11 Boolean
+        0x28, 0x01,                      //   5 is_historical: true
+        0x70, 0x01,                      //   14 boolean_value: true
+    };
+    const Payload payload{7, std::nullopt, {metric}};
+    EXPECT_EQ(encode(payload), expected);
+    EXPECT_EQ(decode(expected).value(), payload);
+}
+
+TEST(SparkplugStored, ARecordBodyIsTheDeviceAndThePayload) {
+    const StoredData data{
+        "hub0.dim16.0",
+        Payload{7, std::nullopt, {Metric{"in/0", std::nullopt, 5, 11, Value(true)}}}};
+    const auto bytes = encode_stored(data);
+    const Bytes header{0x01, 12, 0x00};  // version 1, device id of 12 bytes
+    ASSERT_GT(bytes.size(), header.size() + 12);
+    EXPECT_EQ(Bytes(bytes.begin(), bytes.begin() + 3), header);
+    EXPECT_EQ(std::string(bytes.begin() + 3, bytes.begin() + 15), "hub0.dim16.0");
+    EXPECT_EQ(Bytes(bytes.begin() + 15, bytes.end()), encode(data.payload));
+    EXPECT_EQ(decode_stored(bytes).value(), data);
+}
+
+TEST(SparkplugStored, WhatIsNotABodyIsAnError) {
+    for (const Bytes& bytes : {Bytes{}, Bytes{0x02, 0x00, 0x00}, Bytes{0x01, 0x05, 0x00, 'h'},
+                               Bytes{0x01, 0x01, 0x00, 'h', 0x12, 0x40}}) {
+        const auto decoded = decode_stored(bytes);
+        ASSERT_FALSE(decoded) << bytes.size();
+        EXPECT_EQ(decoded.error().code, Errc::malformed);
+    }
+}
+
 TEST(SparkplugPayload, GarbageIsAnErrorNotACrash) {
     const Bytes garbage{0x12, 0x40, 0x0A};  // a metric of 64 bytes, three there
     const auto decoded = decode(garbage);
