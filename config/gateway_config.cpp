@@ -132,12 +132,6 @@ Parsed<Endpoint> parse_listen(const std::string& text) {
     return Endpoint{*std::move(host), static_cast<std::uint16_t>(*port)};
 }
 
-struct Broker {
-    bool tls = false;
-    std::string host;
-    std::uint16_t port = 1883;
-};
-
 constexpr std::string_view broker_help =
     "write mqtt://host[:port] or mqtts://host[:port], e.g. mqtt://127.0.0.1:1883";
 
@@ -157,8 +151,8 @@ Parsed<std::string> server_name(const std::string& name) {
     return name;
 }
 
-Parsed<Broker> parse_broker(const std::string& text) {
-    Broker broker;
+Parsed<BrokerAddress> parse_broker(const std::string& text) {
+    BrokerAddress broker;
     std::string_view rest = text;
     if (rest.starts_with("mqtts://")) {
         broker = {true, {}, 8883};
@@ -422,9 +416,10 @@ struct Fields {
 using Keys = std::span<const std::string_view>;
 constexpr std::array<std::string_view, 6> top_keys{"modbus", "http",        "mqtt",
                                                    "links",  "on_shutdown", "log_level"};
-constexpr std::array<std::string_view, 10> mqtt_keys{
-    "broker",        "group_id", "edge_node_id", "client_id",       "username",
-    "password_file", "ca_file",  "keepalive",    "primary_host_id", "deadband"};
+constexpr std::array<std::string_view, 12> mqtt_keys{
+    "broker",        "brokers", "group_id",  "edge_node_id",    "client_id", "username",
+    "password_file", "ca_file", "keepalive", "primary_host_id", "deadband",  "store"};
+constexpr std::array<std::string_view, 3> store_keys{"path", "max_size", "forward_rate"};
 constexpr std::array<std::string_view, 3> http_keys{"listen", "allow", "server_names"};
 constexpr std::array<std::string_view, 10> modbus_keys{
     "listen", "max_connections", "idle_timeout",      "allow", "read_only", "word_order",
@@ -502,6 +497,8 @@ class Loader {
     void read_http(const Entry& entry, std::optional<HttpSettings>& http);
     void read_server_names(const Fields& fields, std::vector<std::string>& names);
     void read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt);
+    void read_brokers(const Fields& fields, MqttSettings& mqtt);
+    void read_store(const Entry& entry, std::optional<StoreSettings>& store);
     void check_sparkplug_ids(const GatewayConfig& config);
     void read_links(const Entry& entry, std::vector<LinkConfig>& links);
     void read_link(const YAML::Node& node, std::size_t index, std::vector<LinkConfig>& links);
@@ -814,15 +811,10 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
                                   "{ broker: \"mqtt://127.0.0.1:1883\", group_id: plant1 }");
     if (!settings) return;
     const Fields& f = *settings;
-    if (f.find("broker") == nullptr) return;  // absent = off (gateway.md §5.5)
+    // absent = off (gateway.md §5.5)
+    if (f.find("broker") == nullptr && f.find("brokers") == nullptr) return;
     MqttSettings m;
-    Broker broker;
-    if (read(f, "broker", "an MQTT URL", broker,
-             [](const YAML::Node& value) { return parse_broker(value.Scalar()); })) {
-        m.tls = broker.tls;
-        m.host = broker.host;
-        m.port = broker.port;
-    }
+    read_brokers(f, m);
     const auto sparkplug_id = [](const YAML::Node& value) -> Parsed<std::string> {
         if (auto checked = sparkplug::check_id(value.Scalar()); !checked)
             return Unexpected(checked.error().message);
@@ -844,7 +836,7 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
     }
     read(f, "ca_file", "a file's path", m.ca_file, text_value);
     if (!m.ca_file.empty()) {
-        if (!m.tls)
+        if (std::ranges::none_of(m.brokers, &BrokerAddress::tls))
             add(f.line_of("ca_file"), f.key("ca_file"),
                 "a CA file is for mqtts:// brokers only: use mqtts:// or remove the key");
         else if (auto readable = readable_file(m.ca_file); !readable)
@@ -857,7 +849,73 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
              return sparkplug_id(value);
          });
     read(f, "deadband", "a number of engineering units, e.g. 0.5", m.deadband, non_negative);
+    if (const Entry* store = f.find("store")) read_store(*store, m.store);
     mqtt = std::move(m);
+}
+
+// `broker: URL` or `brokers: [URL, …]` (gateway.md §6.2), not both; each broker once.
+void Loader::read_brokers(const Fields& f, MqttSettings& m) {
+    if (f.find("broker") != nullptr && f.find("brokers") != nullptr) {
+        add(f.line_of("brokers"), f.key("brokers"),
+            "give broker (one) or brokers (a list), not both");
+        return;
+    }
+    if (f.find("broker") != nullptr) {
+        BrokerAddress broker;
+        if (read(f, "broker", "an MQTT URL", broker,
+                 [](const YAML::Node& value) { return parse_broker(value.Scalar()); }))
+            m.brokers.push_back(broker);
+        return;
+    }
+    const auto errors = errors_.size();
+    read_list(
+        f, "brokers", "a list such as [\"mqtt://10.0.0.5:1883\", \"mqtts://10.0.0.6:8883\"]",
+        "an MQTT URL such as mqtt://10.0.0.5:1883",
+        [](const std::string& text) { return parse_broker(text); }, m.brokers);
+    const auto line = f.line_of("brokers");
+    if (errors_.size() != errors) return;
+    if (m.brokers.empty()) {
+        add(line, f.key("brokers"), "name at least one broker, e.g. [\"mqtt://127.0.0.1:1883\"]");
+    } else if (m.brokers.size() > max_brokers) {
+        add(line, f.key("brokers"),
+            fmt::format("{} brokers: at most {} are walked", m.brokers.size(), max_brokers));
+    }
+    for (auto it = m.brokers.begin(); it != m.brokers.end(); ++it)
+        if (std::find(m.brokers.begin(), it, *it) != it)
+            add(line, f.key("brokers"),
+                fmt::format("{} is listed twice: name each broker once", to_string(*it)));
+}
+
+void Loader::read_store(const Entry& entry, std::optional<StoreSettings>& store) {
+    if (entry.value.IsNull()) return;  // "store:" alone: no path, so none
+    const auto settings = mapping(entry, "mqtt.store", store_keys,
+                                  "{ path: /var/lib/ioportd/sparkplug, max_size: 64MiB }");
+    if (!settings) return;
+    const Fields& f = *settings;
+    StoreSettings st;
+    require(f, "path", "a directory for the store, e.g. path: /var/lib/ioportd/sparkplug");
+    read(f, "path", "an absolute directory path", st.path,
+         [](const YAML::Node& value) -> Parsed<std::string> {
+             const auto& text = value.Scalar();
+             if (!text.starts_with('/') || text.find('\0') != std::string::npos)
+                 return Unexpected(fmt::format(
+                     "'{}' is not an absolute path: write one such as /var/lib/ioportd/sparkplug",
+                     printable(text)));
+             return text;
+         });
+    constexpr std::uint64_t max_store_size = std::uint64_t{1} << 40;
+    read(f, "max_size", "a size such as 64MiB", st.max_size,
+         [](const YAML::Node& value) -> Parsed<std::uint64_t> {
+             const auto bytes = parse_bytes(value.Scalar(), max_store_size);
+             if (!bytes || *bytes < min_store_size)
+                 return Unexpected(fmt::format(
+                     "'{}' is not a store size: write 1MiB..1024GiB, e.g. 64MiB (KiB, MiB, GiB "
+                     "are powers of 1024)",
+                     printable(value.Scalar())));
+             return *bytes;
+         });
+    read(f, "forward_rate", "a number 1..10000", st.forward_rate, integer(1, 10000));
+    if (!st.path.empty()) store = std::move(st);
 }
 
 // Link names are part of Sparkplug device ids ("hub0.dim16.0"), so they must fit in a topic.
@@ -1252,11 +1310,13 @@ std::vector<std::string> warnings(const GatewayConfig& config) {
             host_port(modbus.listen_host, modbus.listen_port),
             modbus.read_only ? "read" : "read and write"));
     }
-    if (const auto& mqtt = config.mqtt; mqtt && !mqtt->tls && !mqtt->password.empty())
-        found.push_back(fmt::format(
-            "the MQTT password (mqtt.password_file) goes to the broker {} unencrypted over "
-            "mqtt://, readable by anyone on the way: use mqtts://",
-            mqtt->host));
+    if (const auto& mqtt = config.mqtt; mqtt && !mqtt->password.empty())
+        for (const auto& broker : mqtt->brokers)
+            if (!broker.tls)
+                found.push_back(fmt::format(
+                    "the MQTT password (mqtt.password_file) goes to the broker {} unencrypted "
+                    "over mqtt://, readable by anyone on the way: use mqtts://",
+                    broker.host));
     return found;
 }
 
@@ -1274,6 +1334,11 @@ bool contains(const Network& network, const ip::address& client) {
     const ip::network_v6 host(address, 128);
     // is_subnet_of() is true for strictly smaller networks only: a /128 is its own host.
     return host == network.network || host.is_subnet_of(network.network);
+}
+
+std::string to_string(const BrokerAddress& broker) {
+    return fmt::format("{}://{}", broker.tls ? "mqtts" : "mqtt",
+                       host_port(broker.host, broker.port));
 }
 
 std::string host_port(std::string_view host, unsigned port) {

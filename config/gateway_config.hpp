@@ -101,11 +101,29 @@ struct HttpSettings {
     friend bool operator==(const HttpSettings&, const HttpSettings&) = default;
 };
 
-// The Sparkplug B edge node (gateway.md §5.5).
-struct MqttSettings {
+// An MQTT broker, as mqtt://host[:port] or mqtts://host[:port] name it.
+struct BrokerAddress {
     bool tls = false;  // mqtts://
     std::string host;  // an IP literal (IPv6 without brackets) or a host name
     std::uint16_t port = 1883;
+    friend bool operator==(const BrokerAddress&, const BrokerAddress&) = default;
+};
+// "mqtts://host:port", "mqtt://[::1]:1883": as the configuration could have written it.
+std::string to_string(const BrokerAddress& broker);
+
+// Sparkplug store-and-forward (gateway.md §6.2).
+struct StoreSettings {
+    std::string path;                                  // a directory of its own
+    std::uint64_t max_size = std::uint64_t{64} << 20;  // the oldest records go beyond it
+    int forward_rate = 200;  // historical DDATA messages a second, at most
+    friend bool operator==(const StoreSettings&, const StoreSettings&) = default;
+};
+inline constexpr std::uint64_t min_store_size = std::uint64_t{1} << 20;
+inline constexpr std::size_t max_brokers = 16;
+
+// The Sparkplug B edge node (gateway.md §5.5, §6.2).
+struct MqttSettings {
+    std::vector<BrokerAddress> brokers;  // tried in order; at least one
     std::string group_id;
     std::string edge_node_id;
     std::string client_id;  // default: ioportd-<group_id>-<edge_node_id>
@@ -115,7 +133,8 @@ struct MqttSettings {
     std::string ca_file;   // mqtts: the CA that signed the broker's certificate
     std::chrono::microseconds keepalive = 30s;
     std::string primary_host_id;
-    double deadband = 0;  // analog channels, in engineering units
+    double deadband = 0;                 // analog channels, in engineering units
+    std::optional<StoreSettings> store;  // none: what changes while no session can publish is lost
     friend bool operator==(const MqttSettings&, const MqttSettings&) = default;
 };
 

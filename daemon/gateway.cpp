@@ -262,15 +262,24 @@ std::string check_config_text(const config::GatewayConfig& config) {
                                 : fmt::format("{} allowed networks", http->allow.size()));
     else
         text += "HTTP off\n";
-    if (const auto& mqtt = config.mqtt)
-        text +=
-            fmt::format("Sparkplug B edge node {}/{} on {}://{}:{}{}\n", mqtt->group_id,
-                        mqtt->edge_node_id, mqtt->tls ? "mqtts" : "mqtt", mqtt->host, mqtt->port,
-                        mqtt->primary_host_id.empty()
-                            ? std::string()
-                            : fmt::format(", primary host {}", mqtt->primary_host_id));
-    else
+    if (const auto& mqtt = config.mqtt) {
+        std::vector<std::string> brokers;
+        for (const auto& broker : mqtt->brokers)
+            brokers.push_back(config::to_string(broker));
+        text += fmt::format("Sparkplug B edge node {}/{} on {}{}\n", mqtt->group_id,
+                            mqtt->edge_node_id, fmt::join(brokers, ", then "),
+                            mqtt->primary_host_id.empty()
+                                ? std::string()
+                                : fmt::format(", primary host {}", mqtt->primary_host_id));
+        if (const auto& store = mqtt->store)
+            text += fmt::format(
+                "Sparkplug store in {}, at most {} MiB, forwarded at {} messages/s at most\n",
+                store->path, store->max_size >> 20, store->forward_rate);
+        else
+            text += "Sparkplug store off: what changes while no broker takes it is lost\n";
+    } else {
         text += "MQTT off\n";
+    }
     text += fmt::format(
         "on shutdown: outputs {}; on communication loss: {}; log level {}\n",
         config.on_shutdown == config::OnShutdown::keep ? "kept as they are" : "set to initial",

@@ -215,6 +215,20 @@ void sparkplug_families(Exposition& out, const SparkplugNode* node) {
     out.sample("ioportd_sparkplug_commands_total", {{"result", "accepted"}},
                stats.commands - stats.commands_refused);
     out.sample("ioportd_sparkplug_commands_total", {{"result", "refused"}}, stats.commands_refused);
+    if (!stats.store) return;  // no store: no such families
+    const auto& store = *stats.store;
+    out.family("ioportd_sparkplug_store_bytes", "gauge", "Bytes of the store's files on disk");
+    out.sample("ioportd_sparkplug_store_bytes", {}, store.bytes);
+    out.family("ioportd_sparkplug_store_records", "gauge",
+               "Stored DDATA messages the broker does not have yet");
+    out.sample("ioportd_sparkplug_store_records", {}, store.records);
+    out.family("ioportd_sparkplug_store_dropped_total", "counter",
+               "Stored DDATA messages lost: the oldest beyond max_size, or the disk did not take "
+               "them");
+    out.sample("ioportd_sparkplug_store_dropped_total", {}, store.dropped);
+    out.family("ioportd_sparkplug_forwarded_total", "counter",
+               "Stored DDATA messages forwarded that the broker is known to have");
+    out.sample("ioportd_sparkplug_forwarded_total", {}, store.forwarded);
 }
 
 void process_families(Exposition& out, const ProcessStats& process) {
@@ -373,8 +387,26 @@ void sparkplug_json(Json& json, const SparkplugNode* node) {
         .member("bdseq", stats.bdseq)
         .member("published", stats.published)
         .member("dropped", stats.dropped)
-        .member("births", stats.births)
-        .end_object();
+        .member("births", stats.births);
+    json.key("store");
+    if (const auto& store = stats.store) {
+        json.begin_object()
+            .member("path", node->settings().store->path)
+            .member("bytes", store->bytes)
+            .member("records", store->records)
+            .member("dropped", store->dropped)
+            .member("forwarded", store->forwarded)
+            .member("forwarding", stats.forwarding);
+        json.key("oldest");
+        if (stats.backlog_oldest_ms)
+            json.value(*stats.backlog_oldest_ms);
+        else
+            json.null();
+        json.end_object();
+    } else {
+        json.null();
+    }
+    json.end_object();
 }
 
 std::string html_escaped(std::string_view text) {

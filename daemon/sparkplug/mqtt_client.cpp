@@ -44,22 +44,38 @@ MqttClient::~MqttClient() {
 }
 
 std::string MqttClient::broker() const {
-    return fmt::format("{}://{}", settings_.tls ? "mqtts" : "mqtt",
-                       config::host_port(settings_.host, settings_.port));
+    return config::to_string(current());
 }
 
+// Each broker once at the start, so that a CA file libmosquitto cannot load is an error now,
+// not a reconnect loop later; then the first one, which start() connects to.
 Result<> MqttClient::configure() {
     // A clean session, as Sparkplug 3.0 requires of an edge node (§7.1).
     client_ = mosquitto_new(settings_.client_id.c_str(), true, this);
     if (client_ == nullptr)
         return fail(Errc::io_error, fmt::format("mqtt: cannot make an MQTT client: {}",
                                                 std::generic_category().message(errno)));
+    for (std::size_t i = settings_.brokers.size(); i-- > 0;) {
+        current_ = i;
+        if (auto configured = configure_for(current()); !configured) return configured;
+    }
+    return {};
+}
+
+// libmosquitto's client as `broker` needs it: TLS or not is a setting of the client, so the
+// client is made afresh (mosquitto_reinitialise) for each broker it connects to.
+Result<> MqttClient::configure_for(const config::BrokerAddress& broker) {
+    if (const int rc = mosquitto_reinitialise(client_, settings_.client_id.c_str(), true, this);
+        rc != MOSQ_ERR_SUCCESS)
+        return fail(Errc::io_error,
+                    fmt::format("mqtt: cannot make an MQTT client: {}", mosquitto_error(rc)));
     mosquitto_int_option(client_, MOSQ_OPT_PROTOCOL_VERSION, MQTT_PROTOCOL_V311);
     mosquitto_int_option(client_, MOSQ_OPT_TCP_NODELAY, 1);
     mosquitto_connect_callback_set(client_, &MqttClient::on_connect);
     mosquitto_disconnect_callback_set(client_, &MqttClient::on_disconnect);
     mosquitto_publish_callback_set(client_, &MqttClient::on_publish);
     mosquitto_message_callback_set(client_, &MqttClient::on_message);
+    mosquitto_subscribe_callback_set(client_, &MqttClient::on_subscribe);
     if (!settings_.username.empty() || !settings_.password.empty()) {
         const int rc = mosquitto_username_pw_set(
             client_, settings_.username.empty() ? nullptr : settings_.username.c_str(),
@@ -68,7 +84,7 @@ Result<> MqttClient::configure() {
             return fail(Errc::invalid_argument,
                         fmt::format("mqtt.username: {}", mosquitto_error(rc)));
     }
-    if (settings_.tls) {
+    if (broker.tls) {
         // Without ca_file, the system's CAs: a broker with a public certificate.
         const int rc = mosquitto_tls_set(
             client_, settings_.ca_file.empty() ? nullptr : settings_.ca_file.c_str(),
@@ -104,19 +120,20 @@ void MqttClient::start() {
 // is down or slow is waited for off the loop; the second lookup then normally comes from the
 // same resolver's answer. An IP literal needs no lookup at all.
 void MqttClient::resolve_then_connect() {
+    const auto& broker = current();
     boost::system::error_code ec;
-    asio::ip::make_address(settings_.host, ec);
+    asio::ip::make_address(broker.host, ec);
     if (!ec) {
         connect();
         return;
     }
     resolver_.async_resolve(
-        settings_.host, std::to_string(settings_.port),
+        broker.host, std::to_string(broker.port),
         [self = shared_from_this()](const boost::system::error_code& error, const auto&) {
             if (self->stopping_ || error == asio::error::operation_aborted) return;
             if (error) {
                 self->lost(
-                    fmt::format("cannot resolve {}: {}", self->settings_.host, error.message()));
+                    fmt::format("cannot resolve {}: {}", self->current().host, error.message()));
                 return;
             }
             self->connect();
@@ -124,13 +141,18 @@ void MqttClient::resolve_then_connect() {
 }
 
 void MqttClient::connect() {
+    const auto& broker = current();
+    if (auto configured = configure_for(broker); !configured) {
+        lost(configured.error().message);
+        return;
+    }
     if (handlers_.connecting) handlers_.connecting();
     const auto keepalive = static_cast<int>(
         std::chrono::duration_cast<std::chrono::seconds>(settings_.keepalive).count());
-    const int rc =
-        mosquitto_connect_async(client_, settings_.host.c_str(), settings_.port, keepalive);
+    const int rc = mosquitto_connect_async(client_, broker.host.c_str(), broker.port, keepalive);
     if (rc != MOSQ_ERR_SUCCESS) {
-        lost(fmt::format("cannot connect to {}: {}", broker(), mosquitto_error(rc)));
+        lost(fmt::format("cannot connect to {}: {}", config::to_string(broker),
+                         mosquitto_error(rc)));
         return;
     }
     watch();
@@ -219,8 +241,22 @@ void MqttClient::lost(const std::string& why) {
     if (was_connected || why != last_error_)
         log_.warn({}, "mqtt: {}; reconnecting within {} s", why, reconnect_delay_.count());
     last_error_ = why;
+    // Several brokers: the next one in the list is tried (gateway.md §6.2).
+    if (settings_.brokers.size() > 1) {
+        current_ = (current_ + 1) % settings_.brokers.size();
+        last_error_.clear();  // another broker, another story
+    }
     if (handlers_.disconnected) handlers_.disconnected(why);
     schedule_reconnect();
+}
+
+void MqttClient::walk() {
+    if (!connected_ || stopping_) return;
+    reconnect_delay_ = first_reconnect_delay;
+    // DISCONNECT: the broker discards the will; the caller has said NDEATH itself. on_disconnect
+    // then takes it from there, as for any lost connection, on to the next broker.
+    mosquitto_disconnect(client_);
+    watch();
 }
 
 void MqttClient::schedule_reconnect() {
@@ -257,13 +293,14 @@ bool MqttClient::publish(std::string_view topic, std::span<const std::uint8_t> p
     return true;
 }
 
-Result<> MqttClient::subscribe(std::string_view pattern, int qos) {
-    const int rc = mosquitto_subscribe(client_, nullptr, std::string(pattern).c_str(), qos);
+Result<int> MqttClient::subscribe(std::string_view pattern, int qos) {
+    int mid = 0;
+    const int rc = mosquitto_subscribe(client_, &mid, std::string(pattern).c_str(), qos);
     watch();
     if (rc != MOSQ_ERR_SUCCESS)
         return fail(Errc::io_error,
                     fmt::format("subscribing to {}: {}", printable(pattern), mosquitto_error(rc)));
-    return {};
+    return mid;
 }
 
 void MqttClient::stop(std::chrono::milliseconds deadline, std::function<void()> done) {
@@ -333,6 +370,12 @@ void MqttClient::on_publish(mosquitto* /*client*/, void* self, int mid) {
     }
     me.queued_bytes_ -= found->second;
     me.queued_.erase(found);
+}
+
+void MqttClient::on_subscribe(mosquitto* /*client*/, void* self, int mid, int /*count*/,
+                              const int* /*granted*/) {
+    auto& me = *static_cast<MqttClient*>(self);
+    if (me.handlers_.subscribed) me.handlers_.subscribed(mid);
 }
 
 void MqttClient::on_message(mosquitto* /*client*/, void* self, const mosquitto_message* message) {

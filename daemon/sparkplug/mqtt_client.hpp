@@ -42,6 +42,9 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
         // The connection is gone, or the CONNECT was refused; a reconnect is scheduled.
         std::function<void(const std::string& why)> disconnected;
         std::function<void(std::string_view topic, std::span<const std::uint8_t> payload)> message;
+        // SUBACK of subscribe()'s message id: the broker has read everything sent before the
+        // SUBSCRIBE on this connection (MQTT keeps a connection's packets in order).
+        std::function<void(int mid)> subscribed;
     };
 
     // Fails when libmosquitto cannot make the client or take the settings (a CA file it
@@ -53,8 +56,11 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     MqttClient(const MqttClient&) = delete;
     MqttClient& operator=(const MqttClient&) = delete;
 
-    // Connects, and reconnects whenever the connection is lost (1 s doubling to 30 s).
+    // Connects, and reconnects whenever the connection is lost (1 s doubling to 30 s); with
+    // several brokers, to the next in the list each time.
     void start();
+    // Leaves this broker for the next (gateway.md §6.2): DISCONNECT now, the next one in 1 s.
+    void walk();
     // Sets the will of the next CONNECT; fails when libmosquitto refuses it (a topic or payload
     // it does not take).
     Result<> set_will(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
@@ -62,8 +68,9 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     // False, and counted in dropped(), when not connected or the queue is full.
     bool publish(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
                  bool retain);
-    // Fails when the SUBSCRIBE cannot be queued (not connected, out of memory).
-    Result<> subscribe(std::string_view pattern, int qos);
+    // The SUBSCRIBE's message id (Handlers::subscribed gets it back with the SUBACK); fails when
+    // it cannot be queued (not connected, out of memory).
+    Result<int> subscribe(std::string_view pattern, int qos);
     // The clean end: what is queued is sent, then DISCONNECT (so the broker keeps the will), then
     // `done`; at once when not connected. Not within `deadline`: the socket is closed anyway.
     void stop(std::chrono::milliseconds deadline, std::function<void()> done);
@@ -71,12 +78,14 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     bool connected() const { return connected_; }
     std::uint64_t dropped() const { return dropped_; }
     std::uint64_t published() const { return published_; }
-    std::string broker() const;
+    std::string broker() const;  // the current one, as a URL
 
   private:
     MqttClient(const asio::any_io_executor& executor, const config::MqttSettings& settings,
                Log& log, Handlers handlers);
     Result<> configure();
+    Result<> configure_for(const config::BrokerAddress& broker);
+    const config::BrokerAddress& current() const { return settings_.brokers[current_]; }
     void connect();
     void resolve_then_connect();
     void watch();
@@ -91,6 +100,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     static void on_disconnect(mosquitto* client, void* self, int rc);
     static void on_publish(mosquitto* client, void* self, int mid);
     static void on_message(mosquitto* client, void* self, const mosquitto_message* message);
+    static void on_subscribe(mosquitto* client, void* self, int mid, int count, const int* granted);
 
     asio::any_io_executor executor_;
     config::MqttSettings settings_;
@@ -107,6 +117,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     bool started_ = false;
     bool connected_ = false;
     bool stopping_ = false;
+    std::size_t current_ = 0;  // into settings_.brokers
     std::chrono::seconds reconnect_delay_ = first_reconnect_delay;
     std::function<void()> stopped_;
     std::unordered_map<int, std::size_t> queued_;  // by message id: bytes not yet written

@@ -1,5 +1,7 @@
 #include "daemon/sparkplug/sparkplug_node.hpp"
 
+#include <algorithm>
+
 #include <fmt/format.h>
 
 namespace ioport::daemon {
@@ -12,8 +14,12 @@ using sparkplug::Payload;
 using sparkplug::Value;
 
 constexpr std::string_view rebirth_metric = "Node Control/Rebirth";
-// The node metrics' aliases: Node Control/Rebirth, then four per link (bdSeq goes by name).
+constexpr std::string_view next_server_metric = "Node Control/Next Server";
+// The node metrics' aliases: Node Control/Rebirth, Node Control/Next Server, then four per link
+// (bdSeq goes by name).
 constexpr std::uint64_t rebirth_alias = 0;
+constexpr std::uint64_t next_server_alias = 1;
+constexpr std::uint64_t first_link_alias = 2;
 constexpr std::uint64_t metrics_per_link = 4;
 
 std::uint64_t now_ms() {
@@ -82,9 +88,23 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
          .message =
              [weak](std::string_view topic, std::span<const std::uint8_t> payload) {
                  if (auto self = weak.lock()) self->message(topic, payload);
+             },
+         .subscribed =
+             [weak](int mid) {
+                 if (auto self = weak.lock()) self->subscribed(mid);
              }});
     if (!client) return Unexpected(client.error());
     node->client_ = std::move(*client);
+    if (const auto& store = settings.store) {
+        // A store that cannot be opened costs the history, never the live data.
+        if (auto opened = SparkplugStore::open(executor, *store, log))
+            node->store_ = std::move(*opened);
+        else
+            log.error({},
+                      "{}: what changes while no broker takes it is lost until this is fixed "
+                      "and the configuration reloaded",
+                      opened.error().message);
+    }
     return node;
 }
 
@@ -96,7 +116,9 @@ SparkplugNode::SparkplugNode(const asio::any_io_executor& executor, config::Mqtt
       events_(events),
       ticker_(executor),
       rebirth_timer_(executor),
-      host_online_(settings_.primary_host_id.empty()) {}
+      host_online_(settings_.primary_host_id.empty()),
+      forward_timer_(executor),
+      host_timer_(executor) {}
 
 void SparkplugNode::start(const Links& links) {
     build(links);
@@ -113,7 +135,7 @@ void SparkplugNode::build(const Links& links) {
     links_ = links;
     devices_.clear();
     links_published_.clear();
-    std::uint64_t alias = rebirth_alias + 1 + metrics_per_link * links.size();
+    std::uint64_t alias = first_link_alias + metrics_per_link * links.size();
     for (const auto& link : links) {
         links_published_.push_back(link_metrics(*link));
         for (const auto& view : link->modules()) {
@@ -169,6 +191,8 @@ void SparkplugNode::stop(std::chrono::milliseconds deadline, std::function<void(
     stopping_ = true;
     ticker_.cancel();
     rebirth_timer_.cancel();
+    forward_timer_.cancel();
+    host_timer_.cancel();
     subscriptions_.clear();
     if (client_->connected()) {
         // The will is for an unexpected end; a clean one says so itself (Sparkplug 3.0 §7.3).
@@ -178,6 +202,9 @@ void SparkplugNode::stop(std::chrono::milliseconds deadline, std::function<void(
             death, 1, false);
     }
     born_ = false;
+    // Closed now (what is queued for the disk written and synced): a reload's new node opens the
+    // same directory next.
+    store_.reset();
     client_->stop(deadline, std::move(done));
 }
 
@@ -188,6 +215,11 @@ SparkplugStats SparkplugNode::stats() const {
     stats.bdseq = bdseq_;
     stats.published = client_->published();
     stats.dropped = client_->dropped();
+    stats.forwarding = forward_started_.has_value();
+    if (store_) {
+        stats.store = store_->stats();
+        if (store_->pending()) stats.backlog_oldest_ms = backlog_oldest_ms_;
+    }
     return stats;
 }
 
@@ -211,7 +243,10 @@ void SparkplugNode::connecting() {
 }
 
 void SparkplugNode::connected() {
+    ++session_;
     born_ = false;
+    proofs_.clear();
+    if (store_) forward_sent_ = store_->delivered();
     for (auto& device : devices_)
         device.born = false;
     const auto& group = settings_.group_id;
@@ -221,9 +256,34 @@ void SparkplugNode::connected() {
     if (!settings_.primary_host_id.empty()) {
         host_online_ = false;  // until its STATE says so (retained, so it comes at once)
         subscribe(sparkplug::state_topic(settings_.primary_host_id), "the primary host's STATE");
+        if (settings_.brokers.size() > 1) {
+            // A host that is not on this broker at all: no STATE within keepalive.
+            host_timer_.expires_after(settings_.keepalive);
+            host_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
+                auto self = weak.lock();
+                if (!self || ec || self->host_online_) return;
+                self->walk(fmt::format(
+                    "no STATE of the primary host {} within {} s", self->settings_.primary_host_id,
+                    std::chrono::duration_cast<std::chrono::seconds>(self->settings_.keepalive)
+                        .count()));
+            });
+        }
         return;
     }
     birth();
+}
+
+// Sparkplug 3.0 §7.1: an edge node leaves a broker its primary host is not on, or when the host
+// asks, for the next in its list: NDEATH first, then DISCONNECT.
+void SparkplugNode::walk(const std::string& why) {
+    if (stopping_ || !client_->connected()) return;
+    log_.warn({}, "Sparkplug: {}; leaving {} for the next broker", why, client_->broker());
+    host_timer_.cancel();
+    client_->publish(
+        sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id),
+        death_payload(), 1, false);
+    born_ = false;
+    client_->walk();
 }
 
 void SparkplugNode::subscribe(const std::string& topic, std::string_view what) {
@@ -233,9 +293,21 @@ void SparkplugNode::subscribe(const std::string& topic, std::string_view what) {
 }
 
 void SparkplugNode::disconnected() {
+    ++session_;
     born_ = false;
     for (auto& device : devices_)
         device.born = false;
+    // What the broker did not provably get goes out again in the next session.
+    proofs_.clear();
+    forward_timer_.cancel();
+    host_timer_.cancel();
+    if (forward_started_) {
+        log_.warn({},
+                  "Sparkplug: forwarding interrupted after {} record(s); it resumes after the "
+                  "last one the broker is known to have",
+                  forwarded_in_run_);
+        forward_started_.reset();
+    }
 }
 
 std::uint64_t SparkplugNode::next_seq() {
@@ -276,7 +348,9 @@ void SparkplugNode::birth() {
         Metric{"bdSeq", std::nullopt, now, wire(DataType::int64), Value(bdseq_)});
     nbirth.metrics.push_back(Metric{std::string(rebirth_metric), rebirth_alias, now,
                                     wire(DataType::boolean), Value(false)});
-    std::uint64_t alias = rebirth_alias + 1;
+    nbirth.metrics.push_back(Metric{std::string(next_server_metric), next_server_alias, now,
+                                    wire(DataType::boolean), Value(false)});
+    std::uint64_t alias = first_link_alias;
     for (std::size_t l = 0; l < links_.size(); ++l) {
         const auto current = link_metrics(*links_[l]);
         const auto prefix = fmt::format("link/{}/", current.name);
@@ -306,6 +380,7 @@ void SparkplugNode::birth() {
     }
     log_.info({}, "Sparkplug: NBIRTH (bdSeq {}) and {} DBIRTH(s) of {} devices", bdseq_, devices,
               devices_.size());
+    start_forwarding();
 }
 
 void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
@@ -322,10 +397,126 @@ void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
 }
 
 void SparkplugNode::changed(const LinkScheduler* link, int slot) {
-    if (!born_) return;
     for (auto& device : devices_)
-        if (device.link.get() == link && (slot < 0 || device.slot == slot)) update(device);
-    link_data(false);
+        if (device.link.get() == link && (slot < 0 || device.slot == slot)) {
+            if (born_)
+                update(device);
+            else if (store_ && !stopping_)
+                keep(device);
+        }
+    if (born_) link_data(false);
+}
+
+// No session can publish: what would have gone out as DDATA goes to the store instead, with the
+// metrics by name (aliases belong to a session) and their acquisition time.
+void SparkplugNode::keep(Device& device) {
+    const auto view = device.link->module_at(device.slot);
+    if (!view || view->status != gateway::ModuleStatus::online) return;
+    const auto values = sparkplug::module_values(type_of(device.module), values_of(*view));
+    // Never published in this process: every value is news to the host.
+    if (device.published.size() != values.size()) device.published.assign(values.size(), {});
+    const auto now = now_ms();
+    const auto changed = sparkplug::changed_metrics(type_of(device.module), device.published,
+                                                    values, settings_.deadband);
+    if (changed.empty()) return;
+    sparkplug::StoredData data{device.id, Payload{now, std::nullopt, {}}};
+    for (const auto i : changed)
+        data.payload.metrics.push_back(Metric{device.metrics[i].name, std::nullopt, now,
+                                              wire(device.metrics[i].type), values[i]});
+    if (!store_->pending()) backlog_oldest_ms_ = now;
+    if (!store_->append(sparkplug::encode_stored(data))) return;
+    for (const auto i : changed)
+        device.published[i] = values[i];
+}
+
+void SparkplugNode::start_forwarding() {
+    if (!store_ || !born_ || forward_started_ || !store_->pending()) return;
+    forward_started_ = std::chrono::steady_clock::now();
+    forwarded_in_run_ = 0;
+    const auto stats = store_->stats();
+    log_.info({}, "Sparkplug: forwarding {} stored record(s){}, at most {} a second", stats.records,
+              backlog_oldest_ms_
+                  ? fmt::format(", the oldest {} s old", (now_ms() - *backlog_oldest_ms_) / 1000)
+                  : std::string(),
+              store_->settings().forward_rate);
+    forward_tick();
+}
+
+// At most forward_rate historical DDATA a second, a tenth of a second's worth at a time (one at
+// least), beside the live data, which never waits for them.
+void SparkplugNode::forward_tick() {
+    if (!born_ || stopping_ || !forward_started_) return;
+    const auto rate = static_cast<std::uint64_t>(store_->settings().forward_rate);
+    const auto interval =
+        std::max(std::chrono::milliseconds(100), std::chrono::milliseconds(1000 / rate));
+    forward_timer_.expires_after(interval);
+    forward_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
+        if (auto self = weak.lock(); self && !ec) self->forward_tick();
+    });
+    if (forward_reading_) return;  // the disk is slow: this tick's share is skipped
+    const auto count =
+        std::max<std::uint64_t>(1, rate * static_cast<std::uint64_t>(interval.count()) / 1000);
+    forward_reading_ = true;
+    store_->read_after(
+        forward_sent_, count,
+        [weak = weak_from_this(), session = session_](std::vector<StoredRecord> records) {
+            if (auto self = weak.lock()) self->forward(session, std::move(records));
+        });
+}
+
+void SparkplugNode::forward(std::uint64_t session, std::vector<StoredRecord> records) {
+    forward_reading_ = false;
+    if (session != session_ || !born_ || !forward_started_) return;
+    std::uint64_t sent = 0;
+    for (auto& record : records) {
+        auto data = sparkplug::decode_stored(record.body);
+        const auto device =
+            data ? std::ranges::find(devices_, data->device, &Device::id) : devices_.end();
+        if (device != devices_.end()) {
+            // DDATA only after its device's DBIRTH: a module offline now holds the backlog
+            // back until it is born again.
+            if (!device->born) break;
+            if (sent == 0) backlog_oldest_ms_ = data->payload.timestamp;
+            for (auto& metric : data->payload.metrics)
+                metric.is_historical = true;
+            data->payload.seq = next_seq();
+            if (!publish(MessageType::ddata, data->device, data->payload)) break;
+        } else if (const auto held =
+                       refusals_.admit("store record", std::chrono::steady_clock::now())) {
+            // Not ours (a good checksum over another body), or of a module no longer configured.
+            log_.warn({}, "Sparkplug store: record {} skipped: {}{}", record.number,
+                      data ? fmt::format("device {} is not configured now", shown(data->device))
+                           : data.error().message,
+                      held_back(*held));
+        }
+        forward_sent_ = record.number;
+        ++sent;
+    }
+    if (sent > 0) {
+        // SUBACK proves the broker read everything before the SUBSCRIBE (the same connection
+        // keeps its packets in order): those records may go. The NCMD subscription is one the
+        // node has anyway, so repeating it changes nothing at the broker.
+        const auto mid = client_->subscribe(
+            sparkplug::topic(settings_.group_id, MessageType::ncmd, settings_.edge_node_id), 1);
+        if (mid) proofs_[*mid] = Proof{forward_sent_, sent};
+    }
+    if (records.empty() && proofs_.empty() && !store_->pending()) {
+        const auto took =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - *forward_started_);
+        log_.info({}, "Sparkplug: forwarded {} stored record(s) in {:.1f} s", forwarded_in_run_,
+                  took.count());
+        forward_started_.reset();
+        backlog_oldest_ms_.reset();
+        forward_timer_.cancel();
+    }
+}
+
+void SparkplugNode::subscribed(int mid) {
+    const auto proof = proofs_.find(mid);
+    if (proof == proofs_.end()) return;
+    store_->deliver(proof->second.through, proof->second.records);
+    forwarded_in_run_ += proof->second.records;
+    proofs_.erase(proof);
 }
 
 void SparkplugNode::update(Device& device) {
@@ -363,7 +554,7 @@ void SparkplugNode::link_data(bool counters) {
     for (std::size_t l = 0; l < links_.size(); ++l) {
         const auto current = link_metrics(*links_[l]);
         auto& last = links_published_[l];
-        const std::uint64_t alias = rebirth_alias + 1 + metrics_per_link * l;
+        const std::uint64_t alias = first_link_alias + metrics_per_link * l;
         if (current.up != last.up)
             payload.metrics.push_back(
                 Metric{{}, alias, now, wire(DataType::boolean), Value(current.up)});
@@ -421,9 +612,13 @@ void SparkplugNode::message(std::string_view topic_text, std::span<const std::ui
         }
         const bool was = host_online_;
         host_online_ = *online;
+        host_timer_.cancel();
         if (*online && !was) {
             log_.info({}, "Sparkplug: primary host {} online", settings_.primary_host_id);
             birth();
+        } else if (!*online && settings_.brokers.size() > 1) {
+            walk(fmt::format("the primary host {} is offline on this broker",
+                             settings_.primary_host_id));
         } else if (!*online && was) {
             log_.warn({}, "Sparkplug: primary host {} offline; births again when it is back",
                       settings_.primary_host_id);
@@ -491,18 +686,27 @@ void SparkplugNode::node_command(std::span<const std::uint8_t> bytes) {
                fmt::format("Sparkplug NCMD refused: {}", payload.error().message));
         return;
     }
+    const auto is = [](const Metric& metric, std::string_view name, std::uint64_t alias) {
+        return metric.name == name || (metric.name.empty() && metric.alias == alias);
+    };
     for (const auto& metric : payload->metrics) {
-        const bool rebirth =
-            metric.name == rebirth_metric || (metric.name.empty() && metric.alias == rebirth_alias);
-        if (rebirth && metric.value == Value(true)) {
+        if (is(metric, rebirth_metric, rebirth_alias) && metric.value == Value(true)) {
             rebirth_asked();
+        } else if (is(metric, next_server_metric, next_server_alias) &&
+                   metric.value == Value(true)) {
+            if (settings_.brokers.size() > 1)
+                walk("the host asked for the next server (NCMD Node Control/Next Server)");
+            else
+                refuse("NCMD next server", {},
+                       fmt::format("Sparkplug: NCMD {} ignored: {} is the only broker",
+                                   next_server_metric, client_->broker()));
         } else {
             refuse(
                 "NCMD metric", {},
-                fmt::format("Sparkplug: NCMD metric {} ignored: only {} = true is a command",
+                fmt::format("Sparkplug: NCMD metric {} ignored: only {} or {} = true is a command",
                             metric.name.empty() ? fmt::format("alias {}", metric.alias.value_or(0))
                                                 : shown(metric.name),
-                            rebirth_metric));
+                            rebirth_metric, next_server_metric));
         }
     }
 }

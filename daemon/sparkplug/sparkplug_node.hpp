@@ -22,6 +22,14 @@
 // than the device has writable ones is refused whole, before it is decoded. A clean stop publishes
 // NDEATH, then disconnects.
 //
+// Store-and-forward (gateway.md §6.2, with mqtt.store): while no session can publish, what would
+// have gone out as DDATA goes to the store (SparkplugStore) with its acquisition time; after the
+// next births it is forwarded oldest first, is_historical, at most forward_rate a second beside
+// the live data. After each batch the node repeats its NCMD SUBSCRIBE: the SUBACK proves the
+// broker read the batch, and only then are its records deleted. Several brokers: MqttClient walks
+// the list on every loss; with primary_host_id, a broker where that host is offline (or sends no
+// STATE within keepalive), or an NCMD Node Control/Next Server, makes the node say NDEATH and walk.
+//
 // Everything from the broker is hostile: its strings reach the log escaped (printable), and the
 // lines a host can cause at any rate (refused commands) go through one LogLimiter.
 #pragma once
@@ -29,6 +37,7 @@
 #include <chrono>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -38,6 +47,7 @@
 #include "daemon/core/link_scheduler.hpp"
 #include "daemon/log.hpp"
 #include "daemon/sparkplug/mqtt_client.hpp"
+#include "daemon/sparkplug/store.hpp"
 #include "protocol/sparkplug.hpp"
 
 namespace ioport::daemon {
@@ -53,8 +63,11 @@ inline constexpr std::chrono::seconds min_rebirth_interval{1};
 inline constexpr std::size_t node_command_metrics = 4;
 
 struct SparkplugStats {
-    bool connected = false;  // to the broker
-    bool online = false;     // births sent in this session
+    bool connected = false;                          // to the broker
+    bool online = false;                             // births sent in this session
+    bool forwarding = false;                         // the store's backlog is going out
+    std::optional<StoreStats> store;                 // nullopt: no store
+    std::optional<std::uint64_t> backlog_oldest_ms;  // acquisition time of the oldest stored
     std::uint64_t bdseq = 0;
     std::uint64_t published = 0;
     std::uint64_t dropped = 0;
@@ -126,6 +139,12 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void device_birth(Device& device, const ModuleState& view);
     void changed(const LinkScheduler* link, int slot);
     void update(Device& device);
+    void keep(Device& device);
+    void start_forwarding();
+    void forward_tick();
+    void forward(std::uint64_t session, std::vector<StoredRecord> records);
+    void subscribed(int mid);
+    void walk(const std::string& why);
     void link_data(bool counters);
     void tick();
     bool publish(sparkplug::MessageType type, std::string_view device,
@@ -158,6 +177,23 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     std::chrono::steady_clock::time_point counters_sent_{};
     std::optional<std::chrono::steady_clock::time_point> last_nbirth_;
     SparkplugStats stats_;
+
+    // Store-and-forward (gateway.md §6.2).
+    struct Proof {
+        std::uint64_t through = 0;  // the last record forwarded before the SUBSCRIBE
+        std::uint64_t records = 0;  // forwarded since the previous proof
+    };
+    std::shared_ptr<SparkplugStore> store_;
+    asio::steady_timer forward_timer_;
+    std::uint64_t session_ = 0;       // one more for every connection
+    std::uint64_t forward_sent_ = 0;  // the last record published in this session
+    bool forward_reading_ = false;
+    std::map<int, Proof> proofs_;  // by SUBSCRIBE message id
+    std::optional<std::uint64_t> backlog_oldest_ms_;
+    std::optional<std::chrono::steady_clock::time_point> forward_started_;
+    std::uint64_t forwarded_in_run_ = 0;
+    // Several brokers and a primary host: its STATE must come within keepalive.
+    asio::steady_timer host_timer_;
 };
 
 }  // namespace ioport::daemon

@@ -90,9 +90,11 @@ class EdgeNodeRig(Rig):
     in a temporary directory."""
 
     def __init__(self, directory, broker_port, hub_modules=HUB_MODULES, mqtt_extra="",
-                 broker_url=None, modbus_extra="", hub_extra=""):
+                 broker_url=None, modbus_extra="", hub_extra="", broker_ports=None):
         super().__init__(directory, IOPORTD, IOPORT_SIM)
         self.broker_url = broker_url or f"mqtt://127.0.0.1:{broker_port}"
+        # Several brokers (gateway.md §6.2): `brokers:` instead of `broker:`.
+        self.broker_urls = [f"mqtt://127.0.0.1:{p}" for p in broker_ports or []]
         try:
             self.start_hub("dim16:0,dom16:0,acm3p:0,rgbdm:0,mux8m:0")
             self.start_id2()
@@ -106,6 +108,8 @@ class EdgeNodeRig(Rig):
         modbus: and the link hub0."""
         modules = "\n".join(f"      - {{ type: {m.split(':')[0]}, number: {m.split(':')[1]} }}"
                             for m in hub_modules)
+        brokers = (f"brokers: {json.dumps(self.broker_urls)}" if self.broker_urls
+                   else f'broker: "{self.broker_url}"')
         self.write_config(f"""modbus:
   listen: "127.0.0.1:0"
 {modbus_extra}http:
@@ -123,7 +127,7 @@ links:
     device: {self.id2_link}
     unit_id: 2
 mqtt:
-  broker: "{self.broker_url}"
+  {brokers}
   group_id: {GROUP}
   edge_node_id: {NODE}
   keepalive: 5s
@@ -841,6 +845,174 @@ class Lifecycle(OwnDaemon):
         self.host.dcmd(GROUP, NODE, "hub0.mux8m.0", [{"name": "pos", "value": 3}])
         self.host.wait_metric("hub0.mux8m.0", "pos", 3, since=mark)
         self.assertEqual(int(self.rig.ctl("get mux8m:0")) >> 8, 3)
+
+
+class StoreAndForward(OwnDaemon):
+    """gateway.md §6.2 (issue 26): what changes while no broker takes it is kept in the store and
+    forwarded after the next births, as historical DDATA with its acquisition timestamps, oldest
+    first; a record leaves the store once the broker has it; kill -9 loses nothing written."""
+
+    WORDS = [0x0001, 0x0003, 0x0007, 0x000F, 0x001F, 0x003F]
+
+    def setUp(self):
+        self.store = os.path.join(tempfile.mkdtemp(dir=self.dir), "sparkplug")
+        self.rig = self.new_rig(
+            mqtt_extra=f"  store: {{ path: {self.store}, forward_rate: 20 }}\n")
+
+    def tearDown(self):
+        if self.broker.process is None:
+            self.broker.start()
+        super().tearDown()
+
+    def store_state(self):
+        return self.rig.state()["sparkplug"]["store"]
+
+    def broker_back(self):
+        """The broker started again, and the host app subscribed to it again: the node's births
+        cannot go out before the host listens."""
+        connects = self.host.connects
+        self.broker.start()
+        self.host.wait(lambda: self.host.connects > connects, 10, "the host app back")
+
+    def broker_away(self):
+        self.broker.stop()
+        eventually(lambda: not self.rig.state()["sparkplug"]["connected"], 15,
+                   "the node notices the broker is gone")
+
+    def change_while_away(self, words):
+        """Sets dim16:0 to each word in turn, each read back over Modbus (so polled) before the
+        next."""
+        client = self.modbus(self.rig)
+        try:
+            for word in words:
+                self.rig.ctl(f"set dim16:0 {word:#06x}")
+                eventually(lambda: client.read_input_registers(0, 1, slave=1).registers[0] == word,
+                           5, f"dim16:0 read as {word:#06x}")
+        finally:
+            client.close()
+
+    def history(self, mark):
+        """(value, timestamp) of every historical `word` of dim16:0 since `mark`, in order."""
+        return [(value, stamp) for m in self.host.since(mark, "DDATA", "hub0.dim16.0")
+                for name, value, stamp in m.historical if name == "word"]
+
+    def test_changes_while_the_broker_is_away_arrive_as_history_in_order(self):
+        self.start()
+        self.broker_away()
+        before = int(time.time() * 1000)
+        self.change_while_away(self.WORDS)
+        stored = eventually(lambda: self.store_state()["records"] >= len(self.WORDS) and
+                            self.store_state(), 5, "the changes in the store")
+        self.assertLessEqual(before, stored["oldest"])
+        mark = self.host.mark()
+        self.broker_back()
+        self.wait_births(mark)
+        eventually(lambda: [v for v, _ in self.history(mark)] == self.WORDS, 20,
+                   lambda: f"history of dim16:0 word: {self.history(mark)}")
+        stamps = [stamp for _, stamp in self.history(mark)]
+        self.assertEqual(stamps, sorted(stamps), "oldest first")
+        nbirth = self.host.since(mark, "NBIRTH")[0]
+        self.assertTrue(before <= stamps[0] and stamps[-1] <= nbirth.timestamp,
+                        "acquisition timestamps, from before the births")
+        # The births carry the current values; history never changes the host's view.
+        dbirth = self.host.since(mark, "DBIRTH", "hub0.dim16.0")[0]
+        self.assertEqual(dbirth.resolved["word"], self.WORDS[-1])
+        self.assertEqual(self.value("hub0.dim16.0", "word"), self.WORDS[-1])
+        # Emptied once the broker provably has them, and said so.
+        state = eventually(lambda: self.store_state()["records"] == 0 and self.store_state(), 10,
+                           "the store emptied")
+        self.assertGreaterEqual(state["forwarded"], len(self.WORDS))
+        self.assertIsNone(state["oldest"])
+        self.rig.wait_log(r"Sparkplug: forwarding \d+ stored record\(s\)", 1)
+        self.rig.wait_log(r"Sparkplug: forwarded \d+ stored record\(s\) in", 10)
+        with urllib.request.urlopen(f"http://127.0.0.1:{self.rig.http_port}/metrics",
+                                    timeout=5) as reply:
+            metrics = reply.read().decode()
+        self.assertIn("ioportd_sparkplug_store_records 0\n", metrics)
+        forwarded = re.search(r"^ioportd_sparkplug_forwarded_total (\d+)$", metrics, re.M)
+        self.assertGreaterEqual(int(forwarded.group(1)), len(self.WORDS))
+        self.assertRegex(metrics, r"(?m)^ioportd_sparkplug_store_dropped_total 0$")
+        self.assertRegex(metrics, r"(?m)^ioportd_sparkplug_store_bytes \d+$")
+
+    def test_kill_9_in_the_outage_loses_nothing_written(self):
+        self.start()
+        self.broker_away()
+        self.change_while_away(self.WORDS[:3])
+        eventually(lambda: self.store_state()["records"] >= 3, 5, "the changes in the store")
+        self.rig.daemon.kill()
+        self.rig.daemon.wait(5)
+        mark = self.host.mark()
+        self.broker_back()
+        self.rig.start_daemon()
+        self.rig.wait_log(r"Sparkplug store \S+: [3-9]\d* record\(s\) to forward", 5)
+        self.wait_births(mark)
+        eventually(lambda: [v for v, _ in self.history(mark)] == self.WORDS[:3], 20,
+                   lambda: f"history of dim16:0 word: {self.history(mark)}")
+
+
+class TwoBrokers(unittest.TestCase):
+    """gateway.md §6.2 (issue 26): `brokers` walked in order when one goes away; with a primary
+    host, a broker without its STATE online is left (NDEATH first), and NCMD Node Control/Next
+    Server walks too. Two real mosquitto instances, a host application on each."""
+
+    def setUp(self):
+        self.dir = tempfile.mkdtemp(prefix="ioportd-spb2-")
+        self.brokers = [Broker(tempfile.mkdtemp(dir=self.dir)) for _ in range(2)]
+        for broker in self.brokers:
+            broker.start()
+        self.hosts = [HostApp(broker.port, client_id=f"ioportd-test-host-{i}")
+                      for i, broker in enumerate(self.brokers)]
+        self.rig = None
+
+    def tearDown(self):
+        if self.rig:
+            self.rig.close()
+        for host in self.hosts:
+            host.close()
+        for broker in self.brokers:
+            broker.stop()
+        shutil.rmtree(self.dir, ignore_errors=True)
+        for i, host in enumerate(self.hosts):
+            self.assertEqual(host.violations, [], f"Sparkplug rules broken on broker {i}")
+
+    def start(self, mqtt_extra=""):
+        self.rig = EdgeNodeRig(tempfile.mkdtemp(dir=self.dir), None, mqtt_extra=mqtt_extra,
+                               broker_ports=[b.port for b in self.brokers])
+        self.rig.start_daemon()
+
+    def broker_of_state(self):
+        return self.rig.state()["sparkplug"]["broker"]
+
+    def test_a_lost_broker_is_walked_past_to_the_next(self):
+        self.start()
+        self.hosts[0].wait_message("NBIRTH", node=NODE, timeout=10)
+        mark = self.hosts[1].mark()
+        self.brokers[0].stop()
+        self.hosts[1].wait_message("NBIRTH", node=NODE, since=mark, timeout=15)
+        self.assertEqual(self.broker_of_state(), f"mqtt://127.0.0.1:{self.brokers[1].port}")
+        self.rig.wait_log(r"mqtt: connected to mqtt://127\.0\.0\.1:%d" % self.brokers[1].port)
+
+    def test_the_primary_host_decides_the_broker(self):
+        # The host is online on broker 1 only: broker 0 sends no STATE within keepalive (5 s).
+        self.hosts[1].state("scada", True)
+        self.start("  primary_host_id: scada\n")
+        nbirth = self.hosts[1].wait_message("NBIRTH", node=NODE, timeout=20)
+        self.assertEqual(self.hosts[0].since(0, "NBIRTH"), [], "no births where the host is not")
+        self.rig.wait_log(r"no STATE of the primary host scada within 5 s; leaving "
+                          r"mqtt://127\.0\.0\.1:%d" % self.brokers[0].port)
+        # The host asks for the next server: NDEATH on this broker, then the walk.
+        mark = self.hosts[1].mark()
+        self.hosts[1].ncmd_next_server(GROUP, NODE)
+        death = self.hosts[1].wait_message("NDEATH", node=NODE, since=mark, timeout=10)
+        self.assertEqual(death.metric("bdSeq").value, nbirth.metric("bdSeq").value)
+        self.rig.wait_log(r"the host asked for the next server", 5)
+        # Broker 0 still has no host: the node comes back to broker 1.
+        self.hosts[1].wait_message("NBIRTH", node=NODE, since=mark, timeout=20)
+        # The host going offline on this broker makes the node leave it too.
+        mark = self.hosts[1].mark()
+        self.hosts[1].state("scada", False)
+        self.hosts[1].wait_message("NDEATH", node=NODE, since=mark, timeout=10)
+        self.rig.wait_log(r"the primary host scada is offline on this broker", 5)
 
 
 class SecureBroker(unittest.TestCase):

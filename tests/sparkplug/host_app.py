@@ -14,7 +14,10 @@ Rules checked, per edge node (group, node):
   - every NDATA/DDATA metric (alias or name) was announced in the NBIRTH/DBIRTH, with the
     same datatype; a metric whose value equals the last known value is a violation (data only on
     change); aliases are unique across the node (node metrics and all devices), names unique per
-    birth; every payload decodes and has a timestamp.
+    birth; every payload decodes and has a timestamp;
+  - a metric marked is_historical (store-and-forward, gateway.md §6.2) has its timestamp, and is
+    history: it is checked against the birth but neither changes the host's view nor counts as
+    data on change.
 The host app's own (re)connection to the broker forgets every node: it may have missed messages,
 so the next message from each node must be an NBIRTH again (which is what a node does after a
 broker restart).
@@ -49,9 +52,9 @@ LONG_TYPES = {"Int64", "UInt64", "DateTime"}
 class Metric:
     """A decoded metric: value None for is_null."""
 
-    def __init__(self, name, alias, datatype, value, timestamp):
+    def __init__(self, name, alias, datatype, value, timestamp, is_historical=False):
         self.name, self.alias, self.datatype, self.value = name, alias, datatype, value
-        self.timestamp = timestamp
+        self.timestamp, self.is_historical = timestamp, is_historical
 
     def __repr__(self):
         return (f"Metric({self.name!r}, alias={self.alias}, "
@@ -69,7 +72,8 @@ class Message:
         self.seq = None
         self.timestamp = None
         self.metrics = []
-        self.resolved = {}  # name -> value, for DATA and BIRTH
+        self.resolved = {}  # name -> value, for DATA and BIRTH: current values
+        self.historical = []  # (name, value, timestamp) of DATA metrics marked is_historical
         self.state = None  # STATE: the decoded JSON
 
     def metric(self, name):
@@ -229,7 +233,8 @@ class HostApp:
         message.metrics = [
             Metric(m.name if m.HasField("name") else None, m.alias if m.HasField("alias") else None,
                    m.datatype if m.HasField("datatype") else None, decode_value(m),
-                   m.timestamp if m.HasField("timestamp") else None)
+                   m.timestamp if m.HasField("timestamp") else None,
+                   m.HasField("is_historical") and m.is_historical)
             for m in decoded.metrics]
         if type_ in ("NCMD", "DCMD"):
             return  # commands: ours, or another host's; not the node's to keep rules on
@@ -289,6 +294,13 @@ class HostApp:
                 continue
             if m.datatype is not None and m.datatype != datatype:
                 self.violation(message, f"{name}: datatype {m.datatype} but {datatype} in birth")
+            if m.is_historical:
+                # A stored value (store-and-forward): history, not the current state, so it
+                # neither changes the view nor counts as data on change.
+                if m.timestamp is None:
+                    self.violation(message, f"historical {name} without its timestamp")
+                message.historical.append((name, m.value, m.timestamp))
+                continue
             if name in seen:
                 self.violation(message, f"{name} twice in one message")
             seen.add(name)
@@ -455,6 +467,12 @@ class HostApp:
         payload = pb.Payload(timestamp=int(time.time() * 1000))
         m = payload.metrics.add(name="Node Control/Rebirth")
         encode_value(m, "Boolean", value)
+        self._publish(f"{PREFIX}/{group}/NCMD/{node}", payload.SerializeToString())
+
+    def ncmd_next_server(self, group, node):
+        payload = pb.Payload(timestamp=int(time.time() * 1000))
+        m = payload.metrics.add(name="Node Control/Next Server")
+        encode_value(m, "Boolean", True)
         self._publish(f"{PREFIX}/{group}/NCMD/{node}", payload.SerializeToString())
 
     def dcmd(self, group, node, device, metrics):

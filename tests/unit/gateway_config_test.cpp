@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include <fmt/format.h>
+
 #include "config/gateway_config.hpp"
 #include "tests/unit/tls_fixtures.hpp"
 
@@ -378,9 +380,9 @@ TEST(GatewayConfig, TheMqttSection) {
     ASSERT_TRUE(full) << describe(full.error());
     ASSERT_TRUE(full->mqtt);
     const auto& m = *full->mqtt;
-    EXPECT_TRUE(m.tls);
-    EXPECT_EQ(m.host, "broker.plant.example");
-    EXPECT_EQ(m.port, 8883);
+    EXPECT_EQ(m.brokers,
+              (std::vector<config::BrokerAddress>{{true, "broker.plant.example", 8883}}));
+    EXPECT_FALSE(m.store);
     EXPECT_EQ(m.group_id, "plant1");
     EXPECT_EQ(m.edge_node_id, "box7");
     EXPECT_EQ(m.client_id, "ioportd-plant1-box7");
@@ -393,9 +395,8 @@ TEST(GatewayConfig, TheMqttSection) {
         "  edge_node_id: n\n  client_id: gw-7\n" +
         links);
     ASSERT_TRUE(plain) << describe(plain.error());
-    EXPECT_FALSE(plain->mqtt->tls);
-    EXPECT_EQ(plain->mqtt->host, "::1");
-    EXPECT_EQ(plain->mqtt->port, 1883);
+    EXPECT_EQ(plain->mqtt->brokers, (std::vector<config::BrokerAddress>{{false, "::1", 1883}}));
+    EXPECT_EQ(config::to_string(plain->mqtt->brokers[0]), "mqtt://[::1]:1883");
     EXPECT_EQ(plain->mqtt->client_id, "gw-7");
     EXPECT_EQ(plain->mqtt->keepalive, 30s);
     EXPECT_EQ(plain->mqtt->deadband, 0.0);
@@ -782,6 +783,58 @@ TEST(GatewayConfigErrors, TheMqttSection) {
                       6, "links[0].name", "part of Sparkplug device ids"});
 }
 
+TEST(GatewayConfig, SeveralBrokersAndAStore) {
+    const auto config = parse(
+        "mqtt:\n  brokers: [\"mqtt://10.0.0.5:1883\", \"mqtts://10.0.0.6\"]\n"
+        "  group_id: g\n  edge_node_id: n\n"
+        "  store: { path: /var/lib/ioportd/sparkplug, max_size: 8MiB, forward_rate: 50 }\n" +
+        hub);
+    ASSERT_TRUE(config) << describe(config.error());
+    EXPECT_EQ(config->mqtt->brokers, (std::vector<config::BrokerAddress>{
+                                         {false, "10.0.0.5", 1883}, {true, "10.0.0.6", 8883}}));
+    EXPECT_EQ(config->mqtt->store,
+              (config::StoreSettings{"/var/lib/ioportd/sparkplug", 8U << 20, 50}));
+    const auto defaults = parse(
+        "mqtt:\n  broker: mqtt://b\n  group_id: g\n  edge_node_id: n\n"
+        "  store:\n    path: /s\n" +
+        hub);
+    ASSERT_TRUE(defaults) << describe(defaults.error());
+    EXPECT_EQ(defaults->mqtt->store, (config::StoreSettings{"/s", 64U << 20, 200}));
+}
+
+TEST(GatewayConfigErrors, BrokersAndTheStore) {
+    const std::string ids = "mqtt:\n  group_id: g\n  edge_node_id: n\n";  // lines 1-3
+    const auto brokers = [&](const std::string& value, const std::string& key,
+                             const std::string& fragment) {
+        expect_one_error({ids + "  brokers: " + value + "\n" + hub, 4, key, fragment});
+    };
+    brokers("[]", "mqtt.brokers", "at least one broker");
+    brokers("mqtt://a", "mqtt.brokers", "expected a list");
+    brokers("[\"mqtt://a\", \"tcp://b\"]", "mqtt.brokers[1]", "not an MQTT URL");
+    brokers("[\"mqtt://a\", \"mqtt://a:1883\"]", "mqtt.brokers", "mqtt://a:1883 is listed twice");
+    std::string many = "[";
+    for (int i = 0; i <= 16; ++i)
+        many += fmt::format("\"mqtt://b{}\",", i);
+    brokers(many + "]", "mqtt.brokers", "at most 16");
+    expect_one_error({ids + "  broker: mqtt://a\n  brokers: [\"mqtt://b\"]\n" + hub, 5,
+                      "mqtt.brokers", "not both"});
+    expect_one_error({ids + "  brokers: [\"mqtt://a\"]\n  ca_file: /dev/null\n" + hub, 5,
+                      "mqtt.ca_file", "mqtts:// brokers only"});
+    const std::string b = "mqtt:\n  broker: mqtt://a\n  group_id: g\n  edge_node_id: n\n";
+    const auto store = [&](const std::string& value, const std::string& key,
+                           const std::string& fragment) {
+        expect_one_error({b + "  store: " + value + "\n" + hub, 5, key, fragment});
+    };
+    store("{ max_size: 8MiB }", "mqtt.store.path", "missing");
+    store("{ path: relative/dir }", "mqtt.store.path", "not an absolute path");
+    store("{ path: /s, max_size: 64MB }", "mqtt.store.max_size", "not a store size");
+    store("{ path: /s, max_size: 512KiB }", "mqtt.store.max_size", "1MiB..1024GiB");
+    store("{ path: /s, max_size: 2048GiB }", "mqtt.store.max_size", "not a store size");
+    store("{ path: /s, forward_rate: 0 }", "mqtt.store.forward_rate", "out of range");
+    store("{ path: /s, retention: 1d }", "mqtt.store.retention", "unknown key");
+    store("/var/lib/ioportd", "mqtt.store", "expected a mapping");
+}
+
 TEST(GatewayConfigErrors, CommLossTimeout) {
     expect_one_error(
         {"modbus:\n  comm_loss_timeout: soon\n" + hub, 2, "modbus.comm_loss_timeout", "e.g."});
@@ -991,8 +1044,8 @@ TEST(GatewayConfig, TheSimulatorExampleIsWhatTheDemoExpects) {
     ASSERT_TRUE(config->http);  // the demo prints this page's address
     EXPECT_EQ(config->http->listen_port, 8502);
     ASSERT_TRUE(config->mqtt);  // the demo starts a broker here
-    EXPECT_EQ(config->mqtt->host, "127.0.0.1");
-    EXPECT_EQ(config->mqtt->port, 1883);
+    EXPECT_EQ(config->mqtt->brokers,
+              (std::vector<config::BrokerAddress>{{false, "127.0.0.1", 1883}}));
 }
 
 }  // namespace
