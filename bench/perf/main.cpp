@@ -19,7 +19,8 @@ namespace {
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, sparkplug (7a-c), fleet (7c alone), tls, or all (the default).
+write, modbus, footprint, http, sparkplug (7a-d), fleet (7c alone), outage (7d alone), tls, or
+all (the default).
 Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
 its target. Asserts nothing: exit status 0 unless a program could not be started.
 
@@ -144,7 +145,7 @@ int main(int argc, char** argv) {
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
                    arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "fleet" ||
-                   arg == "tls" || arg == "all") {
+                   arg == "outage" || arg == "tls" || arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -188,6 +189,8 @@ int main(int argc, char** argv) {
     if (wanted("footprint")) add(footprint(env));
     // The fleet's CPU is the CPU of nodes that mostly wait, as benchmark 5's idle figure.
     if (wanted("sparkplug") || wanted("fleet")) add(sparkplug_fleet(env));
+    // A broker outage and the forwarding after it (issue 26).
+    if (wanted("sparkplug") || wanted("outage")) add(sparkplug_outage(env));
 
     fmt::print("\n## Summary{}\n", env.quick ? " (--quick: the figures mean nothing)" : "");
     Table summary({"benchmark", "figure", "target", "met"});

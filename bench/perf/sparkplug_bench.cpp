@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdlib>
 #include <fstream>
 #include <latch>
@@ -28,6 +29,7 @@
 #include "bench/perf/benchmarks.hpp"
 #include "bench/perf/load.hpp"
 #include "protocol/sparkplug.hpp"
+#include "protocol/store_segment.hpp"
 
 namespace ioport::bench {
 namespace {
@@ -110,9 +112,10 @@ bool accepts(std::uint16_t port) {
 // slow subscriber has not taken yet (so that what the broker drops is not what is measured).
 class Broker {
   public:
-    Broker(const Environment& env, const TempDir& dir, std::optional<int> cpu) {
-        if (::access(env.binaries.mosquitto.c_str(), X_OK) != 0) {
-            why_ = fmt::format("no broker at {} (--mosquitto PATH)", env.binaries.mosquitto);
+    Broker(const Environment& env, const TempDir& dir, std::optional<int> cpu)
+        : mosquitto_(env.binaries.mosquitto), dir_(dir.path()), cpu_(cpu) {
+        if (::access(mosquitto_.c_str(), X_OK) != 0) {
+            why_ = fmt::format("no broker at {} (--mosquitto PATH)", mosquitto_);
             return;
         }
         const auto port = free_port();
@@ -121,9 +124,25 @@ class Broker {
             "max_queued_messages 100000\nmax_queued_bytes 0\nmax_inflight_messages 0\n"
             "log_type error\nlog_type warning\n",
             port);
+        launch(port);
+    }
+    // An outage: the broker goes away, and comes back on the same port.
+    void stop() { process_.reset(); }
+    bool restart() {
+        const auto port = std::exchange(port_, 0);
+        launch(port);
+        return started();
+    }
+    bool started() const { return port_ != 0; }
+    const std::string& why() const { return why_; }
+    std::uint16_t port() const { return port_; }
+    pid_t pid() const { return process_ ? process_->pid() : -1; }
+
+  private:
+    void launch(std::uint16_t port) {
         process_ = std::make_unique<Process>(
-            std::vector<std::string>{env.binaries.mosquitto, "-c", dir / "mosquitto.conf"}, cpu,
-            dir / "mosquitto.log");
+            std::vector<std::string>{mosquitto_, "-c", dir_ / "mosquitto.conf"}, cpu_,
+            dir_ / "mosquitto.log");
         const auto until = Clock::now() + 5s;
         while (Clock::now() < until && process_->running()) {
             if (accepts(port)) {
@@ -134,12 +153,10 @@ class Broker {
         }
         why_ = fmt::format("mosquitto did not start: {}", process_->output());
     }
-    bool started() const { return port_ != 0; }
-    const std::string& why() const { return why_; }
-    std::uint16_t port() const { return port_; }
-    pid_t pid() const { return process_ ? process_->pid() : -1; }
 
-  private:
+    std::string mosquitto_;
+    std::filesystem::path dir_;
+    std::optional<int> cpu_;
     std::unique_ptr<Process> process_;
     std::uint16_t port_ = 0;
     std::string why_;
@@ -916,7 +933,254 @@ std::vector<Verdict> fleet(const Environment& env) {
              "every birth, none lost", born && lost_in_total == 0}};
 }
 
+// --- d. A broker outage, with the store -------------------------------------------------------
+
+// The number in a store's delivered mark: once everything is forwarded, how many records the
+// store ever took (a fresh store numbers them from 1).
+std::uint64_t delivered_mark(const std::filesystem::path& store) {
+    std::uint64_t delivered = 0;
+    std::ifstream mark(store / "delivered", std::ios::binary);
+    std::array<char, 8> bytes{};
+    if (mark.read(bytes.data(), bytes.size()))
+        for (auto byte = bytes.rbegin(); byte != bytes.rend(); ++byte)
+            delivered = delivered << 8 | static_cast<std::uint8_t>(*byte);
+    return delivered;
+}
+
+// What a store directory holds now, read as ioportd would find it on opening (the files only
+// read): records after the delivered mark, and the bytes of the segments.
+struct OnDisk {
+    std::uint64_t records = 0;
+    std::uint64_t bytes = 0;
+};
+OnDisk on_disk(const std::filesystem::path& store) {
+    OnDisk found;
+    const auto delivered = delivered_mark(store);
+    std::error_code ec;
+    for (const auto& entry : std::filesystem::directory_iterator(store, ec)) {
+        if (entry.path().extension() != ".seg") continue;
+        std::ifstream file(entry.path(), std::ios::binary);
+        const std::vector<std::uint8_t> bytes{std::istreambuf_iterator<char>(file), {}};
+        found.bytes += bytes.size();
+        for (const auto& record : store::scan_segment(bytes).records)
+            if (record.number > delivered) ++found.records;
+    }
+    return found;
+}
+
+struct ProcessIo {
+    std::uint64_t wchar = 0;
+    std::uint64_t write_bytes = 0;
+};
+ProcessIo process_io(pid_t pid) {
+    ProcessIo io;
+    std::ifstream file(fmt::format("/proc/{}/io", pid));
+    std::string key;
+    std::uint64_t value = 0;
+    while (file >> key >> value) {
+        if (key == "wchar:") io.wchar = value;
+        if (key == "write_bytes:") io.write_bytes = value;
+    }
+    return io;
+}
+
+// What a subscriber saw of one session of the node after the outage.
+struct AfterOutage {
+    std::mutex mutex;
+    Tally tally;
+    std::uint64_t historical = 0;
+    std::optional<Clock::time_point> last_historical;
+    std::optional<std::uint64_t> word_alias;
+    std::map<std::uint64_t, Clock::time_point> arrived;  // dim16 0's word -> its live DDATA
+};
+
+std::vector<Verdict> outage(const Environment& env) {
+    const auto bus = full_bus();
+    const auto analog = analog_of(bus);
+    const auto period = 5ms;
+    const auto away =
+        env.quick ? 1s : std::chrono::duration_cast<std::chrono::seconds>(env.window(60s));
+    const int forward_rate = env.quick ? 2000 : 1000;
+    const ModuleAddress target{ModuleType::dim16, 0};
+    const auto target_id = sparkplug::device_id("hub0", target);
+    fmt::print(
+        "\n### 7d. A broker outage of {} s, with the store\n\nA full bus at 115200 baud "
+        "(modelled, simulated in this process) with its {} analog modules' every channel moving "
+        "every {} ms, so that every read of them is a new value; ioportd an edge node on a local "
+        "mosquitto with `store:` (forward_rate {}). The broker is stopped for {} s and started "
+        "again on the same port; a new subscriber is there before ioportd's next CONNECT. "
+        "\"Recorded\": the records the store took, from its delivered mark once everything is "
+        "forwarded; \"forwarded\": the historical DDATA that subscriber received. Bytes: what "
+        "ioportd wrote during the outage (/proc/PID/io: to write(), and to the block device) and "
+        "the store's files at its end, per record then on disk. CPU: ioportd's, connected (live "
+        "DDATA) for as long before the outage, and during it (storing instead). Live latency: "
+        "dim16 0's word set at the simulator 60–140 ms apart, to the live DDATA carrying it, "
+        "while the backlog is forwarded and after.\n",
+        away.count(), analog.size(), period.count(), forward_rate, away.count());
+    TempDir dir;
+    Broker broker(env, dir, env.placement.client_cpu);
+    if (!broker.started()) {
+        fmt::print("\n{}: benchmark 7d skipped.\n", broker.why());
+        return {};
+    }
+    InProcessSim sim(dir / "tty", bus, timed(115200), env.placement.client_cpu);
+    const auto store = dir.path() / "store";
+    Gateway gateway(env, dir,
+                    gateway_yaml({{dir / "tty", 115200, bus}}, 32, false,
+                                 mqtt_yaml(broker.port(), node_id(0)) +
+                                     fmt::format("  store:\n    path: {}\n    forward_rate: {}\n",
+                                                 store.string(), forward_rate)));
+    {
+        Tally before;
+        Subscriber watching(broker.port(), {fmt::format("spBv1.0/{}/#", group)},
+                            [&](const Received& message) { before.add(message); });
+        if (!sim.ready() || !watching.ready() || !gateway.started() ||
+            !gateway.wait_until_polling() ||
+            !wait_for(
+                [&] {
+                    const auto node = before.node(node_id(0));
+                    return node && node->dbirths >= static_cast<int>(bus.size());
+                },
+                10s))
+            return {{"7d. outage", "ioportd did not start", "", false}};
+    }
+    sim.wander(analog, period);
+    std::this_thread::sleep_for(env.quick ? 100ms : 1s);
+    const auto cpu_connected_start = cpu_time(gateway.pid());
+    std::this_thread::sleep_for(away);
+    const auto cpu_connected = cpu_time(gateway.pid()) - cpu_connected_start;
+
+    const auto io_before = process_io(gateway.pid());
+    const auto cpu_before = cpu_time(gateway.pid());
+    broker.stop();
+    std::this_thread::sleep_for(away);
+    const auto cpu_away = cpu_time(gateway.pid()) - cpu_before;
+    const auto io_after = process_io(gateway.pid());
+    const auto stored = on_disk(store);
+    if (!broker.restart()) return {{"7d. outage", "mosquitto did not restart", "", false}};
+
+    AfterOutage after;
+    Subscriber subscriber(
+        broker.port(), {fmt::format("spBv1.0/{}/#", group)}, [&](const Received& message) {
+            after.tally.add(message);
+            const auto topic = sparkplug::parse_topic(message.topic);
+            const auto payload = sparkplug::decode(message.payload);
+            if (!topic || !payload || payload->metrics.empty()) return;
+            const std::scoped_lock lock(after.mutex);
+            if (payload->metrics.front().is_historical) {
+                ++after.historical;
+                after.last_historical = message.at;
+                return;
+            }
+            if (topic->device != target_id) return;
+            for (const auto& metric : payload->metrics) {
+                if (topic->type == sparkplug::MessageType::dbirth && metric.name == "word")
+                    after.word_alias = metric.alias;
+                const auto* value =
+                    metric.value ? std::get_if<std::uint64_t>(&*metric.value) : nullptr;
+                if (topic->type == sparkplug::MessageType::ddata && after.word_alias &&
+                    metric.alias == after.word_alias && value != nullptr)
+                    after.arrived.try_emplace(*value, message.at);
+            }
+        });
+    // ioportd comes back at its next reconnect (1 s doubling to 30 s since the loss).
+    if (!subscriber.ready() ||
+        !wait_for([&] { return after.tally.node(node_id(0)).has_value(); }, 40s))
+        return {{"7d. outage", "ioportd did not reconnect", "", false}};
+    const auto births = after.tally.node(node_id(0))->nbirth;
+
+    std::mt19937 random(26);
+    std::uint16_t next_word = 0x2000;
+    const int changes = env.quick ? 5 : 100;
+    const auto probe = [&] {
+        std::uniform_int_distribution<int> pause_us(60'000, 140'000);
+        std::vector<std::pair<std::uint16_t, Clock::time_point>> applied;
+        for (int i = 0; i < changes; ++i) {
+            std::this_thread::sleep_for(std::chrono::microseconds(pause_us(random)));
+            const auto word = next_word++;
+            applied.emplace_back(word, sim.set_values(target, {word}));
+        }
+        wait_for(
+            [&] {
+                const std::scoped_lock lock(after.mutex);
+                return after.arrived.contains(applied.back().first);
+            },
+            2s);
+        std::vector<double> latencies;
+        const std::scoped_lock lock(after.mutex);
+        for (const auto& [word, at] : applied)
+            if (const auto found = after.arrived.find(word); found != after.arrived.end())
+                latencies.push_back(microseconds(found->second - at));
+        return summarize(latencies);
+    };
+    const auto forwarding_latency = probe();
+    bool forwarding_throughout = false;
+    {
+        const std::scoped_lock lock(after.mutex);
+        forwarding_throughout = after.historical < stored.records;
+    }
+    // Drained: the store's files hold nothing undelivered, and its mark is written (at a sync).
+    const bool drained = wait_for(
+        [&] { return on_disk(store).records == 0 && delivered_mark(store) > 0; },
+        std::chrono::seconds(10 + 2 * stored.records / static_cast<std::uint64_t>(forward_rate)));
+    std::this_thread::sleep_for(1100ms);  // the sync that writes the last mark
+    const auto idle_latency = probe();
+
+    const auto recorded = delivered_mark(store);
+    std::uint64_t received = 0;
+    double forward_s = 0;
+    {
+        const std::scoped_lock lock(after.mutex);
+        received = after.historical;
+        if (births && after.last_historical) forward_s = seconds(*after.last_historical - *births);
+    }
+    const auto counts = after.tally.counts();
+    const double n = static_cast<double>(std::max<std::uint64_t>(stored.records, 1));
+    const double written = static_cast<double>(io_after.wchar - io_before.wchar) / n;
+    const double to_disk = static_cast<double>(io_after.write_bytes - io_before.write_bytes) / n;
+    const double away_s = static_cast<double>(away.count());
+    const double connected_pct = microseconds(cpu_connected) / 1e4 / away_s;
+    const double away_pct = microseconds(cpu_away) / 1e4 / away_s;
+    Table table({"", "value"});
+    table.row({"records the store took (its mark, all forwarded)", fmt::format("{}", recorded)});
+    table.row({"historical DDATA received", fmt::format("{}", received)});
+    table.row({"forwarding: from NBIRTH to the last historical DDATA",
+               fmt::format("{:.1f} s ({:.0f} a second)", forward_s,
+                           forward_s > 0 ? static_cast<double>(received) / forward_s : 0.0)});
+    table.row({"in the store at the end of the outage",
+               fmt::format("{} records, {:.1f} KiB, {:.0f} B a record", stored.records,
+                           static_cast<double>(stored.bytes) / 1024,
+                           static_cast<double>(stored.bytes) / n)});
+    table.row({"written by ioportd during the outage, a record: to write() / to the disk",
+               fmt::format("{:.0f} B / {:.0f} B", written, to_disk)});
+    table.row({"ioportd CPU: connected (live DDATA) / during the outage (storing)",
+               fmt::format("{:.2f} % / {:.2f} %", connected_pct, away_pct)});
+    table.row({"seq gaps at the subscriber after the outage", fmt::format("{}", counts.lost)});
+    const auto latency_text = [&](const Summary& l) {
+        return fmt::format("p50 {:.2f} ms, p99 {:.2f} ms, max {:.2f} ms ({} of {})", ms(l.p50),
+                           ms(l.p99), ms(l.max), l.count, changes);
+    };
+    table.row({fmt::format("live change → DDATA while forwarding{}",
+                           forwarding_throughout ? "" : " (the backlog ran out first)"),
+               latency_text(forwarding_latency)});
+    table.row({"live change → DDATA, no backlog", latency_text(idle_latency)});
+    machine_line(fmt::format(
+        R"({{"bench":"sparkplug_outage","outage_s":{},"recorded":{},"forwarded":{},"forward_s":{:.2f},"stored_at_end":{},"store_bytes":{},"wchar_per_record":{:.1f},"disk_per_record":{:.1f},"cpu_connected_pct":{:.3f},"cpu_outage_pct":{:.3f},"seq_gaps":{},"live_p99_forwarding_ms":{:.3f},"live_p99_idle_ms":{:.3f}}})",
+        away.count(), recorded, received, forward_s, stored.records, stored.bytes, written, to_disk,
+        connected_pct, away_pct, counts.lost, ms(forwarding_latency.p99), ms(idle_latency.p99)));
+    return {{fmt::format("7d. a {} s broker outage: recorded = forwarded", away.count()),
+             fmt::format("{} recorded, {} forwarded in {:.1f} s; {:.0f} B written a record",
+                         recorded, received, forward_s, written),
+             "every recorded change forwarded, none lost",
+             drained && recorded > 0 && received == recorded && counts.lost == 0}};
+}
+
 }  // namespace
+
+std::vector<Verdict> sparkplug_outage(const Environment& env) {
+    fmt::print("\n## 7d. Sparkplug store-and-forward\n\nWhat nothing lost costs (issue 26).\n");
+    return outage(env);
+}
 
 std::vector<Verdict> sparkplug_cost(const Environment& env) {
     fmt::print(

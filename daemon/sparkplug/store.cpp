@@ -88,7 +88,7 @@ void SparkplugStore::start_syncing() {
     sync_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
         const auto self = weak.lock();
         if (ec || !self) return;
-        if (std::exchange(self->appended_since_sync_, false))
+        if (std::exchange(self->changed_since_sync_, false))
             self->on_disk([](StoreFiles& files) { return files.sync(); },
                           [](SparkplugStore& store, const Result<>& synced) {
                               if (!synced) store.failed("sync", synced.error());
@@ -108,7 +108,7 @@ bool SparkplugStore::append(std::vector<std::uint8_t> body) {
     }
     const auto size = body.size();
     queued_ += size;
-    appended_since_sync_ = true;
+    changed_since_sync_ = true;
     on_disk([body = std::move(body)](StoreFiles& files) { return files.append(body); },
             [size](SparkplugStore& store, const Result<std::uint64_t>& appended) {
                 store.queued_ -= size;
@@ -140,6 +140,7 @@ void SparkplugStore::read_after(std::uint64_t after, std::size_t count,
 
 void SparkplugStore::deliver(std::uint64_t through, std::uint64_t records) {
     stats_.forwarded += records;
+    changed_since_sync_ = true;  // the mark is written at the next sync
     on_disk([through](StoreFiles& files) { return files.deliver(through); },
             [](SparkplugStore& store, const Result<>& delivered) {
                 if (!delivered) store.failed("deliver", delivered.error());

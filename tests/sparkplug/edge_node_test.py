@@ -921,6 +921,10 @@ class StoreAndForward(OwnDaemon):
         # Emptied once the broker provably has them, and said so.
         state = eventually(lambda: self.store_state()["records"] == 0 and self.store_state(), 10,
                            "the store emptied")
+        # On disk too, mark written: a restart (even after kill -9) forwards nothing again.
+        eventually(lambda: os.path.exists(os.path.join(self.store, "delivered")) and not any(
+            name.endswith(".seg") for name in os.listdir(self.store)), 5,
+            lambda: f"the store's files: {os.listdir(self.store)}")
         self.assertGreaterEqual(state["forwarded"], len(self.WORDS))
         self.assertIsNone(state["oldest"])
         self.rig.wait_log(r"Sparkplug: forwarding \d+ stored record\(s\)", 1)
@@ -933,6 +937,10 @@ class StoreAndForward(OwnDaemon):
         self.assertGreaterEqual(int(forwarded.group(1)), len(self.WORDS))
         self.assertRegex(metrics, r"(?m)^ioportd_sparkplug_store_dropped_total 0$")
         self.assertRegex(metrics, r"(?m)^ioportd_sparkplug_store_bytes \d+$")
+        self.rig.daemon.kill()
+        self.rig.daemon.wait(5)
+        self.rig.start_daemon()
+        self.rig.wait_log(r"Sparkplug store \S+: 0 record\(s\) to forward", 5)
 
     def test_kill_9_in_the_outage_loses_nothing_written(self):
         self.start()
