@@ -1025,25 +1025,25 @@ std::vector<Verdict> outage(const Environment& env) {
     }
     InProcessSim sim(dir / "tty", bus, timed(115200), env.placement.client_cpu);
     const auto store = dir.path() / "store";
+    // Watching the births of the first session: subscribed before ioportd starts.
+    Tally before;
+    auto watching = std::make_unique<Subscriber>(
+        broker.port(), std::vector<std::string>{fmt::format("spBv1.0/{}/#", group)},
+        [&](const Received& message) { before.add(message); });
     Gateway gateway(env, dir,
                     gateway_yaml({{dir / "tty", 115200, bus}}, 32, false,
                                  mqtt_yaml(broker.port(), node_id(0)) +
                                      fmt::format("  store:\n    path: {}\n    forward_rate: {}\n",
                                                  store.string(), forward_rate)));
-    {
-        Tally before;
-        Subscriber watching(broker.port(), {fmt::format("spBv1.0/{}/#", group)},
-                            [&](const Received& message) { before.add(message); });
-        if (!sim.ready() || !watching.ready() || !gateway.started() ||
-            !gateway.wait_until_polling() ||
-            !wait_for(
-                [&] {
-                    const auto node = before.node(node_id(0));
-                    return node && node->dbirths >= static_cast<int>(bus.size());
-                },
-                10s))
-            return {{"7d. outage", "ioportd did not start", "", false}};
-    }
+    if (!sim.ready() || !watching->ready() || !gateway.started() || !gateway.wait_until_polling() ||
+        !wait_for(
+            [&] {
+                const auto node = before.node(node_id(0));
+                return node && node->dbirths >= static_cast<int>(bus.size());
+            },
+            10s))
+        return {{"7d. outage", "ioportd did not start", "", false}};
+    watching.reset();
     sim.wander(analog, period);
     std::this_thread::sleep_for(env.quick ? 100ms : 1s);
     const auto cpu_connected_start = cpu_time(gateway.pid());

@@ -15,11 +15,11 @@ using sparkplug::Value;
 
 constexpr std::string_view rebirth_metric = "Node Control/Rebirth";
 constexpr std::string_view next_server_metric = "Node Control/Next Server";
-// The node metrics' aliases: Node Control/Rebirth, Node Control/Next Server, then four per link
-// (bdSeq goes by name).
-constexpr std::uint64_t rebirth_alias = 0;
-constexpr std::uint64_t next_server_alias = 1;
-constexpr std::uint64_t first_link_alias = 2;
+// The node metrics' aliases: four per link. bdSeq and the Node Control metrics go by name: an
+// NBIRTH MUST NOT give Node Control/Rebirth an alias (Sparkplug 3.0,
+// tck-id-operational-behavior-data-commands-rebirth-name-aliases), and a host commands them by
+// name.
+constexpr std::uint64_t first_link_alias = 0;
 constexpr std::uint64_t metrics_per_link = 4;
 
 std::uint64_t now_ms() {
@@ -277,7 +277,10 @@ void SparkplugNode::connected() {
 // asks, for the next in its list: NDEATH first, then DISCONNECT.
 void SparkplugNode::walk(const std::string& why) {
     if (stopping_ || !client_->connected()) return;
-    log_.warn({}, "Sparkplug: {}; leaving {} for the next broker", why, client_->broker());
+    log_.warn({}, "Sparkplug: {}; NDEATH, and {}", why,
+              settings_.brokers.size() > 1
+                  ? fmt::format("leaving {} for the next broker", client_->broker())
+                  : fmt::format("connecting to {} again", client_->broker()));
     host_timer_.cancel();
     client_->publish(
         sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id),
@@ -346,9 +349,9 @@ void SparkplugNode::birth() {
     Payload nbirth{now, 0, {}};
     nbirth.metrics.push_back(
         Metric{"bdSeq", std::nullopt, now, wire(DataType::int64), Value(bdseq_)});
-    nbirth.metrics.push_back(Metric{std::string(rebirth_metric), rebirth_alias, now,
+    nbirth.metrics.push_back(Metric{std::string(rebirth_metric), std::nullopt, now,
                                     wire(DataType::boolean), Value(false)});
-    nbirth.metrics.push_back(Metric{std::string(next_server_metric), next_server_alias, now,
+    nbirth.metrics.push_back(Metric{std::string(next_server_metric), std::nullopt, now,
                                     wire(DataType::boolean), Value(false)});
     std::uint64_t alias = first_link_alias;
     for (std::size_t l = 0; l < links_.size(); ++l) {
@@ -616,13 +619,15 @@ void SparkplugNode::message(std::string_view topic_text, std::span<const std::ui
         if (*online && !was) {
             log_.info({}, "Sparkplug: primary host {} online", settings_.primary_host_id);
             birth();
-        } else if (!*online && settings_.brokers.size() > 1) {
+        } else if (!*online && (born_ || settings_.brokers.size() > 1)) {
+            // Sparkplug 3.0 §5.5: a session whose primary host goes offline ends (NDEATH,
+            // DISCONNECT) and the node connects to the next server, the same one when it has one;
+            // with several, a broker the host is offline on is left at once (gateway.md §6.2).
             walk(fmt::format("the primary host {} is offline on this broker",
                              settings_.primary_host_id));
         } else if (!*online && was) {
-            log_.warn({}, "Sparkplug: primary host {} offline; births again when it is back",
+            log_.warn({}, "Sparkplug: primary host {} offline; births when it is back",
                       settings_.primary_host_id);
-            born_ = false;
         }
         return;
     }
@@ -686,14 +691,10 @@ void SparkplugNode::node_command(std::span<const std::uint8_t> bytes) {
                fmt::format("Sparkplug NCMD refused: {}", payload.error().message));
         return;
     }
-    const auto is = [](const Metric& metric, std::string_view name, std::uint64_t alias) {
-        return metric.name == name || (metric.name.empty() && metric.alias == alias);
-    };
     for (const auto& metric : payload->metrics) {
-        if (is(metric, rebirth_metric, rebirth_alias) && metric.value == Value(true)) {
+        if (metric.name == rebirth_metric && metric.value == Value(true)) {
             rebirth_asked();
-        } else if (is(metric, next_server_metric, next_server_alias) &&
-                   metric.value == Value(true)) {
+        } else if (metric.name == next_server_metric && metric.value == Value(true)) {
             if (settings_.brokers.size() > 1)
                 walk("the host asked for the next server (NCMD Node Control/Next Server)");
             else

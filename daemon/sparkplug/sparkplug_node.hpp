@@ -13,7 +13,8 @@
 // A session: CONNECT with NDEATH as the will, carrying bdSeq (one more for every CONNECT);
 // NBIRTH (seq 0) with the node metrics, then a DBIRTH per module that is online; from then on
 // seq counts every message 0..255. With primary_host_id the births wait for that host's STATE
-// {"online": true} and are sent again whenever it comes back online. NCMD "Node Control/Rebirth"
+// {"online": true}; an offline STATE ends the session (NDEATH, DISCONNECT, a new CONNECT), and
+// the next one begins when the host is back. NCMD "Node Control/Rebirth"
 // sends every birth again with the same bdSeq, at most once a second (requests in between are
 // served by one rebirth at the end of that second). DCMD writes take the gateway's one write path
 // (sparkplug::plan_command, then LinkScheduler::write): validated, confirmed by the device,

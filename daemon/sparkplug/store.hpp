@@ -87,7 +87,7 @@ class SparkplugStore : public std::enable_shared_from_this<SparkplugStore> {
     std::uint64_t lost_ = 0;            // appends the disk did not take, or that found it behind
     std::uint64_t dropped_oldest_ = 0;  // by StoreFiles, beyond max_size
     std::uint64_t held_full_ = 0;       // of those, not yet in a log line
-    bool changed_since_sync_ = false;  // an append or a delivery
+    bool changed_since_sync_ = false;   // an append or a delivery
 };
 
 }  // namespace ioport::daemon

@@ -244,6 +244,10 @@ class EdgeNode(SparkplugCase):
         self.assertEqual(names["bdSeq"].value, 0)  # the first CONNECT of this daemon
         self.assertEqual(names["Node Control/Rebirth"].datatype, TYPE_NUMBERS["Boolean"])
         self.assertIs(names["Node Control/Rebirth"].value, False)
+        # tck-id-operational-behavior-data-commands-rebirth-name-aliases: no alias for Rebirth
+        self.assertIsNone(names["Node Control/Rebirth"].alias)
+        self.assertEqual(names["Node Control/Next Server"].datatype, TYPE_NUMBERS["Boolean"])
+        self.assertIs(names["Node Control/Next Server"].value, False)
         for link in ("hub0", "press"):
             self.assertIs(names[f"link/{link}/up"].value, True)
             for counter in ("transactions_ok", "transactions_failed", "reopens"):
@@ -816,12 +820,19 @@ class Lifecycle(OwnDaemon):
         self.host.state("scada", True)
         first = self.wait_births(mark)
         self.assertEqual(first.seq, 0)
+        # The host goes offline: the session ends (NDEATH, DISCONNECT) and the node connects
+        # again, to this broker, its only one (Sparkplug 3.0 §5.5,
+        # tck-id-operational-behavior-edge-node-termination-host-offline, -reconnect); it waits
+        # there for the host, and a new session (the next bdSeq) begins when it is back.
         mark = self.host.mark()
         self.host.state("scada", False)
-        self.rig.wait_log(r"primary host scada offline")
+        death = self.host.wait_message("NDEATH", node=NODE, since=mark, timeout=10)
+        self.assertEqual(death.metric("bdSeq").value, first.metric("bdSeq").value)
+        self.rig.wait_log(r"the primary host scada is offline on this broker; NDEATH, and "
+                          r"connecting to mqtt://127\.0\.0\.1:\d+ again")
         self.host.state("scada", True)
         again = self.wait_births(mark)
-        self.assertEqual(again.metric("bdSeq").value, first.metric("bdSeq").value)
+        self.assertEqual(again.metric("bdSeq").value, (first.metric("bdSeq").value + 1) % 256)
         self.host.publish_raw("spBv1.0/STATE/scada", b"", retain=True)  # clear the retained one
 
     def test_sighup(self):
@@ -1006,7 +1017,7 @@ class TwoBrokers(unittest.TestCase):
         self.start("  primary_host_id: scada\n")
         nbirth = self.hosts[1].wait_message("NBIRTH", node=NODE, timeout=20)
         self.assertEqual(self.hosts[0].since(0, "NBIRTH"), [], "no births where the host is not")
-        self.rig.wait_log(r"no STATE of the primary host scada within 5 s; leaving "
+        self.rig.wait_log(r"no STATE of the primary host scada within 5 s; NDEATH, and leaving "
                           r"mqtt://127\.0\.0\.1:%d" % self.brokers[0].port)
         # The host asks for the next server: NDEATH on this broker, then the walk.
         mark = self.hosts[1].mark()
