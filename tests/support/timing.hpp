@@ -14,7 +14,16 @@
 
 namespace ioport::test {
 
+// g++ says __SANITIZE_ADDRESS__, clang __has_feature(address_sanitizer) (scripts/test's
+// sanitizer build is clang's).
 #if defined(__SANITIZE_ADDRESS__)
+#define IOPORT_TEST_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define IOPORT_TEST_SANITIZED 1
+#endif
+#endif
+#if defined(IOPORT_TEST_SANITIZED)
 inline constexpr int slowdown = 3;
 #else
 inline constexpr int slowdown = 1;
