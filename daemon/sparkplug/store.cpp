@@ -47,7 +47,6 @@ SparkplugStore::~SparkplugStore() {
 }
 
 void SparkplugStore::failed(std::string_view key, const Error& error) {
-    ++stats_.write_errors;
     if (const auto held = errors_.admit(key, LogLimiter::Clock::now()))
         log_.error({}, "{}{}; records are being lost, live publishing goes on", error.message,
                    held_back(*held));

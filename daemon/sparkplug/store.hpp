@@ -33,7 +33,6 @@ struct StoreStats {
     std::uint64_t records = 0;    // waiting to be forwarded
     std::uint64_t dropped = 0;    // lost: the oldest beyond max_size, or the disk did not take them
     std::uint64_t forwarded = 0;  // the broker has them
-    std::uint64_t write_errors = 0;
 };
 
 class SparkplugStore : public std::enable_shared_from_this<SparkplugStore> {

@@ -157,7 +157,6 @@ Result<> StoreFiles::load() {
         if (segment.records > 0) last = std::max(last, segment.last);
     next_ = std::max(last, delivered_) + 1;
     recovery_.segments = segments_.size();
-    recovery_.delivered = delivered_;
     // Wholly delivered segments left by a crash before their deletion.
     for (auto it = segments_.begin(); it != segments_.end();) {
         auto next = std::next(it);

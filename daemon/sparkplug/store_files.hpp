@@ -45,7 +45,6 @@ struct StoreRecovery {
     std::size_t segments = 0;
     std::uint64_t records = 0;        // waiting to be delivered
     std::uint64_t skipped_bytes = 0;  // torn or corrupted, not replayed
-    std::uint64_t delivered = 0;      // the mark
 };
 
 // Segments are a sixteenth of max_size, within these bounds: a full store drops its oldest
@@ -81,9 +80,7 @@ class StoreFiles {
 
     StoreCounts counts() const;
     std::uint64_t delivered() const { return delivered_; }
-    std::uint64_t last_number() const { return next_ - 1; }
     const StoreRecovery& recovery() const { return recovery_; }
-    const std::filesystem::path& dir() const { return dir_; }
 
   private:
     struct Segment {
