@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <charconv>
 #include <cmath>
 
 #include <fmt/format.h>
@@ -128,17 +129,30 @@ std::string_view to_string(DataType type) {
     return "Unknown";
 }
 
-std::optional<bool> parse_state(std::string_view json) {
+std::optional<HostState> parse_state(std::string_view json) {
     // JSON is YAML's flow style, and yaml-cpp, the configuration's reader, bounds the nesting
-    // a hostile payload may try (DeepRecursion). Only the object's own member counts, and only a
-    // JSON boolean: an unquoted true or false, not "true", not YAML's yes.
+    // a hostile payload may try (DeepRecursion). Only the object's own members count: `online` a
+    // JSON boolean (an unquoted true or false, not "true", not YAML's yes), `timestamp` an
+    // unquoted whole number.
     try {
         const auto state = YAML::Load(std::string(json));
         if (!state.IsMap()) return std::nullopt;
         const auto online = state["online"];
         if (!online.IsScalar() || online.Tag() != "?") return std::nullopt;
-        if (online.Scalar() == "true") return true;
-        if (online.Scalar() == "false") return false;
+        HostState host;
+        if (online.Scalar() == "true")
+            host.online = true;
+        else if (online.Scalar() != "false")
+            return std::nullopt;
+        if (const auto timestamp = state["timestamp"]) {
+            const auto& text = timestamp.Scalar();
+            const auto [end, ec] =
+                std::from_chars(text.data(), text.data() + text.size(), host.timestamp);
+            if (!timestamp.IsScalar() || timestamp.Tag() != "?" || text.empty() ||
+                ec != std::errc{} || end != text.data() + text.size())
+                return std::nullopt;
+        }
+        return host;
     } catch (const YAML::Exception&) {
     }
     return std::nullopt;

@@ -100,8 +100,13 @@ std::vector<std::uint8_t> encode_stored(const StoredData& data);
 Result<StoredData> decode_stored(std::span<const std::uint8_t> bytes);
 
 // STATE (Sparkplug 3.0 §7.2): {"online": true|false, "timestamp": <ms>}. nullopt when `json` is
-// not such an object.
-std::optional<bool> parse_state(std::string_view json);
+// not such an object; a missing timestamp is 0 (older than any other).
+struct HostState {
+    bool online = false;
+    std::uint64_t timestamp = 0;
+    friend bool operator==(const HostState&, const HostState&) = default;
+};
+std::optional<HostState> parse_state(std::string_view json);
 std::string state_json(bool online, std::uint64_t timestamp);
 
 // --- The metrics of a module (gateway.md §5.5) ------------------------------------------------

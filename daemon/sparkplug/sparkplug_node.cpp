@@ -607,25 +607,36 @@ void SparkplugNode::message(std::string_view topic_text, std::span<const std::ui
     if (topic->type == MessageType::state) {
         if (topic->node != settings_.primary_host_id) return;
         const std::string_view json(reinterpret_cast<const char*>(payload.data()), payload.size());
-        const auto online = sparkplug::parse_state(json);
-        if (!online) {
-            log_.warn({}, "Sparkplug: STATE of {} is not {{\"online\": …}}: {}",
+        const auto state = sparkplug::parse_state(json);
+        if (!state) {
+            log_.warn({}, "Sparkplug: STATE of {} is not {{\"online\": …, \"timestamp\": …}}: {}",
                       settings_.primary_host_id, shown(json));
             return;
         }
+        // Sparkplug 3.0 §5.4, §5.5: a STATE older than the last one is stale (a retained message
+        // from before, a host that came and went): it changes nothing.
+        if (state->timestamp < host_state_timestamp_) {
+            refuse("STATE stale", {},
+                   fmt::format("Sparkplug: STATE of {} ignored: its timestamp {} is older than "
+                               "the last one, {}",
+                               settings_.primary_host_id, state->timestamp, host_state_timestamp_));
+            return;
+        }
+        host_state_timestamp_ = state->timestamp;
+        const auto online = state->online;
         const bool was = host_online_;
-        host_online_ = *online;
+        host_online_ = online;
         host_timer_.cancel();
-        if (*online && !was) {
+        if (online && !was) {
             log_.info({}, "Sparkplug: primary host {} online", settings_.primary_host_id);
             birth();
-        } else if (!*online && (born_ || settings_.brokers.size() > 1)) {
+        } else if (!online && (born_ || settings_.brokers.size() > 1)) {
             // Sparkplug 3.0 §5.5: a session whose primary host goes offline ends (NDEATH,
             // DISCONNECT) and the node connects to the next server, the same one when it has one;
             // with several, a broker the host is offline on is left at once (gateway.md §6.2).
             walk(fmt::format("the primary host {} is offline on this broker",
                              settings_.primary_host_id));
-        } else if (!*online && was) {
+        } else if (!online && was) {
             log_.warn({}, "Sparkplug: primary host {} offline; births when it is back",
                       settings_.primary_host_id);
         }

@@ -169,7 +169,8 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     std::uint64_t next_bdseq_ = 0;
     std::uint64_t bdseq_ = 0;
     std::uint64_t seq_ = 0;
-    bool host_online_ = true;  // always, without primary_host_id
+    bool host_online_ = true;                 // always, without primary_host_id
+    std::uint64_t host_state_timestamp_ = 0;  // of the last STATE taken: older ones are stale
     bool born_ = false;
     bool rebirth_due_ = false;  // a message was dropped: the host's view is incomplete
     bool stopping_ = false;

@@ -820,6 +820,14 @@ class Lifecycle(OwnDaemon):
         self.host.state("scada", True)
         first = self.wait_births(mark)
         self.assertEqual(first.seq, 0)
+        # A stale offline STATE (older than the online one) changes nothing (Sparkplug 3.0,
+        # tck-id-operational-behavior-edge-node-termination-host-offline-timestamp).
+        mark, log = self.host.mark(), self.rig.log_mark()
+        self.host.state("scada", False, retain=False, timestamp=1)
+        self.rig.wait_log(r"STATE of scada ignored: its timestamp 1 is older than the last one",
+                          5, log)
+        self.barrier(self.rig)
+        self.assertEqual(self.host.since(mark, "NDEATH"), [])
         # The host goes offline: the session ends (NDEATH, DISCONNECT) and the node connects
         # again, to this broker, its only one (Sparkplug 3.0 §5.5,
         # tck-id-operational-behavior-edge-node-termination-host-offline, -reconnect); it waits

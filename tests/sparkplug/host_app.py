@@ -496,8 +496,10 @@ class HostApp:
             encode_value(m, datatype, spec["value"])
         self._publish(f"{PREFIX}/{group}/DCMD/{node}/{device}", payload.SerializeToString())
 
-    def state(self, host_id, online, retain=True):
-        body = json.dumps({"online": online, "timestamp": int(time.time() * 1000)})
+    def state(self, host_id, online, retain=True, timestamp=None):
+        if timestamp is None:
+            timestamp = int(time.time() * 1000)
+        body = json.dumps({"online": online, "timestamp": timestamp})
         self._publish(f"{PREFIX}/STATE/{host_id}", body, qos=1, retain=retain)
 
     def publish_raw(self, topic, payload, retain=False):

@@ -146,18 +146,27 @@ TEST(SparkplugPayload, GarbageIsAnErrorNotACrash) {
 }
 
 TEST(SparkplugState, TheStateMessageOfSparkplug3) {
-    EXPECT_EQ(parse_state(R"({"online":true,"timestamp":1})"), true);
-    EXPECT_EQ(parse_state(R"({ "timestamp" : 1, "online" : false })"), false);
+    EXPECT_EQ(parse_state(R"({"online":true,"timestamp":1})"), (HostState{true, 1}));
+    EXPECT_EQ(parse_state(R"({ "timestamp" : 1796183655123, "online" : false })"),
+              (HostState{false, 1796183655123}));
     EXPECT_EQ(parse_state(R"({"online": "yes"})"), std::nullopt);
     EXPECT_EQ(parse_state("ONLINE"), std::nullopt);  // Sparkplug 2's plain text
     EXPECT_EQ(parse_state(""), std::nullopt);
     // A member of a nested object, or the key in a string, is not the state's own.
     EXPECT_EQ(parse_state(R"({"host": {"online": true}})"), std::nullopt);
-    EXPECT_EQ(parse_state(R"({"note": "\"online\": true", "online": false})"), false);
+    EXPECT_EQ(parse_state(R"({"note": "\"online\": true", "online": false})"),
+              (HostState{false, 0}));
     EXPECT_EQ(parse_state(R"({"online": "true"})"), std::nullopt);
     EXPECT_EQ(parse_state(R"({"online": yes})"), std::nullopt);
     EXPECT_EQ(parse_state(std::string(100000, '[')), std::nullopt);
     EXPECT_EQ(state_json(true, 5), R"({"online":true,"timestamp":5})");
+    // The timestamp, when there, is an unquoted whole number: else not a STATE.
+    EXPECT_EQ(parse_state(R"({"online": true})"), (HostState{true, 0}));
+    for (const auto* json :
+         {R"({"online": true, "timestamp": "5"})", R"({"online": true, "timestamp": -5})",
+          R"({"online": true, "timestamp": 5.5})", R"({"online": true, "timestamp": [5]})",
+          R"({"online": true, "timestamp": 99999999999999999999999})"})
+        EXPECT_EQ(parse_state(json), std::nullopt) << json;
 }
 
 TEST(SparkplugModule, DeviceIdsAsGatewayMdSays) {
