@@ -432,13 +432,13 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
                      : be16({1, 0, static_cast<std::uint16_t>(header_random() % 2)});
         auto frame = header;
         frame.insert(frame.end(), {1, 4, 0x03, 0xE8, 0, 1});
-        return closes_silently(frame, 2s);
+        return closes_silently(frame, 2s * slowdown);
     });
     std::mt19937 length_random(seed_random());
     Misbehaviour oversize("oversize lengths", [&] {
         auto frame = be16({2, 0, static_cast<std::uint16_t>(255 + length_random() % 65281)});
         frame.insert(frame.end(), {1, 4, 0x03, 0xE8, 0, 1});
-        return closes_silently(frame, 2s);
+        return closes_silently(frame, 2s * slowdown);
     });
     std::mt19937 function_random(seed_random());
     Misbehaviour unknown("unknown function codes", [&]() -> std::optional<std::string> {
@@ -478,7 +478,7 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
         const auto frame = adu(9, 1, pdu(4, {1000, 1}));
         client.send(Bytes(frame.begin(), frame.begin() + 5));
         const auto sent = Clock::now();
-        if (!client.closed_silently(3s)) return "not closed";
+        if (!client.closed_silently(3s * slowdown)) return "not closed";
         const auto after = since(sent);
         if (after < 900ms || after > 1600ms * slowdown)
             return fmt::format("closed after {} ms", after.count());
