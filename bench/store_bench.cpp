@@ -24,13 +24,13 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <functional>
 #include <string>
 #include <vector>
 
 #include <fmt/format.h>
 
+#include "bench/process_io.hpp"
 #include "daemon/sparkplug/store_files.hpp"
 #include "protocol/sparkplug.hpp"
 
@@ -39,23 +39,6 @@ namespace {
 namespace fs = std::filesystem;
 using Bytes = std::vector<std::uint8_t>;
 using Clock = std::chrono::steady_clock;
-
-struct Io {
-    std::uint64_t wchar = 0;
-    std::uint64_t write_bytes = 0;
-};
-
-Io io_now() {
-    Io io;
-    std::ifstream file("/proc/self/io");
-    std::string key;
-    std::uint64_t value = 0;
-    while (file >> key >> value) {
-        if (key == "wchar:") io.wchar = value;
-        if (key == "write_bytes:") io.write_bytes = value;
-    }
-    return io;
-}
 
 double cpu_seconds() {
     rusage usage{};
@@ -192,7 +175,7 @@ Figures run(const Engine& engine, std::uint64_t records, std::uint64_t rate) {
     for (std::uint64_t n = 0; n < records; ++n)
         bodies.push_back(record(n));
     Figures figures;
-    const auto io_before = io_now();
+    const auto io_before = ioport::bench::process_io(getpid());
     const auto cpu_before = cpu_seconds();
     for (std::uint64_t n = 0; n < records; ++n) {
         engine.append(bodies[n]);
@@ -204,7 +187,7 @@ Figures run(const Engine& engine, std::uint64_t records, std::uint64_t rate) {
     engine.sync();
     ++figures.syncs;
     const auto cpu_appended = cpu_seconds();
-    const auto io_after = io_now();
+    const auto io_after = ioport::bench::process_io(getpid());
     std::uint64_t after = 0;
     std::uint64_t forwarded = 0;
     for (;;) {

@@ -28,6 +28,7 @@
 
 #include "bench/perf/benchmarks.hpp"
 #include "bench/perf/load.hpp"
+#include "bench/process_io.hpp"
 #include "protocol/sparkplug.hpp"
 #include "protocol/store_segment.hpp"
 
@@ -966,22 +967,6 @@ OnDisk on_disk(const std::filesystem::path& store) {
             if (record.number > delivered) ++found.records;
     }
     return found;
-}
-
-struct ProcessIo {
-    std::uint64_t wchar = 0;
-    std::uint64_t write_bytes = 0;
-};
-ProcessIo process_io(pid_t pid) {
-    ProcessIo io;
-    std::ifstream file(fmt::format("/proc/{}/io", pid));
-    std::string key;
-    std::uint64_t value = 0;
-    while (file >> key >> value) {
-        if (key == "wchar:") io.wchar = value;
-        if (key == "write_bytes:") io.write_bytes = value;
-    }
-    return io;
 }
 
 // What a subscriber saw of one session of the node after the outage.

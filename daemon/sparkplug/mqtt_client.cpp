@@ -33,7 +33,8 @@ MqttClient::MqttClient(const asio::any_io_executor& executor, const config::Mqtt
       misc_(executor),
       reconnect_(executor),
       stop_deadline_(executor),
-      resolver_(executor) {
+      resolver_(executor),
+      last_errors_(settings_.brokers.size()) {
     mosquitto_lib_init();  // counted: each client pairs it with its cleanup
 }
 
@@ -237,15 +238,14 @@ void MqttClient::lost(const std::string& why) {
         finish_stop();
         return;
     }
-    // Once per distinct reason while it lasts: a broker away for hours must not flood the log.
-    if (was_connected || why != last_error_)
+    // Once per distinct reason of each broker while it lasts: brokers away for hours must not
+    // flood the log.
+    auto& last_error = last_errors_[current_];
+    if (was_connected || why != last_error)
         log_.warn({}, "mqtt: {}; reconnecting within {} s", why, reconnect_delay_.count());
-    last_error_ = why;
+    last_error = why;
     // Several brokers: the next one in the list is tried (gateway.md §6.2).
-    if (settings_.brokers.size() > 1) {
-        current_ = (current_ + 1) % settings_.brokers.size();
-        last_error_.clear();  // another broker, another story
-    }
+    current_ = (current_ + 1) % settings_.brokers.size();
     if (handlers_.disconnected) handlers_.disconnected(why);
     schedule_reconnect();
 }
@@ -346,7 +346,7 @@ void MqttClient::on_connect(mosquitto* /*client*/, void* self, int rc) {
     }
     me.connected_ = true;
     me.reconnect_delay_ = first_reconnect_delay;
-    me.last_error_.clear();
+    me.last_errors_[me.current_].clear();
     me.log_.info({}, "mqtt: connected to {} as {}", me.broker(), me.settings_.client_id);
     if (me.handlers_.connected) me.handlers_.connected();
 }

@@ -18,6 +18,7 @@
 #include <string>
 #include <string_view>
 #include <unordered_map>
+#include <vector>
 
 #include "config/gateway_config.hpp"
 #include "daemon/log.hpp"
@@ -125,7 +126,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     bool written_now_ = false;  // on_publish ran within mosquitto_publish()
     std::uint64_t dropped_ = 0;
     std::uint64_t published_ = 0;
-    std::string last_error_;
+    std::vector<std::string> last_errors_;  // by broker: the reason last logged
 };
 
 }  // namespace ioport::daemon

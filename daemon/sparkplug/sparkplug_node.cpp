@@ -194,13 +194,8 @@ void SparkplugNode::stop(std::chrono::milliseconds deadline, std::function<void(
     forward_timer_.cancel();
     host_timer_.cancel();
     subscriptions_.clear();
-    if (client_->connected()) {
-        // The will is for an unexpected end; a clean one says so itself (Sparkplug 3.0 §7.3).
-        const auto death = death_payload();
-        client_->publish(
-            sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id),
-            death, 1, false);
-    }
+    // The will is for an unexpected end; a clean one says so itself (Sparkplug 3.0 §7.3).
+    if (client_->connected()) publish_death();
     born_ = false;
     // Closed now (what is queued for the disk written and synced): a reload's new node opens the
     // same directory next.
@@ -228,6 +223,12 @@ std::vector<std::uint8_t> SparkplugNode::death_payload() const {
         now_ms(),
         std::nullopt,
         {Metric{"bdSeq", std::nullopt, std::nullopt, wire(DataType::int64), Value(bdseq_)}}});
+}
+
+void SparkplugNode::publish_death() {
+    client_->publish(
+        sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id),
+        death_payload(), 1, false);
 }
 
 void SparkplugNode::connecting() {
@@ -282,9 +283,7 @@ void SparkplugNode::walk(const std::string& why) {
                   ? fmt::format("leaving {} for the next broker", client_->broker())
                   : fmt::format("connecting to {} again", client_->broker()));
     host_timer_.cancel();
-    client_->publish(
-        sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id),
-        death_payload(), 1, false);
+    publish_death();
     born_ = false;
     client_->walk();
 }
@@ -400,13 +399,15 @@ void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
 }
 
 void SparkplugNode::changed(const LinkScheduler* link, int slot) {
-    for (auto& device : devices_)
-        if (device.link.get() == link && (slot < 0 || device.slot == slot)) {
-            if (born_)
-                update(device);
-            else if (store_ && !stopping_)
-                keep(device);
-        }
+    // Without a session, what would have gone out is kept, when there is a store.
+    if (!born_ && (!store_ || stopping_)) return;
+    for (auto& device : devices_) {
+        if (device.link.get() != link || (slot >= 0 && device.slot != slot)) continue;
+        if (born_)
+            update(device);
+        else
+            keep(device);
+    }
     if (born_) link_data(false);
 }
 
@@ -415,21 +416,11 @@ void SparkplugNode::changed(const LinkScheduler* link, int slot) {
 void SparkplugNode::keep(Device& device) {
     const auto view = device.link->module_at(device.slot);
     if (!view || view->status != gateway::ModuleStatus::online) return;
-    const auto values = sparkplug::module_values(type_of(device.module), values_of(*view));
-    // Never published in this process: every value is news to the host.
-    if (device.published.size() != values.size()) device.published.assign(values.size(), {});
-    const auto now = now_ms();
-    const auto changed = sparkplug::changed_metrics(type_of(device.module), device.published,
-                                                    values, settings_.deadband);
-    if (changed.empty()) return;
-    sparkplug::StoredData data{device.id, Payload{now, std::nullopt, {}}};
-    for (const auto i : changed)
-        data.payload.metrics.push_back(Metric{device.metrics[i].name, std::nullopt, now,
-                                              wire(device.metrics[i].type), values[i]});
-    if (!store_->pending()) backlog_oldest_ms_ = now;
-    if (!store_->append(sparkplug::encode_stored(data))) return;
-    for (const auto i : changed)
-        device.published[i] = values[i];
+    auto data = changes(device, *view, MetricsBy::name);
+    if (data.changed.empty()) return;
+    if (!store_->pending()) backlog_oldest_ms_ = data.payload.timestamp;
+    if (store_->append(sparkplug::encode_stored({device.id, data.payload})))
+        published(device, data);
 }
 
 void SparkplugNode::start_forwarding() {
@@ -536,18 +527,42 @@ void SparkplugNode::update(Device& device) {
         device_birth(device, *view);
         return;
     }
-    const auto values = sparkplug::module_values(type_of(device.module), values_of(*view));
-    const auto now = now_ms();
-    Payload payload{now, std::nullopt, {}};
-    for (const auto i : sparkplug::changed_metrics(type_of(device.module), device.published, values,
-                                                   settings_.deadband))
-        payload.metrics.push_back(
-            Metric{{}, device.first_alias + i, now, wire(device.metrics[i].type), values[i]});
-    if (payload.metrics.empty()) return;
-    payload.seq = next_seq();
-    if (!publish(MessageType::ddata, device.id, payload)) return;
-    for (const auto& metric : payload.metrics)
-        device.published[*metric.alias - device.first_alias] = metric.value;
+    auto data = changes(device, *view, MetricsBy::alias);
+    if (data.changed.empty()) return;
+    data.payload.seq = next_seq();
+    if (publish(MessageType::ddata, device.id, data.payload)) published(device, data);
+}
+
+SparkplugNode::Changes SparkplugNode::changes(Device& device, const ModuleState& view,
+                                              MetricsBy by) const {
+    Changes data{sparkplug::module_values(type_of(device.module), values_of(view)),
+                 {},
+                 Payload{now_ms(), std::nullopt, {}}};
+    // Never published in this process (kept while no session could take it): all is news.
+    if (device.published.size() != data.values.size())
+        device.published.assign(data.values.size(), std::nullopt);
+    data.changed = sparkplug::changed_metrics(type_of(device.module), device.published, data.values,
+                                              settings_.deadband);
+    const auto now = data.payload.timestamp;
+    for (const auto i : data.changed) {
+        const auto type = wire(device.metrics[i].type);
+        switch (by) {
+            case MetricsBy::alias:
+                data.payload.metrics.push_back(
+                    Metric{{}, device.first_alias + i, now, type, data.values[i]});
+                break;
+            case MetricsBy::name:
+                data.payload.metrics.push_back(
+                    Metric{device.metrics[i].name, std::nullopt, now, type, data.values[i]});
+                break;
+        }
+    }
+    return data;
+}
+
+void SparkplugNode::published(Device& device, const Changes& data) {
+    for (const auto i : data.changed)
+        device.published[i] = data.values[i];
 }
 
 // NDATA: a link's port state at once, its counters every counter_period.

@@ -139,6 +139,17 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void birth();
     void device_birth(Device& device, const ModuleState& view);
     void changed(const LinkScheduler* link, int slot);
+    // A device's metrics that changed since they were last published or kept, as a DDATA
+    // payload without seq: by alias in a session, by name for the store (aliases belong to a
+    // session).
+    enum class MetricsBy { alias, name };
+    struct Changes {
+        std::vector<std::optional<sparkplug::Value>> values;  // every metric's, now
+        std::vector<std::size_t> changed;                     // indexes into values
+        sparkplug::Payload payload;
+    };
+    Changes changes(Device& device, const ModuleState& view, MetricsBy by) const;
+    static void published(Device& device, const Changes& data);
     void update(Device& device);
     void keep(Device& device);
     void start_forwarding();
@@ -152,6 +163,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
                  const sparkplug::Payload& payload, int qos = 0);
     std::uint64_t next_seq();
     std::vector<std::uint8_t> death_payload() const;
+    void publish_death();
     LinkMetrics link_metrics(const LinkScheduler& link) const;
 
     asio::any_io_executor executor_;
