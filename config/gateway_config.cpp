@@ -1138,10 +1138,16 @@ void Loader::read_identity(const Fields& link_fields, LinkConfig& link) {
 void Loader::check_unique(const Fields& f, const LinkConfig& link, bool unit_id_valid) {
     const FirstUse me{link.name.empty() ? f.path : fmt::format("link '{}'", link.name), f.line};
     if (!link.name.empty()) {
-        const auto [first, fresh] = names_.try_emplace(link.name, me);
+        // Unique ignoring case: the name is part of Sparkplug metric names and device ids, and
+        // hosts may not tell hub0 from Hub0 (Sparkplug 3.0, case-sensitivity-metric-names).
+        auto folded = link.name;
+        std::ranges::transform(folded, folded.begin(),
+                               [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+        const auto [first, fresh] = names_.try_emplace(folded, me);
         if (!fresh)
             add(f.line_of("name"), f.key("name"),
-                fmt::format("link name '{}' is already used at line {}: names must be unique",
+                fmt::format("link name '{}' is already used at line {}: names must be unique, "
+                            "and unique ignoring case",
                             link.name, first->second.line));
     }
     if (unit_id_valid) {

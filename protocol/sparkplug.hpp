@@ -81,7 +81,10 @@ struct Payload {
     friend bool operator==(const Payload&, const Payload&) = default;
 };
 
-std::vector<std::uint8_t> encode(const Payload& payload);
+// Sparkplug 3.0 §6.4.4: a birth gives every metric's datatype, and DATA SHOULD NOT repeat it
+// (payloads-metric-datatype-not-req): the host knows it from the birth, by alias or name.
+enum class Datatypes { sent, left_out };
+std::vector<std::uint8_t> encode(const Payload& payload, Datatypes datatypes = Datatypes::sent);
 // Fails with malformed for bytes that are not a Sparkplug B payload.
 Result<Payload> decode(std::span<const std::uint8_t> bytes);
 

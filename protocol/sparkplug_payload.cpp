@@ -62,7 +62,7 @@ std::optional<Value> value_of(const wire::Payload::Metric& metric) {
 
 }  // namespace
 
-std::vector<std::uint8_t> encode(const Payload& payload) {
+std::vector<std::uint8_t> encode(const Payload& payload, Datatypes datatypes) {
     wire::Payload out;
     out.set_timestamp(payload.timestamp);
     if (payload.seq) out.set_seq(*payload.seq);
@@ -71,7 +71,13 @@ std::vector<std::uint8_t> encode(const Payload& payload) {
         if (!metric.name.empty()) m.set_name(metric.name);
         if (metric.alias) m.set_alias(*metric.alias);
         if (metric.timestamp) m.set_timestamp(*metric.timestamp);
-        m.set_datatype(metric.datatype);
+        switch (datatypes) {
+            case Datatypes::sent:
+                m.set_datatype(metric.datatype);
+                break;
+            case Datatypes::left_out:
+                break;
+        }
         if (metric.value)
             set_value(m, metric.datatype, *metric.value);
         else

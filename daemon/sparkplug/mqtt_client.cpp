@@ -121,6 +121,7 @@ void MqttClient::start() {
 // is down or slow is waited for off the loop; the second lookup then normally comes from the
 // same resolver's answer. An IP literal needs no lookup at all.
 void MqttClient::resolve_then_connect() {
+    attempt_ended_ = false;
     const auto& broker = current();
     boost::system::error_code ec;
     asio::ip::make_address(broker.host, ec);
@@ -229,6 +230,9 @@ void MqttClient::tick() {
 }
 
 void MqttClient::lost(const std::string& why) {
+    // Once per attempt: libmosquitto may report one end twice (a refused CONNACK, then the
+    // close; a DISCONNECT written, then the socket's end), which would skip a broker.
+    if (std::exchange(attempt_ended_, true) && !stopping_) return;
     const bool was_connected = connected_;
     connected_ = false;
     queued_.clear();
@@ -269,8 +273,9 @@ void MqttClient::schedule_reconnect() {
 }
 
 bool MqttClient::publish(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
-                         bool retain) {
-    if (!connected_ || queued_bytes_ + payload.size() > max_queued_bytes) {
+                         bool retain, Bound bound) {
+    const bool full = queued_bytes_ + payload.size() > max_queued_bytes;
+    if (!connected_ || (full && bound == Bound::queue)) {
         ++dropped_;
         return false;
     }

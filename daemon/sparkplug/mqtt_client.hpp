@@ -66,9 +66,12 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     // it does not take).
     Result<> set_will(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
                       bool retain);
+    // Whether a publish respects the queue's bound; none is for the few bytes of a message that
+    // must not be lost to a backlog (NDEATH).
+    enum class Bound { queue, none };
     // False, and counted in dropped(), when not connected or the queue is full.
     bool publish(std::string_view topic, std::span<const std::uint8_t> payload, int qos,
-                 bool retain);
+                 bool retain, Bound bound = Bound::queue);
     // The SUBSCRIBE's message id (Handlers::subscribed gets it back with the SUBACK); fails when
     // it cannot be queued (not connected, out of memory).
     Result<int> subscribe(std::string_view pattern, int qos);
@@ -117,6 +120,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     bool writing_ = false;
     bool started_ = false;
     bool connected_ = false;
+    bool attempt_ended_ = false;  // lost() ran for the current connection attempt
     bool stopping_ = false;
     std::size_t current_ = 0;  // into settings_.brokers
     std::chrono::seconds reconnect_delay_ = first_reconnect_delay;

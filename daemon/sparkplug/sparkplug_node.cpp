@@ -225,10 +225,13 @@ std::vector<std::uint8_t> SparkplugNode::death_payload() const {
         {Metric{"bdSeq", std::nullopt, std::nullopt, wire(DataType::int64), Value(bdseq_)}}});
 }
 
+// Queued even beyond the client's bound: the DISCONNECT that follows discards the will, so an
+// NDEATH dropped here would leave the host believing the node alive.
 void SparkplugNode::publish_death() {
-    client_->publish(
-        sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id),
-        death_payload(), 1, false);
+    if (!client_->publish(
+            sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id),
+            death_payload(), 1, false, MqttClient::Bound::none))
+        log_.warn({}, "Sparkplug: NDEATH could not be queued; the broker's will announces the end");
 }
 
 void SparkplugNode::connecting() {
@@ -256,6 +259,9 @@ void SparkplugNode::connected() {
     subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+"), "commands (DCMD)");
     if (!settings_.primary_host_id.empty()) {
         host_online_ = false;  // until its STATE says so (retained, so it comes at once)
+        // Timestamps are compared within a connection: the host's STATE on this broker may be
+        // older than the one it left on the last.
+        host_state_timestamp_ = 0;
         subscribe(sparkplug::state_topic(settings_.primary_host_id), "the primary host's STATE");
         if (settings_.brokers.size() > 1) {
             // A host that is not on this broker at all: no STATE within keepalive.
@@ -319,7 +325,9 @@ std::uint64_t SparkplugNode::next_seq() {
 
 bool SparkplugNode::publish(MessageType type, std::string_view device, const Payload& payload,
                             int qos) {
-    const auto bytes = sparkplug::encode(payload);
+    const bool data = type == MessageType::ndata || type == MessageType::ddata;
+    const auto bytes = sparkplug::encode(
+        payload, data ? sparkplug::Datatypes::left_out : sparkplug::Datatypes::sent);
     const bool sent =
         client_->publish(sparkplug::topic(settings_.group_id, type, settings_.edge_node_id, device),
                          bytes, qos, false);
@@ -399,6 +407,8 @@ void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
 }
 
 void SparkplugNode::changed(const LinkScheduler* link, int slot) {
+    // A rebirth is waiting: nothing until it, and the births carry what changed meanwhile.
+    if (rebirth_waiting_) return;
     // Without a session, what would have gone out is kept, when there is a store.
     if (!born_ && (!store_ || stopping_)) return;
     for (auto& device : devices_) {
@@ -447,7 +457,8 @@ void SparkplugNode::forward_tick() {
     forward_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
         if (auto self = weak.lock(); self && !ec) self->forward_tick();
     });
-    if (forward_reading_) return;  // the disk is slow: this tick's share is skipped
+    // The disk is slow, or a rebirth waits: this tick's share is skipped.
+    if (forward_reading_ || rebirth_waiting_) return;
     const auto count =
         std::max<std::uint64_t>(1, rate * static_cast<std::uint64_t>(interval.count()) / 1000);
     forward_reading_ = true;
@@ -460,7 +471,7 @@ void SparkplugNode::forward_tick() {
 
 void SparkplugNode::forward(std::uint64_t session, std::vector<StoredRecord> records) {
     forward_reading_ = false;
-    if (session != session_ || !born_ || !forward_started_) return;
+    if (session != session_ || !born_ || !forward_started_ || rebirth_waiting_) return;
     std::uint64_t sent = 0;
     for (auto& record : records) {
         auto data = sparkplug::decode_stored(record.body);
@@ -471,8 +482,10 @@ void SparkplugNode::forward(std::uint64_t session, std::vector<StoredRecord> rec
             // back until it is born again.
             if (!device->born) break;
             if (sent == 0) backlog_oldest_ms_ = data->payload.timestamp;
-            for (auto& metric : data->payload.metrics)
+            for (auto& metric : data->payload.metrics) {
                 metric.is_historical = true;
+                by_alias(*device, metric);
+            }
             data->payload.seq = next_seq();
             if (!publish(MessageType::ddata, data->device, data->payload)) break;
         } else if (const auto held =
@@ -503,6 +516,15 @@ void SparkplugNode::forward(std::uint64_t session, std::vector<StoredRecord> rec
         backlog_oldest_ms_.reset();
         forward_timer_.cancel();
     }
+}
+
+// Stored by name (aliases belong to a session), sent by this session's alias alone, as live
+// DDATA is (Sparkplug 3.0 payloads-alias-data-cmd-requirement).
+void SparkplugNode::by_alias(const Device& device, Metric& metric) {
+    const auto spec = std::ranges::find(device.metrics, metric.name, &sparkplug::MetricSpec::name);
+    if (spec == device.metrics.end()) return;  // not the device's: the host will say so
+    metric.alias = device.first_alias + static_cast<std::uint64_t>(spec - device.metrics.begin());
+    metric.name.clear();
 }
 
 void SparkplugNode::subscribed(int mid) {
@@ -565,8 +587,11 @@ void SparkplugNode::published(Device& device, const Changes& data) {
         device.published[i] = data.values[i];
 }
 
-// NDATA: a link's port state at once, its counters every counter_period.
+// NDATA: a link's port state at once, its counters every counter_period, and with any NDATA
+// (Sparkplug 3.0 topics-ndata-payload: every metric changed since the last NBIRTH or NDATA).
 void SparkplugNode::link_data(bool counters) {
+    for (std::size_t l = 0; l < links_.size() && !counters; ++l)
+        counters = links_[l]->port_open() != links_published_[l].up;
     const auto now = now_ms();
     Payload payload{now, std::nullopt, {}};
     for (std::size_t l = 0; l < links_.size(); ++l) {
@@ -608,7 +633,8 @@ void SparkplugNode::tick() {
         if (ec || !self || self->stopping_) return;
         if (self->born_ && self->rebirth_due_ && self->client_->connected()) self->birth();
         const auto now = std::chrono::steady_clock::now();
-        if (self->born_ && now - self->counters_sent_ >= counter_period) {
+        if (self->born_ && !self->rebirth_waiting_ &&
+            now - self->counters_sent_ >= counter_period) {
             self->counters_sent_ = now;
             self->link_data(true);
         }
@@ -740,6 +766,8 @@ void SparkplugNode::node_command(std::span<const std::uint8_t> bytes) {
 
 // A host asks again when it missed something; one rebirth a second serves every request in it,
 // and the last request is always served: the one waiting goes out when the second is over.
+// Meanwhile no DATA goes out (Sparkplug 3.0 rebirth-action-1: stop at once); the births that
+// end the wait carry every value that changed.
 void SparkplugNode::rebirth_asked() {
     if (rebirth_waiting_) return;
     const auto held = refusals_.admit("NCMD rebirth", std::chrono::steady_clock::now());

@@ -155,6 +155,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void start_forwarding();
     void forward_tick();
     void forward(std::uint64_t session, std::vector<StoredRecord> records);
+    static void by_alias(const Device& device, sparkplug::Metric& metric);
     void subscribed(int mid);
     void walk(const std::string& why);
     void link_data(bool counters);

@@ -611,6 +611,11 @@ TEST(GatewayConfigErrors, LinkSettings) {
 TEST(GatewayConfigErrors, ADuplicateIsReportedAtItsSecondOccurrence) {
     expect_one_error({hub + "  - { name: hub0, protocol: id2, device: /dev/ttyS0 }\n", 7,
                       "links[1].name", "'hub0' is already used at line 2"});
+    // Sparkplug hosts may not tell metric names apart by case alone.
+    expect_one_error({hub + "  - { name: Hub0, protocol: id2, device: /dev/ttyS0 }\n", 7,
+                      "links[1].name",
+                      "'Hub0' is already used at line 2: names must be unique, "
+                      "and unique ignoring case"});
     expect_one_error({hub + "  - { name: b, protocol: id2, device: /dev/ttyUSB0 }\n", 7,
                       "links[1].device", "already used by link 'hub0' (line 2)"});
     expect_one_error({hub + press + "    unit_id: 1\n", 10, "links[1].unit_id",

@@ -84,6 +84,25 @@ TEST(SparkplugPayload, IntegersGoWhereTheirWidthSays) {
     EXPECT_EQ(encode(payload), expected);
 }
 
+TEST(SparkplugPayload, DataLeavesTheDatatypeToTheBirth) {
+    // The datatype still chooses the field: UInt64 in long_value, UInt16 in int_value.
+    const Payload payload{0,
+                          1,
+                          {Metric{"", 2, std::nullopt, 8, Value(std::uint64_t{300})},
+                           Metric{"", 3, std::nullopt, 6, Value(std::uint64_t{300})}}};
+    const Bytes expected{
+        0x08, 0x00,        // 1 timestamp: 0
+        0x12, 0x05,        // 2 metrics: 5 bytes
+        0x10, 0x02,        //   2 alias: 2
+        0x58, 0xAC, 0x02,  //   11 long_value: 300
+        0x12, 0x05,        // 2 metrics: 5 bytes
+        0x10, 0x03,        //   2 alias: 3
+        0x50, 0xAC, 0x02,  //   10 int_value: 300
+        0x18, 0x01,        // 3 seq: 1
+    };
+    EXPECT_EQ(encode(payload, Datatypes::left_out), expected);
+}
+
 TEST(SparkplugPayload, DecodesWhatItEncodes) {
     const Payload payload{1796183655123,
                           255,
