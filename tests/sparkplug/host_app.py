@@ -3,30 +3,19 @@ message, keeps the view a SCADA host would keep of every edge node, and checks t
 specification that an edge node must keep. A broken rule is recorded in `violations` (never
 skipped, never raised in the MQTT thread): a test asserts the list is empty at its end.
 
-Rules checked, per edge node (group, node):
-  - births before data: nothing but NBIRTH from a node that is not born (no NDATA, DBIRTH,
-    DDATA, DDEATH before NBIRTH); no DDATA or DDEATH for a device before its DBIRTH in the
-    session (a DDEATH ends the device's birth);
-  - NBIRTH: seq 0, a bdSeq metric, Node Control/Rebirth; every other message of the node but
-    NDEATH carries seq, one more (mod 256) than the node's previous message since NBIRTH;
-    NDEATH carries no seq;
-  - NDEATH: its bdSeq equals that of the NBIRTH of the session it ends;
-  - every NDATA/DDATA metric (alias or name) was announced in the NBIRTH/DBIRTH, with the
-    same datatype; a metric whose value equals the last known value is a violation (data only on
-    change); aliases are unique across the node (node metrics and all devices), names unique per
-    birth; every payload decodes and has a timestamp;
-  - a metric marked is_historical (store-and-forward, gateway.md §6.2) has its timestamp, and is
-    history: it is checked against the birth but neither changes the host's view nor counts as
-    data on change.
-The host app's own (re)connection to the broker forgets every node: it may have missed messages,
-so the next message from each node must be an NBIRTH again (which is what a node does after a
-broker restart).
+The rules are in RULES below, each with the Sparkplug 3.0 TCK ids (docs/sparkplug-conformance.md)
+or the gateway.md section it checks; a violation names its rule. What the broker sees and does
+not forward (the CONNECT, the will, SUBSCRIBE, each PUBLISH's QoS and retain flag) is checked by
+BrokerLog on mosquitto's own log. The host app's own (re)connection to the broker forgets every
+node: it may have missed messages, so the next message from each node must be an NBIRTH again
+(which is what a node does after a broker restart).
 
 It can publish NCMD rebirth, DCMD (by name or alias, typed) and STATE for a primary host id, and
 wait (with a deadline, by polling its record under a condition variable) for a message type,
 device or metric value.
 """
 import json
+import re
 import struct
 import threading
 import time
@@ -36,6 +25,129 @@ import paho.mqtt.client as mqtt
 import sparkplug_b_pb2 as pb
 
 PREFIX = "spBv1.0"
+
+# rule -> (what it checks, the TCK ids it covers or the contract's section). Checked on every
+# message of every test: each test ends by asserting `violations` is empty.
+RULES = {
+    "births first": (
+        "nothing but NBIRTH from a node not born in this session (no NDATA, DBIRTH, DDATA, "
+        "DDEATH before it); no DDATA or DDEATH of a device before its DBIRTH; a DBIRTH's group "
+        "and node are those of the NBIRTH",
+        ["tck-id-principles-birth-certificates-order", "tck-id-payloads-ndata-order",
+         "tck-id-payloads-ddata-order", "tck-id-message-flow-device-birth-publish-nbirth-wait",
+         "tck-id-message-flow-device-birth-publish-dbirth-match-edge-node-topic"]),
+    "topic": (
+        "every topic is `spBv1.0/<group>/<type>/<node>[/<device>]`, the device id present "
+        "exactly for DBIRTH, DDATA, DDEATH",
+        ["tck-id-topics-nbirth-topic", "tck-id-topics-dbirth-topic",
+         "tck-id-message-flow-edge-node-birth-publish-nbirth-topic",
+         "tck-id-message-flow-device-birth-publish-dbirth-topic", "tck-id-topics-ndata-topic",
+         "tck-id-topics-ddata-topic", "tck-id-topics-ddeath-topic"]),
+    "decodes": (
+        "every payload decodes as a Sparkplug B protobuf Payload",
+        ["tck-id-message-flow-edge-node-birth-publish-nbirth-payload",
+         "tck-id-message-flow-device-birth-publish-dbirth-payload",
+         "tck-id-payloads-metric-datatype-value-type"]),
+    "timestamp": (
+        "every payload but NCMD/DCMD has a timestamp",
+        ["tck-id-payloads-nbirth-timestamp", "tck-id-topics-nbirth-timestamp",
+         "tck-id-topics-dbirth-timestamp", "tck-id-payloads-dbirth-timestamp",
+         "tck-id-payloads-ddeath-timestamp", "tck-id-topics-ndata-timestamp",
+         "tck-id-topics-ddata-timestamp", "tck-id-payloads-ndata-timestamp",
+         "tck-id-payloads-ddata-timestamp"]),
+    "metric timestamp": (
+        "every metric of NBIRTH, DBIRTH, NDATA and DDATA has a timestamp",
+        ["tck-id-payloads-name-birth-data-requirement"]),
+    "utc": (
+        "timestamps are UTC milliseconds: never more than 5 s ahead of the host's clock, and "
+        "current ones (not NDEATH's, made at CONNECT; not history) within 60 s of it",
+        ["tck-id-payloads-metric-timestamp-in-UTC"]),
+    "nbirth": (
+        "NBIRTH: seq 0, a bdSeq metric, Node Control/Rebirth with no alias; a new NBIRTH only "
+        "after the previous session's NDEATH",
+        ["tck-id-payloads-nbirth-seq", "tck-id-payloads-sequence-num-req-nbirth",
+         "tck-id-topics-nbirth-seq-num",
+         "tck-id-message-flow-edge-node-birth-publish-nbirth-payload-seq",
+         "tck-id-payloads-nbirth-bdseq", "tck-id-topics-nbirth-bdseq-included",
+         "tck-id-payloads-nbirth-rebirth-req", "tck-id-topics-nbirth-rebirth-metric",
+         "tck-id-operational-behavior-data-commands-rebirth-name",
+         "tck-id-operational-behavior-data-commands-rebirth-name-aliases"]),
+    "seq": (
+        "every message of a born node but NDEATH has seq, one more (mod 256) than the last",
+        ["tck-id-payloads-sequence-num-always-included", "tck-id-payloads-dbirth-seq",
+         "tck-id-topics-dbirth-seq", "tck-id-payloads-dbirth-seq-inc",
+         "tck-id-topics-ddeath-seq-num", "tck-id-payloads-ddeath-seq",
+         "tck-id-payloads-ddeath-seq-inc", "tck-id-payloads-ddeath-seq-number",
+         "tck-id-topics-ndata-seq-num", "tck-id-payloads-ndata-seq",
+         "tck-id-topics-ddata-seq-num", "tck-id-payloads-ddata-seq"]),
+    "ndeath": (
+        "NDEATH: no seq, one metric, bdSeq, equal to the bdSeq of the session's NBIRTH",
+        ["tck-id-payloads-ndeath-seq", "tck-id-topics-ndeath-seq", "tck-id-topics-ndeath-payload",
+         "tck-id-payloads-ndeath-bdseq"]),
+    "birth metrics": (
+        "every birth metric has a name, a datatype of the enumeration (not Unknown), and a value "
+        "or is_null, never both; an alias only with a name",
+        ["tck-id-topics-nbirth-metrics", "tck-id-topics-dbirth-metrics",
+         "tck-id-payloads-metric-datatype-req", "tck-id-payloads-metric-datatype-value",
+         "tck-id-payloads-alias-birth-requirement",
+         "tck-id-operational-behavior-data-publish-nbirth-values"]),
+    "names": (
+        "metric names are unique in a birth, also when lower-cased",
+        ["tck-id-case-sensitivity-metric-names"]),
+    "aliases": (
+        "aliases are unique across the node: its own metrics and every device's",
+        ["tck-id-payloads-alias-uniqueness"]),
+    "data announced": (
+        "every NDATA/DDATA metric was announced in the session's birth (by alias, or by name "
+        "where the birth gave none)",
+        ["tck-id-payloads-name-requirement"]),
+    "data by alias": (
+        "an NDATA/DDATA metric whose birth gave it an alias goes by the alias alone",
+        ["tck-id-payloads-alias-data-cmd-requirement"]),
+    "data datatype": (
+        "NDATA/DDATA metrics leave the datatype to the birth",
+        ["tck-id-payloads-metric-datatype-not-req"]),
+    "on change": (
+        "a current NDATA/DDATA metric carries a value other than the last known (data only on "
+        "change), once in a message",
+        ["gateway.md §5.5"]),
+    "historical": (
+        "a metric marked is_historical has its acquisition timestamp; it is history and changes "
+        "neither the host's view nor counts as data on change",
+        ["gateway.md §6.2"]),
+    "host app": ("the host app itself did not fail on a message", []),
+    # BrokerLog: what mosquitto saw of the node's client.
+    "connect": (
+        "the node connects with MQTT 3.1.1 and Clean Session",
+        ["tck-id-principles-persistence-clean-session-311"]),
+    "will": (
+        "every CONNECT registers a will: QoS 1, not retained, on `spBv1.0/<group>/NDEATH/<node>`",
+        ["tck-id-payloads-ndeath-will-message-qos", "tck-id-payloads-ndeath-will-message-retain",
+         "tck-id-message-flow-edge-node-birth-publish-will-message-qos",
+         "tck-id-message-flow-edge-node-birth-publish-will-message-will-retained",
+         "tck-id-message-flow-edge-node-birth-publish-will-message-topic"]),
+    "subscriptions": (
+        "before its NBIRTH in a connection the node subscribed to `spBv1.0/<group>/NCMD/<node>` "
+        "and `spBv1.0/<group>/DCMD/<node>/+` (and, with a primary host, `spBv1.0/STATE/<id>`) "
+        "at QoS 1",
+        ["tck-id-message-flow-edge-node-ncmd-subscribe",
+         "tck-id-message-flow-device-dcmd-subscribe",
+         "tck-id-operational-behavior-primary-application-state-with-multiple-servers-state-subs"]),
+    "publish flags": (
+        "NBIRTH, DBIRTH, NDATA, DDATA and DDEATH are published at QoS 0, NDEATH at QoS 1, none "
+        "retained, and only within a connection the broker accepted",
+        ["tck-id-payloads-nbirth-qos", "tck-id-payloads-nbirth-retain",
+         "tck-id-topics-nbirth-mqtt",
+         "tck-id-message-flow-edge-node-birth-publish-nbirth-qos",
+         "tck-id-message-flow-edge-node-birth-publish-nbirth-retained",
+         "tck-id-message-flow-edge-node-birth-publish-connect",
+         "tck-id-payloads-dbirth-qos", "tck-id-payloads-dbirth-retain",
+         "tck-id-topics-dbirth-mqtt", "tck-id-message-flow-device-birth-publish-dbirth-qos",
+         "tck-id-message-flow-device-birth-publish-dbirth-retained", "tck-id-topics-ddeath-mqtt",
+         "tck-id-topics-ndata-mqtt", "tck-id-payloads-ndata-qos", "tck-id-payloads-ndata-retain",
+         "tck-id-topics-ddata-mqtt", "tck-id-payloads-ddata-qos",
+         "tck-id-payloads-ddata-retain"]),
+}
 NODE_TYPES = {"NBIRTH", "NDEATH", "NDATA", "NCMD"}
 DEVICE_TYPES = {"DBIRTH", "DDEATH", "DDATA", "DCMD"}
 
@@ -52,9 +164,11 @@ LONG_TYPES = {"Int64", "UInt64", "DateTime"}
 class Metric:
     """A decoded metric: value None for is_null."""
 
-    def __init__(self, name, alias, datatype, value, timestamp, is_historical=False):
+    def __init__(self, name, alias, datatype, value, timestamp, is_historical=False,
+                 is_null=False, has_value=True):
         self.name, self.alias, self.datatype, self.value = name, alias, datatype, value
         self.timestamp, self.is_historical = timestamp, is_historical
+        self.is_null, self.has_value = is_null, has_value
 
     def __repr__(self):
         return (f"Metric({self.name!r}, alias={self.alias}, "
@@ -184,8 +298,10 @@ class HostApp:
             self.connects += 1
             self._cond.notify_all()
 
-    def violation(self, message, text):
-        self.violations.append(f"{message!r}: {text}" if message else text)
+    def violation(self, message, rule, text):
+        assert rule in RULES, rule
+        where = f"{message!r}: " if message else ""
+        self.violations.append(f"[{rule}] {where}{text}")
 
     def _on_message(self, client, userdata, msg):
         try:
@@ -194,7 +310,7 @@ class HostApp:
                 self._cond.notify_all()
         except Exception as e:  # a bug here must show up, not vanish in paho's thread
             with self._cond:
-                self.violations.append(f"host app error on {msg.topic}: {e!r}")
+                self.violation(None, "host app", f"error on {msg.topic}: {e!r}")
                 self._cond.notify_all()
 
     def _receive(self, topic, payload):
@@ -210,23 +326,23 @@ class HostApp:
             self.messages.append(message)
             return
         if len(parts) not in (4, 5) or parts[0] != PREFIX:
-            self.violation(None, f"topic outside the Sparkplug namespace: {topic}")
+            self.violation(None, "topic", f"topic outside the Sparkplug namespace: {topic}")
             return
         group, type_, node = parts[1], parts[2], parts[3]
         device = parts[4] if len(parts) == 5 else None
         message = Message(index, time.monotonic(), topic, type_, group, node, device, payload)
         self.messages.append(message)
         if type_ not in NODE_TYPES | DEVICE_TYPES:
-            self.violation(message, f"unknown message type {type_}")
+            self.violation(message, "topic", f"unknown message type {type_}")
             return
         if (type_ in DEVICE_TYPES) != (device is not None):
-            self.violation(message, "device id present/absent against the message type")
+            self.violation(message, "topic", "device id present/absent against the message type")
             return
         decoded = pb.Payload()
         try:
             decoded.ParseFromString(payload)
         except Exception as e:
-            self.violation(message, f"payload does not decode: {e}")
+            self.violation(message, "decodes", f"payload does not decode: {e}")
             return
         message.seq = decoded.seq if decoded.HasField("seq") else None
         message.timestamp = decoded.timestamp if decoded.HasField("timestamp") else None
@@ -234,23 +350,40 @@ class HostApp:
             Metric(m.name if m.HasField("name") else None, m.alias if m.HasField("alias") else None,
                    m.datatype if m.HasField("datatype") else None, decode_value(m),
                    m.timestamp if m.HasField("timestamp") else None,
-                   m.HasField("is_historical") and m.is_historical)
+                   m.HasField("is_historical") and m.is_historical,
+                   m.HasField("is_null") and m.is_null, m.WhichOneof("value") is not None)
             for m in decoded.metrics]
         if type_ in ("NCMD", "DCMD"):
             return  # commands: ours, or another host's; not the node's to keep rules on
         if message.timestamp is None:
-            self.violation(message, "payload without timestamp")
+            self.violation(message, "timestamp", "payload without timestamp")
+        self._check_times(message)
         state = self.nodes.setdefault((group, node), NodeState())
         getattr(self, "_" + type_.lower())(state, message)
 
+    def _check_times(self, message):
+        now = time.time() * 1000
+        current = message.type != "NDEATH"  # the will's payload was made at CONNECT
+        stamps = [(message.timestamp, current, "payload")] + [
+            (m.timestamp, current and not m.is_historical, m.name or m.alias)
+            for m in message.metrics]
+        for stamp, live, what in stamps:
+            if stamp is not None and (stamp > now + 5000 or (live and stamp < now - 60000)):
+                self.violation(message, "utc",
+                               f"{what}: timestamp {stamp} is not UTC ms (host: {now:.0f})")
+        if message.type in ("NBIRTH", "DBIRTH", "NDATA", "DDATA"):
+            for m in message.metrics:
+                if m.timestamp is None:
+                    self.violation(message, "metric timestamp", f"{m!r} without timestamp")
+
     def _check_seq(self, state, message):
         if message.seq is None:
-            self.violation(message, "no seq")
+            self.violation(message, "seq", "no seq")
             return
         if not 0 <= message.seq <= 255:
-            self.violation(message, f"seq {message.seq} outside 0..255")
+            self.violation(message, "seq", f"seq {message.seq} outside 0..255")
         if state.last_seq is not None and message.seq != (state.last_seq + 1) % 256:
-            self.violation(message, f"seq {message.seq} after {state.last_seq}")
+            self.violation(message, "seq", f"seq {message.seq} after {state.last_seq}")
         state.last_seq = message.seq
 
     def _announce(self, state, device_state, message, owner):
@@ -261,19 +394,29 @@ class HostApp:
         for device_id, other in state.devices.items():
             if device_id != owner:
                 taken.update({a: device_id for a in other.by_alias})
+        folded = {}
         for m in message.metrics:
             if not m.name:
-                self.violation(message, f"birth metric without a name: {m!r}")
+                self.violation(message, "birth metrics", f"birth metric without a name: {m!r}")
                 continue
-            if m.name in device_state.by_name:
-                self.violation(message, f"metric {m.name} twice in one birth")
+            if m.name.lower() in folded:
+                self.violation(message, "names", f"metric {m.name} after "
+                                                 f"{folded[m.name.lower()]} in one birth")
+            folded[m.name.lower()] = m.name
             if m.datatype is None:
-                self.violation(message, f"birth metric {m.name} without datatype")
+                self.violation(message, "birth metrics", f"birth metric {m.name} without datatype")
+            elif m.datatype not in TYPE_NAMES or m.datatype == DATATYPES["Unknown"]:
+                self.violation(message, "birth metrics",
+                               f"birth metric {m.name}: datatype {m.datatype} is none of §6.4.16")
+            if m.is_null == m.has_value:
+                self.violation(message, "birth metrics",
+                               f"birth metric {m.name}: is_null {m.is_null} with "
+                               f"{'a' if m.has_value else 'no'} value")
             if m.alias is not None:
                 if m.alias in device_state.by_alias:
-                    self.violation(message, f"alias {m.alias} twice in one birth")
+                    self.violation(message, "aliases", f"alias {m.alias} twice in one birth")
                 if m.alias in taken:
-                    self.violation(message,
+                    self.violation(message, "aliases",
                                    f"alias {m.alias} of {m.name} is already {taken[m.alias]}'s")
                 device_state.by_alias[m.alias] = (m.name, m.datatype)
             device_state.by_name[m.name] = (m.alias, m.datatype)
@@ -285,43 +428,51 @@ class HostApp:
         for m in message.metrics:
             if m.alias is not None and m.alias in device_state.by_alias:
                 name, datatype = device_state.by_alias[m.alias]
-                if m.name and m.name != name:
-                    self.violation(message, f"alias {m.alias} is {name}, not {m.name}")
+                if m.name:
+                    self.violation(message, "data by alias",
+                                   f"alias {m.alias} ({name}) with a name, {m.name}")
             elif m.name and m.name in device_state.by_name:
-                name, datatype = m.name, device_state.by_name[m.name][1]
+                name, (alias, datatype) = m.name, device_state.by_name[m.name]
+                if alias is not None:
+                    self.violation(message, "data by alias", f"{name} by name, not alias {alias}")
             else:
-                self.violation(message, f"metric not announced in the birth: {m!r}")
+                self.violation(message, "data announced",
+                               f"metric not announced in the birth: {m!r}")
                 continue
-            if m.datatype is not None and m.datatype != datatype:
-                self.violation(message, f"{name}: datatype {m.datatype} but {datatype} in birth")
+            if m.datatype is not None:
+                self.violation(message, "data datatype", f"{name}: datatype {m.datatype} in DATA")
             if m.is_historical:
                 # A stored value (store-and-forward): history, not the current state, so it
                 # neither changes the view nor counts as data on change.
                 if m.timestamp is None:
-                    self.violation(message, f"historical {name} without its timestamp")
+                    self.violation(message, "historical", f"historical {name} without timestamp")
                 message.historical.append((name, m.value, m.timestamp))
                 continue
             if name in seen:
-                self.violation(message, f"{name} twice in one message")
+                self.violation(message, "on change", f"{name} twice in one message")
             seen.add(name)
             if same_value(device_state.values.get(name), m.value, datatype):
-                self.violation(message, f"{name} = {m.value!r} unchanged: data only on change")
+                self.violation(message, "on change",
+                               f"{name} = {m.value!r} unchanged: data only on change")
             device_state.values[name] = m.value
             message.resolved[name] = m.value
 
     def _nbirth(self, state, message):
         if message.seq != 0:
-            self.violation(message, f"NBIRTH seq {message.seq}, not 0")
+            self.violation(message, "nbirth", f"NBIRTH seq {message.seq}, not 0")
         bdseq = message.metric("bdSeq")
         if bdseq is None or bdseq.value is None:
-            self.violation(message, "NBIRTH without bdSeq")
-        if message.metric("Node Control/Rebirth") is None:
-            self.violation(message, "NBIRTH without Node Control/Rebirth")
+            self.violation(message, "nbirth", "NBIRTH without bdSeq")
+        rebirth = message.metric("Node Control/Rebirth")
+        if rebirth is None:
+            self.violation(message, "nbirth", "NBIRTH without Node Control/Rebirth")
+        elif rebirth.alias is not None:
+            self.violation(message, "nbirth", f"Node Control/Rebirth with alias {rebirth.alias}")
         if state.born and bdseq is not None and bdseq.value != state.bdseq:
             # A new session without the old one's NDEATH: only if the old connection was lost
             # where the host could not see it, which the host's reconnect would have cleared.
-            self.violation(message, f"NBIRTH bdSeq {bdseq.value} while the session of bdSeq "
-                                    f"{state.bdseq} had no NDEATH")
+            self.violation(message, "nbirth", f"NBIRTH bdSeq {bdseq.value} while the session of "
+                                              f"bdSeq {state.bdseq} had no NDEATH")
         state.born = True
         state.sessions += 1
         state.bdseq = bdseq.value if bdseq is not None else None
@@ -333,13 +484,15 @@ class HostApp:
 
     def _ndeath(self, state, message):
         if message.seq is not None:
-            self.violation(message, f"NDEATH with seq {message.seq}")
+            self.violation(message, "ndeath", f"NDEATH with seq {message.seq}")
+        if len(message.metrics) != 1:
+            self.violation(message, "ndeath", f"NDEATH with {len(message.metrics)} metrics, not 1")
         bdseq = message.metric("bdSeq")
         if bdseq is None:
-            self.violation(message, "NDEATH without bdSeq")
+            self.violation(message, "ndeath", "NDEATH without bdSeq")
         elif state.born and bdseq.value != state.bdseq:
-            self.violation(message, f"NDEATH bdSeq {bdseq.value} ends the session of NBIRTH "
-                                    f"bdSeq {state.bdseq}")
+            self.violation(message, "ndeath", f"NDEATH bdSeq {bdseq.value} ends the session of "
+                                              f"NBIRTH bdSeq {state.bdseq}")
         state.born = False
         state.last_seq = None
         for device in state.devices.values():
@@ -347,7 +500,7 @@ class HostApp:
 
     def _born_node(self, state, message):
         if not state.born:
-            self.violation(message, f"{message.type} before NBIRTH")
+            self.violation(message, "births first", f"{message.type} before NBIRTH")
             return False
         self._check_seq(state, message)
         return True
@@ -368,7 +521,7 @@ class HostApp:
             return
         device = state.devices.get(message.device)
         if device is None or not device.born:
-            self.violation(message, "DDATA before the device's DBIRTH")
+            self.violation(message, "births first", "DDATA before the device's DBIRTH")
             return
         self._data(device, message)
 
@@ -377,7 +530,7 @@ class HostApp:
             return
         device = state.devices.get(message.device)
         if device is None or not device.born:
-            self.violation(message, "DDEATH of a device not born")
+            self.violation(message, "births first", "DDEATH of a device not born")
             return
         device.born = False
 
@@ -504,3 +657,99 @@ class HostApp:
 
     def publish_raw(self, topic, payload, retain=False):
         self._publish(topic, payload, retain=retain)
+
+
+class BrokerLog:
+    """What mosquitto (`log_type all`) saw of one client, the edge node, checked against the RULES
+    of the broker's side: the CONNECT, the will, SUBSCRIBE, every PUBLISH's QoS and retain flag
+    (facts the broker does not forward). check() reads what was logged since its last call."""
+
+    LINE = re.compile(r"^\d+: (.*)$")
+    CONNECTED = re.compile(r"New client connected from \S+ as (\S+) \(p(\d+), c(\d+), k\d+")
+    WILL = re.compile(r"Will message specified \(\d+ bytes\) \(r(\d+), q(\d+)\)\.")
+    SUBSCRIBE = re.compile(r"Received SUBSCRIBE from (\S+)$")
+    FILTER = re.compile(r"^\t(\S+) \(QoS (\d+)\)$")
+    PUBLISH = re.compile(r"Received PUBLISH from (\S+) \(d\d+, q(\d+), r(\d+), m\d+, '([^']*)'")
+    GONE = re.compile(r"Client (\S+) (?:disconnected|closed its connection)|"
+                      r"Socket error on client (\S+),|Client (\S+) has exceeded timeout")
+
+    def __init__(self, path, client_id, group, node, primary_host=None):
+        self.path, self.client_id = path, client_id
+        self.group, self.node, self.primary_host = group, node, primary_host
+        self.offset, self.rest = 0, ""
+        self.connected, self.expect, self.filters = False, None, {}
+        self.connects = self.publishes = 0  # for a test to see that there was something to check
+
+    def check(self):
+        with open(self.path, errors="replace") as f:
+            f.seek(self.offset)
+            text = self.rest + f.read()
+            self.offset = f.tell()
+        lines = text.split("\n")
+        self.rest = lines.pop()
+        found = []
+        for line in lines:
+            m = self.LINE.match(line)
+            if m:
+                self._line(m.group(1), found)
+        return found
+
+    def _line(self, line, found):
+        def violation(rule, text):
+            assert rule in RULES, rule
+            found.append(f"[{rule}] broker log: {text}")
+        expect, self.expect = self.expect, None
+        if expect == "will topic":
+            topic = f"{PREFIX}/{self.group}/NDEATH/{self.node}"
+            if line != "\t" + topic:
+                violation("will", f"the will's topic is {line.strip()!r}, not {topic}")
+            return
+        if expect == "filters" and (m := self.FILTER.match(line)):
+            self.filters[m.group(1)] = int(m.group(2))
+            self.expect = "filters"
+            return
+        if expect == "filters" and line.startswith(self.client_id + " "):
+            self.expect = "filters"  # mosquitto's own "<client> <qos> <filter>" line
+            return
+        if expect == "will":
+            m = self.WILL.match(line)
+            if not m:
+                violation("will", f"CONNECT of {self.client_id} without a will: {line!r}")
+            elif (m.group(1), m.group(2)) != ("0", "1"):
+                violation("will", f"the will is r{m.group(1)}, q{m.group(2)}, not r0, q1")
+            else:
+                self.expect = "will topic"
+            return
+        if (m := self.CONNECTED.match(line)) and m.group(1) == self.client_id:
+            self.connects += 1
+            self.connected, self.filters, self.expect = True, {}, "will"
+            if (m.group(2), m.group(3)) != ("2", "1"):
+                violation("connect", f"CONNECT p{m.group(2)}, c{m.group(3)}: not MQTT 3.1.1 "
+                                     f"with Clean Session")
+        elif (m := self.SUBSCRIBE.match(line)) and m.group(1) == self.client_id:
+            self.expect = "filters"
+        elif (m := self.PUBLISH.match(line)) and m.group(1) == self.client_id:
+            self.publishes += 1
+            self._publish(int(m.group(2)), int(m.group(3)), m.group(4), violation)
+        elif (m := self.GONE.search(line)) and self.client_id in m.groups():
+            self.connected = False
+
+    def _publish(self, qos, retain, topic, violation):
+        parts = topic.split("/")
+        type_ = parts[2] if len(parts) > 2 else ""
+        if not self.connected:
+            violation("publish flags", f"PUBLISH {topic} outside an accepted connection")
+        wanted = 1 if type_ == "NDEATH" else 0
+        if qos != wanted or retain:
+            violation("publish flags", f"{topic} at QoS {qos}, retain {retain}: not QoS {wanted}, "
+                                       f"not retained")
+        if type_ != "NBIRTH":
+            return
+        needed = [f"{PREFIX}/{self.group}/NCMD/{self.node}",
+                  f"{PREFIX}/{self.group}/DCMD/{self.node}/+"]
+        if self.primary_host:
+            needed.append(f"{PREFIX}/STATE/{self.primary_host}")
+        for pattern in needed:
+            if self.filters.get(pattern) != 1:
+                violation("subscriptions", f"NBIRTH before a QoS 1 subscription to {pattern} "
+                                           f"(subscribed: {self.filters})")
