@@ -145,9 +145,11 @@ class Daemon {
 
     const Options& options_;
     Log& log_;
-    // One thread runs everything, so Asio need not lock its scheduler and reactor: the locks cost
-    // a few percent of the CPU time of every Modbus request and serial transaction.
-    asio::io_context io_{BOOST_ASIO_CONCURRENCY_HINT_UNSAFE};
+    // One thread does all the I/O, so Asio need not lock its reactor. The scheduler keeps its
+    // lock: the store's disk thread posts its results here, and Asio's resolver thread its
+    // answers. (Without it, such a post raced the loop: a lost handler left forwarding
+    // unfinished and the loop's work count wrong, so that ioportd never exited; benchmark 7f.)
+    asio::io_context io_{BOOST_ASIO_CONCURRENCY_HINT_UNSAFE_IO};
     ioport::daemon::Gateway gateway_;
     ioport::daemon::ServiceNotifier service_;
     asio::signal_set signals_;

@@ -507,11 +507,17 @@ void SparkplugNode::forward(std::uint64_t session, std::vector<StoredRecord> rec
             sparkplug::topic(settings_.group_id, MessageType::ncmd, settings_.edge_node_id), 1);
         if (mid) proofs_[*mid] = Proof{forward_sent_, sent};
     }
-    if (records.empty() && proofs_.empty() && !store_->pending()) {
+    // Over when nothing is left after what was sent and the store holds nothing undelivered:
+    // its mark only moves on a SUBACK, so the broker has had every record. A proof still
+    // waiting then covers delivered records only (a SUBACK that never came), and goes too.
+    if (records.empty() && !store_->pending()) {
         const auto took =
             std::chrono::duration<double>(std::chrono::steady_clock::now() - *forward_started_);
-        log_.info({}, "Sparkplug: forwarded {} stored record(s) in {:.1f} s", forwarded_in_run_,
-                  took.count());
+        log_.info({}, "Sparkplug: forwarded {} stored record(s) in {:.1f} s{}", forwarded_in_run_,
+                  took.count(),
+                  proofs_.empty() ? std::string()
+                                  : fmt::format(" ({} SUBACK(s) still awaited)", proofs_.size()));
+        proofs_.clear();
         forward_started_.reset();
         backlog_oldest_ms_.reset();
         forward_timer_.cancel();
