@@ -28,6 +28,8 @@ std::vector<Verdict> sparkplug_cost(const Environment& env);
 // 7c. A fleet of edge nodes (Environment::fleet) on one broker; nothing in a --quick run.
 std::vector<Verdict> sparkplug_fleet(const Environment& env);
 std::vector<Verdict> sparkplug_outage(const Environment& env);
+std::vector<Verdict> sparkplug_outage_kill(const Environment& env);
+std::vector<Verdict> sparkplug_backlog(const Environment& env);
 // 8. Modbus/TCP Security (issue 18): ioportd's CPU per request over TLS against plain TCP,
 // full and resumed handshakes per second, the memory of 256 TLS clients.
 std::vector<Verdict> tls_cost(const Environment& env);

@@ -19,8 +19,8 @@ namespace {
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, sparkplug (7a-d), fleet (7c alone), outage (7d alone), tls, or
-all (the default).
+write, modbus, footprint, http, sparkplug (7a-f), fleet (7c alone), outage (7d alone), crash
+(7e alone), backlog (7f alone), tls, or all (the default).
 Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
 its target. Asserts nothing: exit status 0 unless a program could not be started.
 
@@ -37,8 +37,8 @@ its target. Asserts nothing: exit status 0 unless a program could not be started
                     in harness.hpp): their figures then include the hypervisor's wake-ups
   --fill-trends     benchmark 6 waits 10 minutes for every trend ring to fill and measures
                     the memory then (otherwise it computes it)
-  --fleet N         benchmark 7c runs N edge nodes on one broker (default 50; 0: skip 7c,
-                    which a --quick run always skips)
+  --fleet N         benchmarks 7c and 7f run N edge nodes on one broker (default 50; 0: skip
+                    them, which a --quick run always does)
   --mosquitto PATH  the MQTT broker of benchmark 7 (default /usr/sbin/mosquitto; without
                     one, benchmark 7 says so and is skipped)
 
@@ -145,7 +145,8 @@ int main(int argc, char** argv) {
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
                    arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "fleet" ||
-                   arg == "outage" || arg == "tls" || arg == "all") {
+                   arg == "outage" || arg == "crash" || arg == "backlog" || arg == "tls" ||
+                   arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -191,6 +192,8 @@ int main(int argc, char** argv) {
     if (wanted("sparkplug") || wanted("fleet")) add(sparkplug_fleet(env));
     // A broker outage and the forwarding after it (issue 26).
     if (wanted("sparkplug") || wanted("outage")) add(sparkplug_outage(env));
+    if (wanted("sparkplug") || wanted("crash")) add(sparkplug_outage_kill(env));
+    if (wanted("sparkplug") || wanted("backlog")) add(sparkplug_backlog(env));
 
     fmt::print("\n## Summary{}\n", env.quick ? " (--quick: the figures mean nothing)" : "");
     Table summary({"benchmark", "figure", "target", "met"});

@@ -6,7 +6,11 @@
 //    against the same ioportd with MQTT off, side by side on the same changing input, the DDATA
 //    rate, and Modbus at 64 connections on the one against the other;
 // c. a fleet: N ioportd (50 by default), each an edge node on its own small simulated bus, on one
-//    broker: how long until every birth arrived, the data rate, the broker's and the nodes' CPU.
+//    broker: how long until every birth arrived, the data rate, the broker's and the nodes' CPU;
+// d. a broker outage with the store (issue 26): recorded against forwarded, bytes, CPU, and live
+//    latency while the backlog is forwarded;
+// e. the same with ioportd killed (SIGKILL) in the middle of the outage and started again;
+// f. the fleet of c, each node forwarding the backlog of one outage, all at once.
 #include <arpa/inet.h>
 #include <mosquitto.h>
 #include <netinet/in.h>
@@ -979,30 +983,56 @@ struct AfterOutage {
     std::map<std::uint64_t, Clock::time_point> arrived;  // dim16 0's word -> its live DDATA
 };
 
-std::vector<Verdict> outage(const Environment& env) {
+// The number in the restarted ioportd's line "Sparkplug store …: N record(s) to forward".
+std::optional<std::uint64_t> records_to_forward(const std::string& log) {
+    const auto at = log.find(" record(s) to forward");
+    if (at == std::string::npos) return std::nullopt;
+    const auto from = log.rfind(' ', at - 1);
+    return std::strtoull(log.c_str() + from + 1, nullptr, 10);
+}
+
+// With `crash`, 7e: ioportd is killed (SIGKILL) in the middle of the outage and started again.
+std::vector<Verdict> outage(const Environment& env, bool crash) {
     const auto bus = full_bus();
     const auto analog = analog_of(bus);
     const auto period = 5ms;
     const auto away =
         env.quick ? 1s : std::chrono::duration_cast<std::chrono::seconds>(env.window(60s));
+    const auto connected_window = std::min<std::chrono::seconds>(away, 60s);
     const int forward_rate = env.quick ? 2000 : 1000;
     const ModuleAddress target{ModuleType::dim16, 0};
     const auto target_id = sparkplug::device_id("hub0", target);
-    fmt::print(
-        "\n### 7d. A broker outage of {} s, with the store\n\nA full bus at 115200 baud "
-        "(modelled, simulated in this process) with its {} analog modules' every channel moving "
-        "every {} ms, so that every read of them is a new value; ioportd an edge node on a local "
-        "mosquitto with `store:` (forward_rate {}). The broker is stopped for {} s and started "
-        "again on the same port; a new subscriber is there before ioportd's next CONNECT. "
-        "\"Recorded\": the records the store took, from its delivered mark once everything is "
-        "forwarded; \"forwarded\": the historical DDATA that subscriber received. Bytes: what "
-        "ioportd wrote during the outage (/proc/PID/io: to write(), and to the block device) and "
-        "the store's files at its end, per record then on disk. CPU: ioportd's, connected (live "
-        "DDATA) for as long before the outage, and during it (storing instead). Live latency: "
-        "dim16 0's word set at the simulator 60–140 ms apart, to the live DDATA carrying it, "
-        "while the backlog is forwarded and after.\n",
-        away.count(), analog.size(), period.count(), forward_rate, away.count());
-    TempDir dir;
+    const std::string name = crash ? "7e. outage, kill -9" : "7d. outage";
+    if (crash)
+        fmt::print(
+            "\n### 7e. A broker outage of {} s, with ioportd killed in its middle\n\nAs 7d, but "
+            "half-way through the outage ioportd is killed (SIGKILL) and started again at once, "
+            "on the same store. \"Written before the kill\": the records in the store's files "
+            "just before it (read from the files); \"found after\": the files read after it, and "
+            "the count the restarted ioportd reports on opening the store. The changes of the "
+            "seconds ioportd is down are not recorded: no process watches the bus then.\n",
+            away.count());
+    else
+        fmt::print(
+            "\n### 7d. A broker outage of {} s, with the store\n\nA full bus at 115200 baud "
+            "(modelled, simulated in this process) with its {} analog modules' every channel "
+            "moving "
+            "every {} ms, so that every read of them is a new value; ioportd an edge node on a "
+            "local "
+            "mosquitto with `store:` (forward_rate {}). The broker is stopped for {} s and started "
+            "again on the same port; a new subscriber is there before ioportd's next CONNECT. "
+            "\"Recorded\": the records the store took, from its delivered mark once everything is "
+            "forwarded; \"forwarded\": the historical DDATA that subscriber received. Bytes: what "
+            "ioportd wrote during the outage (/proc/PID/io: to write(), and to the block device) "
+            "and "
+            "the store's files at its end, per record then on disk. CPU: ioportd's, connected "
+            "(live "
+            "DDATA) for up to 60 s before the outage, and during it (storing instead). Live "
+            "latency: "
+            "dim16 0's word set at the simulator 60–140 ms apart, to the live DDATA carrying it, "
+            "while the backlog is forwarded and after.\n",
+            away.count(), analog.size(), period.count(), forward_rate, away.count());
+    TempDir dir, restarted_dir;
     Broker broker(env, dir, env.placement.client_cpu);
     if (!broker.started()) {
         fmt::print("\n{}: benchmark 7d skipped.\n", broker.why());
@@ -1015,34 +1045,56 @@ std::vector<Verdict> outage(const Environment& env) {
     auto watching = std::make_unique<Subscriber>(
         broker.port(), std::vector<std::string>{fmt::format("spBv1.0/{}/#", group)},
         [&](const Received& message) { before.add(message); });
-    Gateway gateway(env, dir,
-                    gateway_yaml({{dir / "tty", 115200, bus}}, 32, false,
-                                 mqtt_yaml(broker.port(), node_id(0)) +
-                                     fmt::format("  store:\n    path: {}\n    forward_rate: {}\n",
-                                                 store.string(), forward_rate)));
-    if (!sim.ready() || !watching->ready() || !gateway.started() || !gateway.wait_until_polling() ||
+    const auto yaml = gateway_yaml({{dir / "tty", 115200, bus}}, 32, false,
+                                   mqtt_yaml(broker.port(), node_id(0)) +
+                                       fmt::format("  store:\n    path: {}\n    forward_rate: {}\n",
+                                                   store.string(), forward_rate));
+    auto gateway = std::make_unique<Gateway>(env, dir, yaml);
+    if (!sim.ready() || !watching->ready() || !gateway->started() ||
+        !gateway->wait_until_polling() ||
         !wait_for(
             [&] {
                 const auto node = before.node(node_id(0));
                 return node && node->dbirths >= static_cast<int>(bus.size());
             },
             10s))
-        return {{"7d. outage", "ioportd did not start", "", false}};
+        return {{name, "ioportd did not start", "", false}};
     watching.reset();
     sim.wander(analog, period);
     std::this_thread::sleep_for(env.quick ? 100ms : 1s);
-    const auto cpu_connected_start = cpu_time(gateway.pid());
-    std::this_thread::sleep_for(away);
-    const auto cpu_connected = cpu_time(gateway.pid()) - cpu_connected_start;
+    const auto cpu_connected_start = cpu_time(gateway->pid());
+    std::this_thread::sleep_for(connected_window);
+    const auto cpu_connected = cpu_time(gateway->pid()) - cpu_connected_start;
 
-    const auto io_before = process_io(gateway.pid());
-    const auto cpu_before = cpu_time(gateway.pid());
+    const auto io_before = process_io(gateway->pid());
+    const auto cpu_before = cpu_time(gateway->pid());
     broker.stop();
-    std::this_thread::sleep_for(away);
-    const auto cpu_away = cpu_time(gateway.pid()) - cpu_before;
-    const auto io_after = process_io(gateway.pid());
+    struct {
+        std::uint64_t written = 0, found = 0;
+        std::optional<std::uint64_t> reported;
+        double down_s = 0;
+    } killed;
+    if (crash) {
+        const auto half = std::chrono::milliseconds(away) / 2;
+        std::this_thread::sleep_for(half);
+        killed.written = on_disk(store).records;
+        ::kill(gateway->pid(), SIGKILL);
+        const auto at = Clock::now();
+        gateway.reset();
+        killed.found = on_disk(store).records;
+        gateway = std::make_unique<Gateway>(env, restarted_dir, yaml);
+        if (!gateway->started() || !gateway->wait_until_polling())
+            return {{name, "ioportd did not start again", "", false}};
+        killed.down_s = seconds(Clock::now() - at);
+        killed.reported = records_to_forward(gateway->log());
+        std::this_thread::sleep_until(at + (std::chrono::milliseconds(away) - half));
+    } else {
+        std::this_thread::sleep_for(away);
+    }
+    const auto cpu_away = cpu_time(gateway->pid()) - cpu_before;
+    const auto io_after = process_io(gateway->pid());
     const auto stored = on_disk(store);
-    if (!broker.restart()) return {{"7d. outage", "mosquitto did not restart", "", false}};
+    if (!broker.restart()) return {{name, "mosquitto did not restart", "", false}};
 
     AfterOutage after;
     Subscriber subscriber(
@@ -1071,7 +1123,7 @@ std::vector<Verdict> outage(const Environment& env) {
     // ioportd comes back at its next reconnect (1 s doubling to 30 s since the loss).
     if (!subscriber.ready() ||
         !wait_for([&] { return after.tally.node(node_id(0)).has_value(); }, 40s))
-        return {{"7d. outage", "ioportd did not reconnect", "", false}};
+        return {{name, "ioportd did not reconnect", "", false}};
     const auto births = after.tally.node(node_id(0))->nbirth;
 
     std::mt19937 random(26);
@@ -1124,9 +1176,18 @@ std::vector<Verdict> outage(const Environment& env) {
     const double written = static_cast<double>(io_after.wchar - io_before.wchar) / n;
     const double to_disk = static_cast<double>(io_after.write_bytes - io_before.write_bytes) / n;
     const double away_s = static_cast<double>(away.count());
-    const double connected_pct = microseconds(cpu_connected) / 1e4 / away_s;
+    const double connected_pct =
+        microseconds(cpu_connected) / 1e4 / static_cast<double>(connected_window.count());
     const double away_pct = microseconds(cpu_away) / 1e4 / away_s;
     Table table({"", "value"});
+    if (crash) {
+        table.row({"records in the store's files just before the kill / just after it",
+                   fmt::format("{} / {}", killed.written, killed.found)});
+        table.row({"records the restarted ioportd found on opening the store",
+                   killed.reported ? fmt::format("{}", *killed.reported) : "(no log line)"});
+        table.row({"kill to polling again (changes in this time are not recorded)",
+                   fmt::format("{:.2f} s", killed.down_s)});
+    }
     table.row({"records the store took (its mark, all forwarded)", fmt::format("{}", recorded)});
     table.row({"historical DDATA received", fmt::format("{}", received)});
     table.row({"forwarding: from NBIRTH to the last historical DDATA",
@@ -1136,10 +1197,12 @@ std::vector<Verdict> outage(const Environment& env) {
                fmt::format("{} records, {:.1f} KiB, {:.0f} B a record", stored.records,
                            static_cast<double>(stored.bytes) / 1024,
                            static_cast<double>(stored.bytes) / n)});
-    table.row({"written by ioportd during the outage, a record: to write() / to the disk",
-               fmt::format("{:.0f} B / {:.0f} B", written, to_disk)});
-    table.row({"ioportd CPU: connected (live DDATA) / during the outage (storing)",
-               fmt::format("{:.2f} % / {:.2f} %", connected_pct, away_pct)});
+    if (!crash) {  // one process's figures: across the kill they would mix two
+        table.row({"written by ioportd during the outage, a record: to write() / to the disk",
+                   fmt::format("{:.0f} B / {:.0f} B", written, to_disk)});
+        table.row({"ioportd CPU: connected (live DDATA) / during the outage (storing)",
+                   fmt::format("{:.2f} % / {:.2f} %", connected_pct, away_pct)});
+    }
     table.row({"seq gaps at the subscriber after the outage", fmt::format("{}", counts.lost)});
     const auto latency_text = [&](const Summary& l) {
         return fmt::format("p50 {:.2f} ms, p99 {:.2f} ms, max {:.2f} ms ({} of {})", ms(l.p50),
@@ -1149,6 +1212,20 @@ std::vector<Verdict> outage(const Environment& env) {
                            forwarding_throughout ? "" : " (the backlog ran out first)"),
                latency_text(forwarding_latency)});
     table.row({"live change → DDATA, no backlog", latency_text(idle_latency)});
+    if (crash) {
+        machine_line(fmt::format(
+            R"({{"bench":"sparkplug_outage_kill","outage_s":{},"written_before_kill":{},"found_after_kill":{},"reported_at_restart":{},"down_s":{:.3f},"recorded":{},"forwarded":{},"forward_s":{:.2f},"seq_gaps":{}}})",
+            away.count(), killed.written, killed.found,
+            killed.reported ? fmt::format("{}", *killed.reported) : "null", killed.down_s, recorded,
+            received, forward_s, counts.lost));
+        const bool kept = killed.found >= killed.written && killed.reported == killed.found;
+        return {{fmt::format("7e. kill -9 in a {} s outage: nothing written lost", away.count()),
+                 fmt::format("{} written before the kill, {} found after; {} recorded, {} "
+                             "forwarded",
+                             killed.written, killed.found, recorded, received),
+                 "every record written before the kill forwarded",
+                 kept && drained && recorded > 0 && received == recorded && counts.lost == 0}};
+    }
     machine_line(fmt::format(
         R"({{"bench":"sparkplug_outage","outage_s":{},"recorded":{},"forwarded":{},"forward_s":{:.2f},"stored_at_end":{},"store_bytes":{},"wchar_per_record":{:.1f},"disk_per_record":{:.1f},"cpu_connected_pct":{:.3f},"cpu_outage_pct":{:.3f},"seq_gaps":{},"live_p99_forwarding_ms":{:.3f},"live_p99_idle_ms":{:.3f}}})",
         away.count(), recorded, received, forward_s, stored.records, stored.bytes, written, to_disk,
@@ -1160,11 +1237,188 @@ std::vector<Verdict> outage(const Environment& env) {
              drained && recorded > 0 && received == recorded && counts.lost == 0}};
 }
 
+// --- f. A fleet forwarding its backlogs at once ---------------------------------------------
+
+// "Sparkplug: forwarded N stored record(s) in S s": the records of each such line, summed, and
+// whether there was one.
+std::optional<std::uint64_t> forwarded_in_log(const std::string& log) {
+    std::optional<std::uint64_t> total;
+    for (auto at = log.find("Sparkplug: forwarded "); at != std::string::npos;
+         at = log.find("Sparkplug: forwarded ", at + 1))
+        total = total.value_or(0) +
+                std::strtoull(log.c_str() + at + std::string_view("Sparkplug: forwarded ").size(),
+                              nullptr, 10);
+    return total;
+}
+
+std::vector<Verdict> backlog(const Environment& env) {
+    const int nodes = env.fleet;
+    const std::vector<ModuleAddress> bus{{ModuleType::dim16, 0},
+                                         {ModuleType::acm3p, 0},
+                                         {ModuleType::acm3c, 0},
+                                         {ModuleType::dccim, 0}};
+    const auto poll = 100ms;
+    const auto period = 20ms;
+    const auto away = std::chrono::duration_cast<std::chrono::seconds>(env.window(60s));
+    fmt::print(
+        "\n### 7f. {} edge nodes forwarding a {} s backlog to one broker at once\n\nThe fleet of "
+        "7c ({} ioportd, each on its own simulated bus of {} modules read every {} ms, every "
+        "input changing every {} ms), each with `store:` at the default forward_rate (200 a "
+        "second). The broker is stopped for {} s; then every ioportd is paused (SIGSTOP), the "
+        "broker started again on the same port and a subscriber connected, and the ioportd "
+        "resumed (SIGCONT), so that the subscriber sees every session from its NBIRTH. Drained: "
+        "each ioportd logged the end of its forwarding. Recorded: what the stores' delivered "
+        "marks grew by from before the outage; forwarded: the historical DDATA the subscriber "
+        "received. CPU from the broker's "
+        "resumption to the last node drained.\n",
+        nodes, away.count(), nodes, bus.size(), poll.count(), period.count(), away.count());
+    TempDir dir;
+    Broker broker(env, dir, env.placement.client_cpu);
+    if (!broker.started()) {
+        fmt::print("\n{}: 7f skipped.\n", broker.why());
+        return {};
+    }
+    std::vector<std::unique_ptr<TempDir>> dirs;
+    std::vector<std::unique_ptr<InProcessSim>> sims;
+    for (int i = 0; i < nodes; ++i) {
+        dirs.push_back(std::make_unique<TempDir>());
+        sims.push_back(std::make_unique<InProcessSim>(*dirs.back() / "tty", bus, timed(115200),
+                                                      env.placement.client_cpu));
+        if (!sims.back()->ready()) return {{"7f. backlog", "a simulator did not start", "", false}};
+    }
+    std::vector<std::unique_ptr<Gateway>> gateways;
+    for (int i = 0; i < nodes; ++i) {
+        const auto& d = *dirs[static_cast<std::size_t>(i)];
+        gateways.push_back(std::make_unique<Gateway>(
+            env, d,
+            gateway_yaml({{d / "tty", 115200, bus, poll}}, 32, false,
+                         mqtt_yaml(broker.port(), node_id(i)) +
+                             fmt::format("  store:\n    path: {}\n", d / "store"))));
+        if (!gateways.back()->started())
+            return {{"7f. backlog", fmt::format("ioportd {} did not start", i), "", false}};
+    }
+    for (auto& sim : sims)
+        sim->wander(bus, period);
+    std::this_thread::sleep_for(2s);
+    // What a node polled before its first CONNECT was stored and forwarded already, before the
+    // subscriber was there: counted from here (the marks are synced within a second).
+    std::vector<std::uint64_t> before_outage;
+    for (const auto& d : dirs)
+        before_outage.push_back(delivered_mark(*d / "store"));
+    broker.stop();
+    std::this_thread::sleep_for(away);
+    for (const auto& gateway : gateways)
+        ::kill(gateway->pid(), SIGSTOP);
+    const bool restarted = broker.restart();
+    struct {
+        std::mutex mutex;
+        std::map<std::string, std::uint64_t> historical;
+    } seen;
+    Tally tally;
+    Subscriber subscriber(broker.port(), {fmt::format("spBv1.0/{}/#", group)},
+                          [&](const Received& message) {
+                              tally.add(message);
+                              const auto topic = sparkplug::parse_topic(message.topic);
+                              const auto payload = sparkplug::decode(message.payload);
+                              if (!topic || !payload || payload->metrics.empty() ||
+                                  !payload->metrics.front().is_historical)
+                                  return;
+                              const std::scoped_lock lock(seen.mutex);
+                              ++seen.historical[topic->node];
+                          });
+    const auto fleet_cpu = [&] {
+        std::chrono::nanoseconds total{};
+        for (const auto& gateway : gateways)
+            total += cpu_time(gateway->pid());
+        return total;
+    };
+    const auto nodes_before = fleet_cpu();
+    const auto broker_before = cpu_time(broker.pid());
+    const auto resumed = Clock::now();
+    for (const auto& gateway : gateways)
+        ::kill(gateway->pid(), SIGCONT);
+    if (!restarted || !subscriber.ready())
+        return {{"7f. backlog", "the broker or the subscriber did not start again", "", false}};
+    // Each node reconnects at its next attempt (1 s doubling to 30 s since the loss), then
+    // forwards at 200 a second.
+    std::vector<std::optional<std::uint64_t>> forwarded(static_cast<std::size_t>(nodes));
+    Clock::time_point last_drained = resumed;
+    // CPU up to the last node drained, not to the end of the wait.
+    auto nodes_cpu = std::chrono::nanoseconds{}, broker_cpu = std::chrono::nanoseconds{};
+    const bool drained = wait_for(
+        [&] {
+            bool all = true;
+            for (std::size_t i = 0; i < gateways.size(); ++i) {
+                if (forwarded[i]) continue;
+                forwarded[i] = forwarded_in_log(gateways[i]->log());
+                if (forwarded[i]) {
+                    last_drained = Clock::now();
+                    nodes_cpu = fleet_cpu() - nodes_before;
+                    broker_cpu = cpu_time(broker.pid()) - broker_before;
+                }
+                all = all && forwarded[i].has_value();
+            }
+            if (!all) std::this_thread::sleep_for(250ms);
+            return all;
+        },
+        std::chrono::seconds(60 + 2 * away.count()));
+    const double drain_s = seconds(last_drained - resumed);
+    std::this_thread::sleep_for(1100ms);  // the syncs that write the last marks
+    std::uint64_t recorded = 0, received = 0, short_nodes = 0, doubled = 0;
+    {
+        const std::scoped_lock lock(seen.mutex);
+        for (int i = 0; i < nodes; ++i) {
+            const auto mark = delivered_mark(*dirs[static_cast<std::size_t>(i)] / "store") -
+                              before_outage[static_cast<std::size_t>(i)];
+            const auto got = seen.historical[node_id(i)];
+            recorded += mark;
+            received += got;
+            short_nodes += got < mark;
+            doubled += got > mark ? got - mark : 0;
+            if (got != mark || !forwarded[static_cast<std::size_t>(i)]) {
+                const auto log = gateways[static_cast<std::size_t>(i)]->log();
+                fmt::print("\n{}: {} recorded, {} received{}; its log ends:\n{}\n", node_id(i),
+                           mark, got,
+                           forwarded[static_cast<std::size_t>(i)] ? "" : ", never drained",
+                           log.substr(log.size() > 1500 ? log.size() - 1500 : 0));
+            }
+        }
+    }
+    const auto counts = tally.counts();
+    const double broker_pct = microseconds(broker_cpu) / 1e4 / std::max(drain_s, 1e-3);
+    const double nodes_pct = microseconds(nodes_cpu) / 1e4 / std::max(drain_s, 1e-3);
+    Table table({"", "value"});
+    table.row({"records the stores took (their delivered marks once drained)",
+               fmt::format("{} ({} a node)", recorded, recorded / static_cast<unsigned>(nodes))});
+    table.row({"historical DDATA the subscriber received",
+               fmt::format("{} ({} twice; {} node(s) short)", received, doubled, short_nodes)});
+    table.row({"resumption to the last node drained",
+               fmt::format("{:.1f} s ({:.0f} historical DDATA a second, all nodes)", drain_s,
+                           static_cast<double>(received) / std::max(drain_s, 1e-3))});
+    table.row({"the broker's CPU, over that time", fmt::format("{:.1f} % of a core", broker_pct)});
+    table.row({"the ioportd's CPU, all together, over that time",
+               fmt::format("{:.1f} % of a core ({:.2f} % each)", nodes_pct, nodes_pct / nodes)});
+    table.row({"seq gaps at the subscriber", fmt::format("{}", counts.lost)});
+    machine_line(fmt::format(
+        R"({{"bench":"sparkplug_backlog","nodes":{},"outage_s":{},"recorded":{},"forwarded":{},"doubled":{},"short_nodes":{},"drain_s":{:.2f},"broker_cpu_pct":{:.3f},"nodes_cpu_pct":{:.3f},"seq_gaps":{}}})",
+        nodes, away.count(), recorded, received, doubled, short_nodes, drain_s, broker_pct,
+        nodes_pct, counts.lost));
+    return {{fmt::format("7f. {} nodes forward a {} s backlog at once", nodes, away.count()),
+             fmt::format("{} recorded, {} forwarded in {:.1f} s; broker {:.1f} %", recorded,
+                         received, drain_s, broker_pct),
+             "every recorded change forwarded, none lost",
+             drained && recorded > 0 && short_nodes == 0 && counts.lost == 0}};
+}
+
 }  // namespace
 
 std::vector<Verdict> sparkplug_outage(const Environment& env) {
     fmt::print("\n## 7d. Sparkplug store-and-forward\n\nWhat nothing lost costs (issue 26).\n");
-    return outage(env);
+    return outage(env, false);
+}
+
+std::vector<Verdict> sparkplug_outage_kill(const Environment& env) {
+    return outage(env, true);
 }
 
 std::vector<Verdict> sparkplug_cost(const Environment& env) {
@@ -1177,6 +1431,11 @@ std::vector<Verdict> sparkplug_cost(const Environment& env) {
     const auto more = publication_cost(env);
     verdicts.insert(verdicts.end(), more.begin(), more.end());
     return verdicts;
+}
+
+std::vector<Verdict> sparkplug_backlog(const Environment& env) {
+    if (env.quick || env.fleet <= 0) return {};
+    return backlog(env);
 }
 
 std::vector<Verdict> sparkplug_fleet(const Environment& env) {
