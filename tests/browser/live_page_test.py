@@ -2,7 +2,8 @@
 """The status page of the real ioportd, on the real simulator, in headless Chromium (issue 16
 §3): an input changed in the simulator shows on the page without a reload, a faulted module
 shows as not online, the Modbus clients connected show with their transport and TLS role, a
-refused TLS handshake is counted, the console has no errors. Saves the screenshots to OUTDIR.
+refused TLS handshake is counted, the Sparkplug node with its broker away shows the backlog its
+store keeps (gateway.md §6.2), the console has no errors. Saves the screenshots to OUTDIR.
 
 Usage: live_page_test.py IOPORTD IOPORT_SIM OUTDIR
 """
@@ -26,9 +27,16 @@ IOPORTD, IOPORT_SIM, OUTDIR = sys.argv[1], sys.argv[2], sys.argv[3]
 HUB = "dim16:0,dom16:0,acm3p:0,lim16:0,rgbdm:0,mux8m:0,dccim:0,dcvim:0"
 
 
-def config(rig, certs):
+def closed_port():
+    """A loopback port nothing listens on (bound, then closed): a broker that is away."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def config(rig, certs, directory):
     """ioportd on a simulated hub with every module type but acm3c and a simulated ID-2, plain
-    Modbus TCP and Modbus/TCP Security."""
+    Modbus TCP and Modbus/TCP Security, and a Sparkplug node with a store whose broker is away."""
     return f"""modbus:
   listen: "127.0.0.1:0"
   tls:
@@ -53,6 +61,12 @@ links:
     device: {rig.id2_link}
     baud: 9600
     unit_id: 2
+mqtt:
+  broker: "mqtt://127.0.0.1:{closed_port()}"
+  group_id: plant1
+  edge_node_id: box7
+  store:
+    path: {os.path.join(directory, "store")}
 """
 
 
@@ -86,7 +100,7 @@ def main():
         certs.client("operator", "operator")
         rig.start_hub(HUB)
         rig.start_id2()
-        rig.write_config(config(rig, certs))
+        rig.write_config(config(rig, certs, directory))
         rig.start_daemon()
         url = f"http://127.0.0.1:{rig.listening_port('HTTP')}/"
         modbus_port = rig.listening_port("Modbus TCP")
@@ -114,7 +128,10 @@ def main():
             shows=[("mb-listen", f"127.0.0.1:{tls_port} (TLS)"), ("clients", "TLS · operator"),
                    ("clients", "plain TCP"), ("mb-th", "1"),
                    # Both listeners: plain Modbus bypasses the roles (gateway.md §5.6).
-                   ("warn-list", "bypasses the roles of Modbus/TCP Security")],
+                   ("warn-list", "bypasses the roles of Modbus/TCP Security"),
+                   # The broker is away: what changes is kept, and the page says how much.
+                   ("sp-conn", "not connected"), ("sp-backlog", " records, "),
+                   ("sp-oldest", " ago"), ("sp-fwd", "0")],
             screenshot_path=os.path.join(OUTDIR, "status-page.png"))
         print(f"live_page_test: passed; screenshots in {OUTDIR}")
         return 0
