@@ -309,6 +309,10 @@ void SparkplugNode::disconnected() {
     proofs_.clear();
     forward_timer_.cancel();
     host_timer_.cancel();
+    // A rebirth asked for in the lost session is the next session's births; what changes till
+    // then goes to the store.
+    rebirth_timer_.cancel();
+    rebirth_waiting_ = false;
     if (forward_started_) {
         log_.warn({},
                   "Sparkplug: forwarding interrupted after {} record(s); it resumes after the "
