@@ -723,17 +723,29 @@ std::vector<Verdict> publication_cost(const Environment& env) {
              "<= 1.05×", load_on.errors == 0 && load_off.errors == 0 && p99_median <= 1.05}};
 }
 
+// The fleet of 7c and 7f: each node's small bus, read every fleet_poll, every input changing
+// every fleet_period, so that every read is published.
+const std::vector<ModuleAddress> fleet_bus{
+    {ModuleType::dim16, 0}, {ModuleType::acm3p, 0}, {ModuleType::acm3c, 0}, {ModuleType::dccim, 0}};
+constexpr auto fleet_poll = 100ms;
+constexpr auto fleet_period = 20ms;
+
+// The CPU time of every ioportd of a fleet, together.
+std::chrono::nanoseconds cpu_time_of(const std::vector<std::unique_ptr<Gateway>>& gateways) {
+    std::chrono::nanoseconds total{};
+    for (const auto& gateway : gateways)
+        total += cpu_time(gateway->pid());
+    return total;
+}
+
 // --- c. A fleet on one broker
 // ---------------------------------------------------------------------
 
 std::vector<Verdict> fleet(const Environment& env) {
     const int nodes = env.fleet;
-    const std::vector<ModuleAddress> bus{{ModuleType::dim16, 0},
-                                         {ModuleType::acm3p, 0},
-                                         {ModuleType::acm3c, 0},
-                                         {ModuleType::dccim, 0}};
-    const auto poll = 100ms;
-    const auto period = 20ms;
+    const auto& bus = fleet_bus;
+    const auto poll = fleet_poll;
+    const auto period = fleet_period;
     fmt::print(
         "\n### 7c. A fleet: {} edge nodes on one broker\n\n{} ioportd (server CPU), each on its "
         "own simulated bus (in this process, client CPU) of {} modules ({}) at 115200 baud, each "
@@ -854,12 +866,7 @@ std::vector<Verdict> fleet(const Environment& env) {
 
     // Steady publication.
     std::this_thread::sleep_for(env.quick ? 200ms : 2s);
-    const auto fleet_cpu = [&] {
-        std::chrono::nanoseconds total{};
-        for (const auto& gateway : gateways)
-            total += cpu_time(gateway->pid());
-        return total;
-    };
+    const auto fleet_cpu = [&] { return cpu_time_of(gateways); };
     const auto window = env.window(10s);
     const auto counts_before = tally.counts();
     const auto nodes_before = fleet_cpu();
@@ -1253,12 +1260,9 @@ std::optional<std::uint64_t> forwarded_in_log(const std::string& log) {
 
 std::vector<Verdict> backlog(const Environment& env) {
     const int nodes = env.fleet;
-    const std::vector<ModuleAddress> bus{{ModuleType::dim16, 0},
-                                         {ModuleType::acm3p, 0},
-                                         {ModuleType::acm3c, 0},
-                                         {ModuleType::dccim, 0}};
-    const auto poll = 100ms;
-    const auto period = 20ms;
+    const auto& bus = fleet_bus;
+    const auto poll = fleet_poll;
+    const auto period = fleet_period;
     const auto away = std::chrono::duration_cast<std::chrono::seconds>(env.window(60s));
     fmt::print(
         "\n### 7f. {} edge nodes forwarding a {} s backlog to one broker at once\n\nThe fleet of "
@@ -1326,12 +1330,7 @@ std::vector<Verdict> backlog(const Environment& env) {
                               const std::scoped_lock lock(seen.mutex);
                               ++seen.historical[topic->node];
                           });
-    const auto fleet_cpu = [&] {
-        std::chrono::nanoseconds total{};
-        for (const auto& gateway : gateways)
-            total += cpu_time(gateway->pid());
-        return total;
-    };
+    const auto fleet_cpu = [&] { return cpu_time_of(gateways); };
     const auto nodes_before = fleet_cpu();
     const auto broker_before = cpu_time(broker.pid());
     const auto resumed = Clock::now();
