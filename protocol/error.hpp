@@ -53,4 +53,8 @@ namespace ioport {
 // a log line stays a line however long the text a client sent.
 std::string printable(std::string_view bytes, std::size_t limit = std::string_view::npos);
 
+// The length of the valid UTF-8 sequence at the start of `text`, or 0 when there is none (an
+// empty text, a stray byte, an overlong form, a surrogate, a code point past U+10FFFF).
+std::size_t utf8_sequence(std::string_view text);
+
 }  // namespace ioport

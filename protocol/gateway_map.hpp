@@ -15,6 +15,7 @@
 #include "protocol/id2.hpp"
 #include "protocol/ioport.hpp"
 #include "protocol/modbus.hpp"
+#include "protocol/tags.hpp"
 
 namespace ioport::gateway {
 
