@@ -145,7 +145,9 @@ struct ModuleConfig {
     std::uint16_t safe = 0;                  // output modules: after comm loss; `initial` if unset
     std::chrono::microseconds refresh = 1s;  // output modules: re-send the desired state
     int line = 0;                            // in the file, for messages
-    // Equal as settings: where in the file does not matter.
+    gateway::ModuleTags tags{};              // names, units, scales (§6.1), defaults resolved
+    // Equal as settings: where in the file does not matter, and tags are not settings (a reload
+    // applies them to a running link without reopening its port or resetting its outputs).
     friend bool operator==(const ModuleConfig& a, const ModuleConfig& b) {
         return a.address == b.address && a.poll == b.poll && a.initial == b.initial &&
                a.safe == b.safe && a.refresh == b.refresh;
@@ -174,6 +176,9 @@ struct LinkConfig {
                a.modules == b.modules && a.identity == b.identity;
     }
 };
+
+// Whether two links that are equal as settings also name, unit and scale every module alike.
+bool same_tags(const LinkConfig& a, const LinkConfig& b);
 
 struct GatewayConfig {
     std::string file;  // as given, for messages

@@ -89,6 +89,36 @@ void check_modbus(const config::ModbusSettings& modbus) {
     }
 }
 
+// Names, units and scales (gateway.md §6.1): resolved, printable, and values a float32 holds.
+void check_tags(const config::ModuleConfig& module) {
+    const auto type = module.address.type;
+    const auto& tags = module.tags;
+    const auto text = [](const std::string& t, bool may_be_empty) {
+        return gateway::check_tag_text(t, may_be_empty).has_value();
+    };
+    check(text(tags.name, false), "a module name is 1..64 bytes of UTF-8, no control character");
+    const auto channels =
+        gateway::has_channels(type) ? static_cast<std::size_t>(reply_words(type)) : 0U;
+    check(tags.channels.size() == channels, "an analog module has a tag per channel, others none");
+    for (const auto& channel : tags.channels) {
+        check(channel.name.empty() || text(channel.name, false), "a channel name is printable");
+        check(text(channel.unit, true), "a unit is printable");
+        check(std::isfinite(channel.range[0]) && std::isfinite(channel.range[1]) &&
+                  channel.range[0] < channel.range[1],
+              "a range is finite, lo < hi");
+        if (const auto& scale = channel.scale) {
+            check(scale->in_lo != scale->in_hi && scale->out_lo != scale->out_hi,
+                  "a scale maps a span onto a span");
+            for (const std::uint16_t raw : {std::uint16_t{0}, std::uint16_t{0xFFFF}})
+                check(std::isfinite(gateway::channel_value(type, raw, scale)),
+                      "a scaled value fits a float32");
+        }
+    }
+    for (const auto& point : tags.points)
+        check(point.empty() || (gateway::has_points(type) && text(point, false)),
+              "points are named only where the module has them, and printably");
+}
+
 void check_link(const config::LinkConfig& link) {
     check(!link.name.empty() && !link.device.empty(), "a link has a name and a device");
     check(link.unit_id >= 1 && link.unit_id <= 247, "unit_id 1..247");
@@ -103,8 +133,11 @@ void check_link(const config::LinkConfig& link) {
     check(link.baud == 38400 || link.baud == 115200, "an ioport link runs at 38400 or 115200");
     check(!link.modules.empty(), "an ioport link has a module");
     std::set<int> slots;
+    std::set<std::string> names;
     for (const auto& module : link.modules) {
         check(module.address.number < modules_per_type, "module number 0..7");
+        check(names.insert(module.tags.name).second, "module names are unique per link");
+        check_tags(module);
         check(slots.insert(slot(module.address)).second, "a module is configured once per link");
         if (is_output(module.address.type)) {
             check(validate_output_value(module.address.type, module.initial).has_value(),

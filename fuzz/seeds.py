@@ -68,6 +68,10 @@ id2("requests-and-noise", "C", b"ICR\x00\n12345\n", read_size=2)
 gateway_md = (SPEC / "gateway.md").read_text()
 example = gateway_md.split("```yaml\n", 1)[1].split("```", 1)[0]
 write("config", "gateway-md-example.yaml", example.encode())
+tags = gateway_md.split("### 6.1", 1)[1].split("```yaml\n", 1)[1].split("```", 1)[0]
+write("config", "gateway-md-tags.yaml",
+      tags.replace("  - name: hub0\n", "  - name: hub0\n    protocol: ioport\n"
+                   "    device: /dev/ttyUSB0\n", 1).encode())
 for path in sorted((REPO / "config").glob("*.yaml")):
     write("config", path.name, path.read_bytes())
 write("config", "tls.yaml", b"""\
@@ -130,6 +134,24 @@ links:
     timeout: 10s
     retries: 0
 """)
+write("config", "tag-errors.yaml", """\
+links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    modules:
+      - type: acm3c
+        number: 1
+        name: "supply \\"line\\" 1"
+        channels:
+          0: { name: "pressure", unit: "bar", scale: [20, 100, 0, 10], range: [0, 6] }
+          1: { unit: "\\x85", scale: [4, 4, 0, 1] }
+          2: { range: [6, 0], scale: [0, 1e-30, 0, 1e30] }
+          3: { name: x }
+      - { type: dim16, number: 0, name: "acm3c 1", inputs: { 0: "door open", 16: x } }
+      - { type: dom16, number: 0, outputs: { 0: "horn", 1: "lamp" }, inputs: { 0: a } }
+      - { type: dccim, number: 0, channels: { 0: { unit: "°C", scale: [0, 6, -40, 85] } } }
+""".encode())
 write("config", "errors.yaml", b"""\
 modbus:
   listen: "[::1]:70000"

@@ -406,6 +406,90 @@ TEST(GatewayConfig, TheMqttSection) {
     EXPECT_FALSE(parse(links)->mqtt);
 }
 
+// A link whose one module, an acm3p, is in block style: keys may be appended at line 8.
+const std::string hub_for_tags = R"(links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    modules:
+      - type: acm3p
+        number: 0
+)";
+
+// The example of gateway.md §6.1, verbatim.
+constexpr const char* tags_example = R"(links:
+  - name: hub0
+    modules:
+      - type: acm3p
+        number: 0
+        name: "boiler 1"                        # default: "acm3p 0"
+        channels:                               # analog modules, by channel index
+          0: { name: "supply temperature", unit: "°C", scale: [0, 100, -20, 150] }
+          1: { name: "pressure", unit: "bar", scale: [20, 100, 0, 10], range: [0, 6] }
+      - { type: dim16, number: 0, inputs: { 0: "door open", 5: "pump running" } }
+      - { type: dom16, number: 0, outputs: { 0: "horn", 1: "lamp" } }
+)";
+
+TEST(GatewayConfig, TheTagsOfSection61) {
+    // The spec leaves out the link's protocol and device.
+    std::string yaml = tags_example;
+    yaml.replace(yaml.find("    modules:"), 0, "    protocol: ioport\n    device: /dev/ttyUSB0\n");
+    const auto config = parse(yaml);
+    ASSERT_TRUE(config) << describe(config.error());
+    const auto& modules = config->links[0].modules;
+    ASSERT_EQ(modules.size(), 3U);
+    const auto& acm3p = modules[0].tags;
+    EXPECT_EQ(acm3p.name, "boiler 1");
+    ASSERT_EQ(acm3p.channels.size(), 3U);
+    EXPECT_EQ(acm3p.channels[0].name, "supply temperature");
+    EXPECT_EQ(acm3p.channels[0].unit, "°C");
+    EXPECT_EQ(acm3p.channels[0].scale, (gateway::Scale{0, 100, -20, 150}));
+    EXPECT_EQ(acm3p.channels[0].range, (std::array<double, 2>{-20, 150}));
+    EXPECT_EQ(acm3p.channels[1].unit, "bar");
+    EXPECT_EQ(acm3p.channels[1].range, (std::array<double, 2>{0, 6}));
+    // Channel 2 is not configured: its unscaled unit and full scale.
+    EXPECT_EQ(acm3p.channels[2].name, "");
+    EXPECT_EQ(acm3p.channels[2].unit, "%");
+    EXPECT_FALSE(acm3p.channels[2].scale);
+    EXPECT_EQ(acm3p.channels[2].range, (std::array<double, 2>{0, 100}));
+    EXPECT_EQ(modules[1].tags.name, "dim16 0");
+    EXPECT_EQ(modules[1].tags.points[0], "door open");
+    EXPECT_EQ(modules[1].tags.points[5], "pump running");
+    EXPECT_EQ(modules[1].tags.points[1], "");
+    EXPECT_EQ(modules[2].tags.points[1], "lamp");
+    EXPECT_TRUE(modules[2].tags.channels.empty());
+}
+
+TEST(GatewayConfig, AScaleWithoutAUnitHasNoneAndAUnitAloneKeepsTheUnscaledValue) {
+    const auto config = parse(R"(links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    modules:
+      - { type: dccim, number: 0, channels: { 0: { scale: [4, 20, 0, 100] } } }
+      - { type: dcvim, number: 0, channels: { 0: { unit: "", range: [-1, 40] } } }
+)");
+    ASSERT_TRUE(config) << describe(config.error());
+    const auto& dccim = config->links[0].modules[0].tags.channels[0];
+    EXPECT_EQ(dccim.unit, "");
+    EXPECT_EQ(dccim.range, (std::array<double, 2>{0, 100}));
+    const auto& dcvim = config->links[0].modules[1].tags.channels[0];
+    EXPECT_EQ(dcvim.unit, "");
+    EXPECT_FALSE(dcvim.scale);
+    EXPECT_EQ(dcvim.range, (std::array<double, 2>{-1, 40}));
+}
+
+TEST(GatewayConfig, TagsAreNotSettings) {
+    const auto plain = parse(hub_for_tags);
+    const auto named = parse(hub_for_tags + "        name: boiler\n");
+    ASSERT_TRUE(plain) << describe(plain.error());
+    ASSERT_TRUE(named) << describe(named.error());
+    // Equal as settings, so a reload keeps the link; not the same tags, so it retags it.
+    EXPECT_EQ(plain->links[0], named->links[0]);
+    EXPECT_FALSE(same_tags(plain->links[0], named->links[0]));
+    EXPECT_TRUE(same_tags(plain->links[0], plain->links[0]));
+}
+
 // --- Errors ---------------------------------------------------------------------------------
 
 // Lines 1-6: a valid ioport link. Cases append a key of link 0 or a module at line 7.
@@ -711,6 +795,74 @@ TEST(GatewayConfigErrors, ModuleKeys) {
     module("{ type: mux8m, number: 0, safe: 0x0808 }", ".safe", "pos and neg 0-7");
 }
 
+TEST(GatewayConfigErrors, Tags) {
+    const auto module = [](const std::string& text, const std::string& key,
+                           const std::string& fragment) {
+        expect_one_error(
+            {hub + "      - " + text + "\n", 7, "links[0].modules[1]" + key, fragment});
+    };
+    module("{ type: acm3p, number: 0, name: \"\" }", ".name", "must not be empty");
+    module("{ type: acm3p, number: 0, name: " + std::string(65, 'x') + " }", ".name",
+           "is 65 bytes long: at most 64 bytes of UTF-8");
+    module("{ type: acm3p, number: 0, name: \"a\\tb\" }", ".name",
+           "'a\\x09b' has a control character at byte 1");
+    module("{ type: acm3p, number: 0, name: [a] }", ".name", "expected a name");
+    module("{ type: dim16, number: 1, name: \"dim16 0\" }", ".name",
+           "module name 'dim16 0' is already used on this link by dim16 0 at line 6: names must "
+           "be unique per link");
+    module("{ type: dim16, number: 1, channels: { 0: { unit: V } } }", ".channels",
+           "channels is for analog modules only (acm3p, acm3c, dccim, dcvim): dim16 has none");
+    module("{ type: acm3p, number: 0, channels: { 3: { unit: V } } }", ".channels",
+           "'3' is not a channel number: acm3p has channels 0, 1 and 2");
+    module("{ type: dccim, number: 0, channels: { 1: { unit: V } } }", ".channels",
+           "dccim has channel 0 only");
+    module("{ type: dccim, number: 0, channels: { -1: { unit: V } } }", ".channels",
+           "'-1' is not a channel number");
+    module("{ type: dccim, number: 0, channels: [ { unit: V } ] }", ".channels",
+           "expected a mapping by channel number such as { 0: ... }, found a list");
+    module("{ type: dccim, number: 0, channels: { 0: { units: V } } }", ".channels.0.units",
+           "unknown key: allowed here are name, unit, scale, range");
+    module("{ type: dccim, number: 0, channels: { 0: V } }", ".channels.0",
+           "expected a mapping such as { name:");
+    module("{ type: dccim, number: 0, channels: { 0: { scale: [4, 4, 0, 100] } } }",
+           ".channels.0.scale", "in_lo and in_hi must differ: both are 4");
+    module("{ type: dccim, number: 0, channels: { 0: { scale: [4, 20, 1, 1] } } }",
+           ".channels.0.scale", "out_lo and out_hi must differ");
+    module("{ type: dccim, number: 0, channels: { 0: { scale: [4, 20, 0] } } }",
+           ".channels.0.scale", "expected a list of 4 numbers [in_lo, in_hi, out_lo, out_hi]");
+    module("{ type: dccim, number: 0, channels: { 0: { scale: [4, 20, 0, \"100\"] } } }",
+           ".channels.0.scale", "'100' is not allowed: write a finite number");
+    module("{ type: dccim, number: 0, channels: { 0: { scale: [4, 20, 0, .nan] } } }",
+           ".channels.0.scale", "'.nan' is not allowed");
+    module("{ type: dccim, number: 0, channels: { 0: { scale: [4, 20, 0, 1e999] } } }",
+           ".channels.0.scale", "'1e999' is not allowed");
+    module("{ type: dccim, number: 0, channels: { 0: { scale: [0, 1e-30, 0, 1e30] } } }",
+           ".channels.0.scale", "beyond what a float32 register can hold");
+    module("{ type: dccim, number: 0, channels: { 0: { range: [6, 0] } } }", ".channels.0.range",
+           "[6, 0]: lo must be less than hi");
+    module("{ type: dccim, number: 0, channels: { 0: { unit: \"m\\x85\" } } }", ".channels.0.unit",
+           "control character at byte 1");
+    module("{ type: dom16, number: 1, inputs: { 0: horn } }", ".inputs",
+           "inputs names the inputs of dim16 and lim16: dom16 is an output module, name its "
+           "outputs with outputs:");
+    module("{ type: rgbdm, number: 1, inputs: { 0: horn } }", ".inputs",
+           "rgbdm has no digital "
+           "inputs");
+    module("{ type: lim16, number: 1, outputs: { 0: horn } }", ".outputs",
+           "lim16 is an input module, name its inputs with inputs:");
+    module("{ type: mux8m, number: 1, outputs: { 0: horn } }", ".outputs",
+           "mux8m has no digital outputs");
+    module("{ type: dim16, number: 1, inputs: { 16: door } }", ".inputs",
+           "'16' is not a input number: dim16 has inputs 0..15");
+    module("{ type: dim16, number: 1, inputs: { 0: \"\" } }", ".inputs.0", "must not be empty");
+    module("{ type: dom16, number: 1, outputs: { 0: [a] } }", ".outputs.0",
+           "expected a name such as \"pump running\", found a list");
+    expect_one_error({hub_for_tags + "        channels:\n          0: { unit: V }\n          00: "
+                                     "{ unit: A }\n",
+                      10, "links[0].modules[0].channels.0",
+                      "duplicate channel: channel 0 is already given at line 9"});
+}
+
 TEST(GatewayConfigErrors, IdentityObjects) {
     const auto identity = [](const std::string& text, const std::string& key,
                              const std::string& fragment) {
@@ -859,6 +1011,7 @@ links:
       - { type: dim16, number: 0, initial: 1 }
       - type: dim16
         number: 0
+        inputs: { 0: "a\x7f" }
   - name: hub0
     protocol: id2
     device: /dev/ttyUSB0
@@ -876,10 +1029,11 @@ links:
         {10, "links[0].modules[0].number"},
         {11, "links[0].modules[1].initial"},
         {12, "links[0].modules[2]"},
-        {14, "links[1].name"},
-        {16, "links[1].device"},
-        {17, "links[1].unit_id"},
-        {18, "links[1].modules"},
+        {14, "links[0].modules[2].inputs.0"},
+        {15, "links[1].name"},
+        {17, "links[1].device"},
+        {18, "links[1].unit_id"},
+        {19, "links[1].modules"},
     };
     EXPECT_EQ(found, expected) << describe(config.error());
 }
