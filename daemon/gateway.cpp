@@ -97,13 +97,17 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     const bool mqtt_changed = next.mqtt != config_.mqtt;
     Links links;
     struct {
-        std::vector<std::string> kept, restarted, added, removed;
+        std::vector<std::string> kept, retagged, restarted, added, removed;
     } names;
     for (const auto& link : next.links) {
         const auto old = std::find_if(links_.begin(), links_.end(), [&](const auto& running) {
             return running && running->config().name == link.name;
         });
         if (old != links_.end() && same_word_order && (*old)->config() == link) {
+            if (!config::same_tags((*old)->config(), link)) {
+                (*old)->retag(link);
+                names.retagged.push_back(link.name);
+            }
             links.push_back(*old);
             names.kept.push_back(link.name);
             old->reset();
@@ -150,10 +154,10 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     };
     auto summary = fmt::format(
         "links kept: {}; restarted: {}; added: {}; removed: {}; Modbus settings {}; HTTP {}; "
-        "MQTT {}",
+        "MQTT {}; names, units or scales changed: {}",
         list(names.kept), list(names.restarted), list(names.added), list(names.removed),
         modbus_changed ? "changed" : "unchanged", http_changed ? "changed" : "unchanged",
-        mqtt_changed ? "changed" : "unchanged");
+        mqtt_changed ? "changed" : "unchanged", list(names.retagged));
     events_.add(EventKind::reload, {}, {}, {}, fmt::format("configuration reloaded: {}", summary));
     return summary;
 }
@@ -218,6 +222,33 @@ std::string units_of(const modbus_security::Role& role) {
     for (std::size_t id = 0; id < role.units.size(); ++id)
         if (role.units.test(id)) units += fmt::format("{}{}", units.empty() ? "units " : ", ", id);
     return units;
+}
+
+// What a module's configuration names, units and scales, beyond the defaults (gateway.md §6.1).
+std::string tags_text(const config::ModuleConfig& module) {
+    const auto& tags = module.tags;
+    const auto defaults = gateway::default_tags(module.address);
+    std::string text;
+    if (tags.name != defaults.name) text += fmt::format("           name \"{}\"\n", tags.name);
+    for (std::size_t c = 0; c < tags.channels.size(); ++c) {
+        const auto& channel = tags.channels[c];
+        if (channel == defaults.channels[c]) continue;
+        text += fmt::format("           c{}", c);
+        if (!channel.name.empty()) text += fmt::format(" \"{}\"", channel.name);
+        text += channel.unit.empty() ? " no unit" : fmt::format(" {}", channel.unit);
+        if (const auto& s = channel.scale)
+            text += fmt::format(", scaled [{}, {}] to [{}, {}]", s->in_lo, s->in_hi, s->out_lo,
+                                s->out_hi);
+        text += fmt::format(", range {}..{}\n", channel.range[0], channel.range[1]);
+    }
+    std::vector<std::string> points;
+    for (std::size_t k = 0; k < tags.points.size(); ++k)
+        if (!tags.points[k].empty()) points.push_back(fmt::format("{} \"{}\"", k, tags.points[k]));
+    if (!points.empty())
+        text +=
+            fmt::format("           {} {}\n", is_output(module.address.type) ? "outputs" : "inputs",
+                        fmt::join(points, ", "));
+    return text;
 }
 
 }  // namespace
@@ -303,6 +334,7 @@ std::string check_config_text(const config::GatewayConfig& config) {
                 : module.poll.count() == 0
                     ? std::string("every cycle")
                     : fmt::format("poll every {}", format_duration(module.poll)));
+            text += tags_text(module);
         }
     }
     for (const auto& warning : config::warnings(config))

@@ -350,7 +350,7 @@ void store_polled(const Unit& unit, gateway::WordOrder order) {
         for (std::size_t c = 0; c < reading.raw.size(); ++c)
             reading.raw[c] = static_cast<std::uint16_t>(
                 static_cast<std::size_t>(slot(module.address)) * 0x0301 + c * 0x1111);
-        gateway::store_reading(tables, module.address, reading, order);
+        gateway::store_reading(tables, module.address, reading, order, module.tags);
     }
 }
 

@@ -687,7 +687,7 @@ Plan read_back(const UnitState& unit, const Policy& policy, std::uint16_t addres
 // --- The tables -----------------------------------------------------------------------------
 
 void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
-                   WordOrder order) {
+                   WordOrder order, const ModuleTags& tags) {
     for_each_channel(module, [&](const Region& region, int address, int c) {
         switch (region.content) {
             case Content::input_bit:
@@ -699,7 +699,9 @@ void store_reading(const Tables& tables, ModuleAddress module, const Reading& re
                 break;
             case Content::engineering:
                 put_words(tables, address,
-                          words(engineering_float(module.type, channel_raw(reading, c)), order));
+                          words(channel_value(module.type, channel_raw(reading, c), tags,
+                                              static_cast<std::size_t>(c)),
+                                order));
                 break;
             case Content::output_bit:
             case Content::output_word:

@@ -116,8 +116,9 @@ Plan read_back(const UnitState& unit, const Policy& policy, std::uint16_t addres
 
 // Raw words and float32 values of an ioport input module (dim16, lim16, acm3p, acm3c, dccim,
 // dcvim) from a good reading.
+// The float32 registers carry each channel's engineering value as `tags` scale it (§6.1).
 void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
-                   WordOrder order);
+                   WordOrder order, const ModuleTags& tags = no_tags);
 // A confirmed output state: dom16 holding register n and coils 16n…16n+15; rgbdm 8 + n;
 // mux8m 16 + n.
 void store_output(const Tables& tables, ModuleAddress module, std::uint16_t value);

@@ -9,6 +9,8 @@
 
 namespace ioport::gateway {
 
+const ModuleTags no_tags{};
+
 bool has_channels(ModuleType type) {
     return engineering_unit(type) != Unit::none;
 }
@@ -59,6 +61,12 @@ double scaled(ModuleType type, std::uint16_t raw, const Scale& scale) {
 float channel_value(ModuleType type, std::uint16_t raw, const std::optional<Scale>& scale) {
     if (!scale) return engineering_float(type, raw);
     return static_cast<float>(scaled(type, raw, *scale));
+}
+
+float channel_value(ModuleType type, std::uint16_t raw, const ModuleTags& tags,
+                    std::size_t channel) {
+    if (channel >= tags.channels.size()) return engineering_float(type, raw);
+    return channel_value(type, raw, tags.channels[channel].scale);
 }
 
 Result<> check_tag_text(std::string_view text, bool may_be_empty) {

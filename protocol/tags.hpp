@@ -42,6 +42,9 @@ struct ModuleTags {
     friend bool operator==(const ModuleTags&, const ModuleTags&) = default;
 };
 
+// The ID-2's: no module name of its own, no channels, no points.
+extern const ModuleTags no_tags;
+
 // Whether a module of this type has channels (analog) or named points (dim16, lim16, dom16).
 bool has_channels(ModuleType type);
 bool has_points(ModuleType type);
@@ -55,6 +58,9 @@ std::array<double, 2> default_range(ModuleType type, const std::optional<Scale>&
 // (engineering_float, bit for bit); with one, that formula in double mapped linearly and rounded
 // once. Not clamped: a reading outside [in_lo, in_hi] maps outside [out_lo, out_hi].
 float channel_value(ModuleType type, std::uint16_t raw, const std::optional<Scale>& scale);
+// The value of channel `channel` as `tags` scale it: unscaled where they have no such channel.
+float channel_value(ModuleType type, std::uint16_t raw, const ModuleTags& tags,
+                    std::size_t channel);
 // As above, before the rounding to float32: the loader checks that a scale stays within float32.
 double scaled(ModuleType type, std::uint16_t raw, const Scale& scale);
 

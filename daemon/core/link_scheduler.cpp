@@ -88,7 +88,9 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
         modules_.push_back({.name = "ID-2"});
         module_of_slot_[0] = 0;
     }
-    for (const auto& module : link.modules) {
+    for (auto& module : config_.modules) {
+        // A configuration made in code rather than loaded has no tags resolved yet.
+        if (module.tags.name.empty()) module.tags = gateway::default_tags(module.address);
         const int at = slot(module.address);
         entries_.push_back({.target = module.address,
                             .slot = at,
@@ -101,9 +103,17 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
         modules_.push_back({.name = to_string(module.address),
                             .address = module.address,
                             .slot = at,
-                            .trend = entries_.back().trend.get()});
+                            .trend = entries_.back().trend.get(),
+                            .tags = &module.tags});
         state_.status[static_cast<std::size_t>(at)] = ModuleStatus::not_polled;
     }
+}
+
+void LinkScheduler::retag(const config::LinkConfig& next) {
+    // config_.modules is never resized, so the modules' tag pointers stay where they are.
+    for (std::size_t i = 0; i < config_.modules.size(); ++i)
+        config_.modules[i].tags = next.modules[i].tags;
+    notify({.kind = Change::Kind::tags, .slot = -1});
 }
 
 void LinkScheduler::start() {

@@ -53,6 +53,9 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     void stop();
 
     const config::LinkConfig& config() const { return config_; }
+    // A reload that changed only names, units or scales (`next` == config() as settings): the
+    // link keeps running, its port open and its outputs as they are; subscribers are told.
+    void retag(const config::LinkConfig& next);
     // The port and every slot's status, as the Modbus map's planner decides requests by.
     const gateway::UnitState& state() const { return state_; }
     // Sends a validated write and completes when the device acknowledged it or it failed.

@@ -32,6 +32,9 @@ struct ModuleState {
     std::optional<bool> stop{};             // the ID-2's stop input
     std::optional<std::uint16_t> count{};   // the ID-2's counter
     const Trend* trend = nullptr;           // analog modules
+    // Names, units and scales (gateway.md §6.1); never null. Every value shown anywhere is
+    // gateway::channel_value(type, raw, tags->channels[c].scale).
+    const gateway::ModuleTags* tags = &gateway::no_tags;
 };
 
 // "online", "no answer", "bad answer", "not polled yet", "not configured".
@@ -62,6 +65,7 @@ struct Change {
         status,  // a module went online or offline
         port,    // the port opened, or was lost (every module's status with it)
         write,   // a write's outcome is known and audited
+        tags,    // a reload changed names, units or scales (slot -1); values are unchanged
     };
     Kind kind = Kind::values;
     int slot = -1;  // values, status: the module's slot; -1: every module

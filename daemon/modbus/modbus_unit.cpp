@@ -34,7 +34,19 @@ ModbusUnit::ModbusUnit(std::shared_ptr<LinkScheduler> link, gateway::WordOrder w
         store(module);
     (void)image(true);
     subscription_ = link_->subscribe([this](const Change& change) {
-        if (change.kind == Change::Kind::values) store(change.slot);
+        switch (change.kind) {
+            case Change::Kind::values:
+                store(change.slot);
+                break;
+            case Change::Kind::tags:  // rescaled: the float32 registers again
+                for (const auto& module : link_->modules())
+                    store(module);
+                break;
+            case Change::Kind::status:
+            case Change::Kind::port:
+            case Change::Kind::write:
+                break;  // the diagnostics are made per request, by image()
+        }
     });
 }
 
@@ -50,7 +62,7 @@ void ModbusUnit::store(const ModuleState& module) {
         return;
     }
     if (module.reading)
-        gateway::store_reading(tables, *module.address, *module.reading, word_order_);
+        gateway::store_reading(tables, *module.address, *module.reading, word_order_, *module.tags);
     if (module.output) gateway::store_output(tables, *module.address, *module.output);
 }
 

@@ -129,6 +129,17 @@ const std::vector<Module> hub_modules{
     {"mux8m", 0, ", initial: 0x0707"},
 };
 
+// Names, units and scales (gateway.md §6.1) on a few modules.
+const std::vector<Module> tagged_modules{
+    {"dim16", 0, R"(, inputs: { 0: "door open", 15: "pump running" })"},
+    {"dom16", 0, R"(, outputs: { 0: horn })"},
+    {"acm3p", 0,
+     R"(, name: "boiler 1", channels: { 0: { name: "supply temperature", unit: "°C", )"
+     R"(scale: [0, 100, -20, 150] }, 1: { name: pressure, unit: bar, scale: [20, 100, 0, 10], )"
+     R"(range: [0, 6] } })"},
+    {"dccim", 0, R"(, channels: { 0: { unit: mA, scale: [0, 6, 0, 6000] } })"},
+};
+
 // --- Raw Modbus TCP -------------------------------------------------------------------------
 
 // FC15/FC16 with `byte_count` as the byte count field and `data` bytes after it.
@@ -306,6 +317,15 @@ class ContractTest : public Contract {
     ModbusClient client{gateway.port()};
 };
 
+class TaggedContractTest : public Contract {
+  protected:
+    TaggedContractTest() : gateway(config(hub_link(hub.link(), tagged_modules))) {}
+
+    SimProcess hub{"--hub", sim_modules(tagged_modules), {"--no-line-timing"}};
+    GatewayProcess gateway;
+    ModbusClient client{gateway.port()};
+};
+
 class StaleHoldTest : public ContractTest {
   protected:
     StaleHoldTest() : ContractTest("  stale: hold") {}
@@ -397,6 +417,30 @@ TEST_F(ContractTest, AnalogModulesRawAndExactFloat32) {
     EXPECT_EQ(big_endian(*acm3c, 4), float_bits(100, 65535));
     EXPECT_EQ(big_endian(*dccim), float_bits(6, 12345));
     EXPECT_EQ(big_endian(*dcvim), float_bits(32, 54321));
+}
+
+// §6.1: the float32 registers carry the engineering value; the raw registers stay raw.
+TEST_F(TaggedContractTest, ScaledChannelsServeTheEngineeringValue) {
+    hub.ctl("set acm3p:0 13208 20000 65535");
+    hub.ctl("set dccim:0 32768");
+    ASSERT_TRUE(all_online(client));
+    ASSERT_TRUE(register_becomes(client, 18, 65535));  // acm3p 0 channel 2
+    ASSERT_TRUE(register_becomes(client, 64, 32768));  // dccim 0
+    EXPECT_EQ(ir_values(client, 16, 3), (std::vector<std::uint16_t>{13208, 20000, 65535}));
+    const auto scaled = [](std::uint16_t raw, double full_scale, double in_lo, double in_hi,
+                           double out_lo, double out_hi) {
+        const double unscaled = raw / 65535.0 * full_scale;
+        return std::bit_cast<std::uint32_t>(
+            static_cast<float>(out_lo + (unscaled - in_lo) * (out_hi - out_lo) / (in_hi - in_lo)));
+    };
+    const auto acm3p = client.read_input_registers(200, 6);
+    const auto dccim = client.read_input_registers(296, 2);
+    ASSERT_TRUE(acm3p && dccim);
+    EXPECT_EQ(big_endian(*acm3p, 0), scaled(13208, 100, 0, 100, -20, 150));  // 14.262 °C
+    EXPECT_EQ(big_endian(*acm3p, 2), scaled(20000, 100, 20, 100, 0, 10));    // 1.3147 bar
+    EXPECT_EQ(big_endian(*acm3p, 4), float_bits(100, 65535));                // unscaled: 100 %
+    EXPECT_EQ(big_endian(*dccim), scaled(32768, 6, 0, 6, 0, 6000));          // 3000.05 mA
+    EXPECT_EQ(std::bit_cast<float>(big_endian(*acm3p, 0)), 14.261997F);
 }
 
 TEST_F(ContractTest, Lim16AsDiscreteInputs128AndInputRegister8) {
@@ -1798,6 +1842,19 @@ TEST_F(ContractCli, CheckConfigOnAValidFilePrintsASummary) {
     EXPECT_NE(outcome.out.find("link hub0"), std::string::npos) << outcome.out;
     EXPECT_NE(outcome.out.find("link press"), std::string::npos) << outcome.out;
     EXPECT_NE(outcome.out.find("dcvim 7"), std::string::npos) << outcome.out;
+    // Names, units and scales beyond the defaults (gateway.md §6.1).
+    const auto tagged = run({IOPORTD_BINARY, "--config",
+                             write("tagged.yaml", config(hub_link(missing_device, tagged_modules))),
+                             "--check-config"});
+    EXPECT_EQ(tagged.exit_code, 0) << tagged.err;
+    for (const auto* expected :
+         {"name \"boiler 1\"",
+          "c0 \"supply temperature\" °C, scaled [0, 100] to [-20, 150], range -20..150",
+          "c1 \"pressure\" bar, scaled [20, 100] to [0, 10], range 0..6",
+          "inputs 0 \"door open\", 15 \"pump running\"", "outputs 0 \"horn\""})
+        EXPECT_NE(tagged.out.find(expected), std::string::npos)
+            << "missing '" << expected << "' in:\n"
+            << tagged.out;
 }
 
 TEST_F(ContractCli, CheckConfigReportsEveryErrorWithFileLineAndKey) {

@@ -1,7 +1,9 @@
 // ioportd's life as a service: systemd's protocol with a NOTIFY_SOCKET owned by the test (READY
 // once started, STATUS kept current, WATCHDOG at a quarter of WatchdogSec and only while every
 // link makes progress, RELOADING, STOPPING), SIGHUP reloads, and SIGTERM with a write in flight.
+#include <bit>
 #include <csignal>
+#include <optional>
 
 #include <gtest/gtest.h>
 
@@ -260,6 +262,63 @@ TEST(Reload, AValidConfigKeepsWhatItDoesNotChange) {
         auto state = client.read_input_registers(1000, 1);
         return state && (*state)[0] == 1;
     }));
+}
+
+std::string tagged_hub_yaml(const std::string& device, std::string_view acm3p_tags) {
+    return fmt::format(R"(modbus: {{ listen: "127.0.0.1:0" }}
+links:
+  - name: hub0
+    protocol: ioport
+    device: {}
+    timeout: 30ms
+    modules:
+      - {{ type: dom16, number: 0, initial: 0 }}
+      - {{ type: acm3p, number: 0{} }}
+)",
+                       device, acm3p_tags);
+}
+
+std::optional<float> float_at(ModbusClient& client, int address) {
+    const auto words = client.read_input_registers(address, 2);
+    if (!words) return std::nullopt;
+    return std::bit_cast<float>(std::uint32_t{(*words)[0]} << 16 | (*words)[1]);
+}
+
+// gateway.md §6.1: names, units and scales apply at once, without restarting the link: its port
+// stays open and its outputs keep the state clients wrote.
+TEST(Reload, ARenameOrRescaleAppliesAtOnceAndKeepsTheLink) {
+    SimProcess hub("--hub", "dom16:0,acm3p:0", {"--no-line-timing"});
+    hub.ctl("set acm3p:0 32768 0 0");
+    GatewayProcess gateway(tagged_hub_yaml(hub.link(), ""));
+    ModbusClient client(gateway.port());
+    const float percent = static_cast<float>(32768 / 65535.0 * 100.0);
+    ASSERT_TRUE(eventually([&] { return float_at(client, 200) == percent; }));
+    ASSERT_TRUE(client.write_register(0, 0x00FF));
+    ASSERT_EQ(hub.ctl("get dom16:0"), "255\n");
+
+    gateway.rewrite_config(tagged_hub_yaml(
+        hub.link(),
+        R"(, name: boiler, channels: { 0: { name: t, unit: "°C", scale: [0, 100, -20, 150] } })"));
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("SIGHUP: reloaded"));
+    EXPECT_NE(gateway.log().find("links kept: hub0; restarted: none"), std::string::npos)
+        << gateway.log();
+    EXPECT_NE(gateway.log().find("names, units or scales changed: hub0"), std::string::npos)
+        << gateway.log();
+    // The float is rescaled at once, not at the next change of the reading.
+    const float celsius = static_cast<float>(-20.0 + 32768 / 65535.0 * 100.0 * 1.7);
+    EXPECT_EQ(float_at(client, 200), celsius);
+    EXPECT_EQ(counter(client, 1008), 1U);  // the port was opened once
+    EXPECT_EQ(client.read_holding_registers(0, 1).value_or(std::vector<std::uint16_t>{}),
+              std::vector<std::uint16_t>{0x00FF});
+    EXPECT_EQ(hub.ctl("get dom16:0"), "255\n");
+
+    // And back: unscaled again.
+    const auto from = gateway.log().size();
+    gateway.rewrite_config(tagged_hub_yaml(hub.link(), ""));
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("names, units or scales changed: hub0", 5s, from));
+    EXPECT_EQ(float_at(client, 200), percent);
 }
 
 TEST(Reload, AnInvalidConfigIsRejectedAndTheRunningOneKept) {

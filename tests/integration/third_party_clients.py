@@ -37,13 +37,18 @@ links:
     modules:
       - {{ type: dim16, number: 0 }}
       - {{ type: dom16, number: 0 }}
-      - {{ type: acm3p, number: 0 }}
+      - {{ type: acm3p, number: 0, channels: {{ 0: {{ unit: "°C", scale: [0, 100, -20, 150] }} }} }}
       - {{ type: rgbdm, number: 0 }}
   - name: press
     protocol: id2
     device: {rig.id2_link}
     unit_id: 2
 """
+
+
+def float32(value):
+    """`value` rounded to single precision, as a float32 register holds it."""
+    return struct.unpack(">f", struct.pack(">f", value))[0]
 
 
 class ThirdPartyClients(unittest.TestCase):
@@ -110,9 +115,11 @@ class ThirdPartyClients(unittest.TestCase):
         self.assertEqual(bits.bits[:16], [True] + [False] * 14 + [True])
         eventually(lambda: self.client.read_input_registers(16, 1, slave=1).registers[0] == 13208,
                    what="acm3p 0 channel 0 is 13208")
-        r = self.client.read_input_registers(200, 2, slave=1)
-        value = struct.unpack(">f", struct.pack(">HH", *r.registers))[0]
-        self.assertEqual(value, struct.unpack(">f", struct.pack(">f", 13208 / 65535 * 100))[0])
+        r = self.client.read_input_registers(200, 4, slave=1)
+        values = struct.unpack(">ff", struct.pack(">HHHH", *r.registers))
+        # Channel 0 is scaled (gateway.md §6.1): the double formula, rounded once to float32.
+        self.assertEqual(values[0], float32(-20 + 13208 / 65535 * 100 * 170 / 100))
+        self.assertEqual(values[1], float32(41203 / 65535 * 100))  # channel 1: percent
 
     def test_pymodbus_writes_coils_and_registers(self):
         self.assertFalse(self.client.write_register(0, 0x1234, slave=1).isError())
@@ -204,7 +211,7 @@ class ThirdPartyClients(unittest.TestCase):
         self.mbpoll("-a", "1", "-t", "4", "-r", "1", "127.0.0.1", "4660")
         self.assertEqual(self.rig.ctl("get dom16:0"), "4660")
         out = self.mbpoll("-a", "1", "-t", "3:float", "-B", "-r", "201", "-c", "1", "127.0.0.1")
-        self.assertRegex(out, r"\[201\]:\s+20\.15")
+        self.assertRegex(out, r"\[201\]:\s+14\.26")  # 20.15 % scaled to °C
 
     def test_malformed_frame_closes_only_its_own_connection(self):
         with socket.create_connection(("127.0.0.1", self.port), timeout=3) as bad:

@@ -292,6 +292,18 @@ TEST(GatewayStore, FloatsInLittleWordOrderPutTheLowWordFirst) {
     EXPECT_EQ(image.input_registers[16], 13208);  // raw words have no order
 }
 
+TEST(GatewayStore, ScaledChannelsCarryTheEngineeringValueAndRawStaysRaw) {
+    Image image;
+    auto tags = default_tags(acm3p(0));
+    tags.channels[0].scale = Scale{0, 100, -20, 150};
+    store_reading(image.tables(), acm3p(0), Reading{{13208, 0, 65535}, 3}, WordOrder::big, tags);
+    EXPECT_EQ(image.input_registers[16], 13208);
+    // -20 + 20.154116…% × 1.7 = 14.262 °C, from the double and rounded once.
+    EXPECT_EQ(float_from_words(image.pair(200), WordOrder::big),
+              static_cast<float>(-20.0 + 13208 / 65535.0 * 100.0 * 170.0 / 100.0));
+    EXPECT_EQ(float_from_words(image.pair(204), WordOrder::big), 100.0F);  // channel 2: %
+}
+
 TEST(GatewayValues, EngineeringFloatIsTheVendorFormulaRoundedOnce) {
     EXPECT_EQ(std::bit_cast<std::uint32_t>(engineering_float(ModuleType::acm3p, 13208)),
               0x41A13BA1U);
