@@ -160,8 +160,10 @@ void check_map(const config::LinkConfig& link) {
         link.unit_id,
         link.name,
         {}};
-    for (const auto& module : link.modules)
+    for (const auto& module : link.modules) {
         unit.modules.push_back(module.address);
+        unit.tags.push_back(module.tags);
+    }
     const auto rows = gateway::map_rows(unit);
     check(!rows.empty(), "every unit has rows, its diagnostics at least");
     check(std::is_sorted(rows.begin(), rows.end(),

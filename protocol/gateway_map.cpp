@@ -434,14 +434,19 @@ std::string output_word_description(ModuleType type) {
     return "";
 }
 
-std::string analog_description(Content content, ModuleType type, int channel) {
+std::string analog_description(Content content, ModuleType type, int channel,
+                               const ChannelTag& tag) {
     const auto prefix = multichannel(type) ? fmt::format("channel {}: ", channel) : std::string{};
     if (content == Content::raw) return prefix + "raw 0-65535";
-    return fmt::format("{}raw / 65535 * {:g} {}", prefix, full_scale(type),
-                       symbol(engineering_unit(type)));
+    auto text = fmt::format("{}raw / 65535 * {:g} {}", prefix, full_scale(type),
+                            symbol(engineering_unit(type)));
+    if (const auto& s = tag.scale)
+        text += fmt::format(", scaled [{:g}, {:g}] to [{:g}, {:g}]", s->in_lo, s->in_hi, s->out_lo,
+                            s->out_hi);
+    return text;
 }
 
-std::string describe(Content content, ModuleType type, int channel) {
+std::string describe(Content content, ModuleType type, int channel, const ModuleTags& tags) {
     switch (content) {
         case Content::input_bit:
             return fmt::format("input {}", channel);
@@ -453,7 +458,8 @@ std::string describe(Content content, ModuleType type, int channel) {
             return output_word_description(type);
         case Content::raw:
         case Content::engineering:
-            return analog_description(content, type, channel);
+            return analog_description(content, type, channel,
+                                      tags.channels.at(static_cast<std::size_t>(channel)));
         case Content::stop_input:
             return "machine-stop input";
         case Content::counter:
@@ -501,8 +507,9 @@ std::string_view data_type(const Region& region) {
     return region.content == Content::engineering ? "float32" : "uint16";
 }
 
-std::string_view units(Content content, ModuleType type) {
-    if (content == Content::engineering) return symbol(engineering_unit(type));
+std::string_view units(Content content, const ModuleTags& tags, int channel) {
+    if (content == Content::engineering)
+        return tags.channels.at(static_cast<std::size_t>(channel)).unit;
     if (content == Content::age) return "ms";
     return "";
 }
@@ -519,17 +526,56 @@ std::string module_name(const UnitMap& unit, int s) {
     return to_string(module_at_slot(s));
 }
 
+// The tags of the module at slot `s`, every default where the map was given none.
+ModuleTags tags_at(const UnitMap& unit, int s) {
+    if (unit.kind == UnitKind::id2) return {.name = "ID-2", .channels = {}, .points = {}};
+    const auto module = module_at_slot(s);
+    const auto at = std::ranges::find(unit.modules, module);
+    const auto i = static_cast<std::size_t>(at - unit.modules.begin());
+    auto defaults = default_tags(module);
+    if (i >= unit.tags.size() || unit.tags[i].channels.size() != defaults.channels.size())
+        return defaults;
+    return unit.tags[i];
+}
+
+// The configured name of a channel or point, "" where it has none.
+std::string tag_name(Content content, const ModuleTags& tags, int channel) {
+    const auto c = static_cast<std::size_t>(channel);
+    switch (content) {
+        case Content::raw:
+        case Content::engineering:
+            return tags.channels.at(c).name;
+        case Content::input_bit:
+        case Content::output_bit:
+            return tags.points.at(c);
+        case Content::input_word:
+        case Content::output_word:
+        case Content::stop_input:
+        case Content::counter:
+        case Content::reset:
+        case Content::link:
+        case Content::status:
+        case Content::age:
+        case Content::online:
+            break;
+    }
+    return "";
+}
+
 MapRow module_row(const UnitMap& unit, const Region& region, int s, int channel) {
     const auto type = module_at_slot(s).type;
+    const auto tags = tags_at(unit, s);
     return {region.table,
             static_cast<std::uint16_t>(region.base(s) + channel * region.per_channel),
             unit.unit_id,
             module_name(unit, s),
             channel_name(region.content, type, channel),
             std::string{data_type(region)},
-            std::string{units(region.content, type)},
+            std::string{units(region.content, tags, channel)},
             std::string{access(region)},
-            describe(region.content, type, channel)};
+            describe(region.content, type, channel, tags),
+            tags.name,
+            tag_name(region.content, tags, channel)};
 }
 
 MapRow link_row(const UnitMap& unit, const LinkField& field) {
@@ -541,7 +587,9 @@ MapRow link_row(const UnitMap& unit, const LinkField& field) {
             std::string{field.data_type},
             std::string{field.units},
             "read",
-            std::string{field.description}};
+            std::string{field.description},
+            "",
+            ""};
 }
 
 std::array<bool, slot_count> configured_slots(const UnitMap& unit) {
@@ -566,11 +614,11 @@ void append_rows(std::vector<MapRow>& rows, const UnitMap& unit, const Region& r
     }
 }
 
-constexpr std::array<std::string_view, 10> column_names{"table",  "PDU address", "Modicon", "unit",
-                                                        "module", "channel",     "type",    "units",
-                                                        "access", "description"};
+constexpr std::array<std::string_view, 12> column_names{
+    "table", "PDU address", "Modicon", "unit",        "module",      "channel",
+    "type",  "units",       "access",  "description", "module name", "channel name"};
 
-std::array<std::string, 10> cells(const MapRow& row) {
+std::array<std::string, 12> cells(const MapRow& row) {
     return {std::string{modbus::to_string(row.table)},
             std::to_string(row.address),
             modicon_number(row.table, row.address),
@@ -580,7 +628,9 @@ std::array<std::string, 10> cells(const MapRow& row) {
             row.data_type,
             row.units,
             row.access,
-            row.description};
+            row.description,
+            row.module_name,
+            row.channel_name};
 }
 
 std::string markdown_cell(std::string_view text) {
@@ -826,7 +876,7 @@ std::vector<MapRow> map_rows(const UnitMap& unit) {
 std::string format_markdown(std::span<const MapRow> rows) {
     const auto plain = [](std::string_view text) { return std::string{text}; };
     std::string out = "| " + join_line(column_names, " | ", plain) + " |\n";
-    out += "|---|---|---|---|---|---|---|---|---|---|\n";
+    out += "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     for (const auto& row : rows)
         out += "| " + join_line(cells(row), " | ", markdown_cell) + " |\n";
     return out;

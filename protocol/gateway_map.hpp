@@ -175,6 +175,9 @@ struct MapRow {
     std::string units;        // %, A, V, ms, 0.1 ms, or ""
     std::string access;       // read, read/write, write
     std::string description;  // "input 3", "colour: 0 off … 7 white", …
+    // gateway.md §6.1, after the ten columns of §4 so that readers of those keep working:
+    std::string module_name;   // "boiler 1"; the module's id when not configured; "" for the link
+    std::string channel_name;  // the channel's or point's configured name, else ""
 };
 // "000001", "100001", "300001", "400001" + address.
 std::string modicon_number(modbus::Table table, std::uint16_t address);
@@ -184,6 +187,7 @@ struct UnitMap {
     int unit_id;
     std::string link_name;
     std::vector<ModuleAddress> modules;  // ioport only
+    std::vector<ModuleTags> tags{};      // parallel to `modules`; none: every default
 };
 // Every address of the unit's configured modules and its diagnostics (32-bit values one row at
 // their first address), ordered by table (coils, discrete inputs, holding registers, input

@@ -446,16 +446,18 @@ std::string map_html(std::span<const gateway::MapRow> rows) {
         "<table><thead><tr><th scope=\"col\">Unit</th><th scope=\"col\">Table</th>"
         "<th scope=\"col\">Address</th><th scope=\"col\">Modicon</th><th scope=\"col\">Module"
         "</th><th scope=\"col\">Channel</th><th scope=\"col\">Type</th><th scope=\"col\">Units"
-        "</th><th scope=\"col\">Access</th><th scope=\"col\">Description</th></tr></thead>"
+        "</th><th scope=\"col\">Access</th><th scope=\"col\">Description</th>"
+        "<th scope=\"col\">Module name</th><th scope=\"col\">Channel name</th></tr></thead>"
         "<tbody>\n";
     for (const auto& row : rows)
         html += fmt::format(
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>"
-            "<td>{}</td><td>{}</td><td>{}</td></tr>\n",
+            "<td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>\n",
             row.unit_id, html_escaped(modbus::to_string(row.table)), row.address,
             gateway::modicon_number(row.table, row.address), html_escaped(row.module),
             html_escaped(row.channel), html_escaped(row.data_type), html_escaped(row.units),
-            html_escaped(row.access), html_escaped(row.description));
+            html_escaped(row.access), html_escaped(row.description), html_escaped(row.module_name),
+            html_escaped(row.channel_name));
     html += "</tbody></table></body></html>\n";
     return html;
 }
@@ -551,8 +553,10 @@ std::string render_map(const config::GatewayConfig& config, MapFormat format) {
                               link.unit_id,
                               link.name,
                               {}};
-        for (const auto& module : link.modules)
+        for (const auto& module : link.modules) {
             unit.modules.push_back(module.address);
+            unit.tags.push_back(module.tags);
+        }
         auto unit_rows = gateway::map_rows(unit);
         rows.insert(rows.end(), unit_rows.begin(), unit_rows.end());
     }

@@ -1902,14 +1902,35 @@ TEST_F(ContractCli, PrintMapAsMarkdownAndCsvWithoutOpeningPorts) {
     EXPECT_EQ(csv.exit_code, 0) << csv.err;
     EXPECT_TRUE(
         csv.out.starts_with("table,PDU address,Modicon,unit,module,channel,type,units,"
-                            "access,description\r\n"))
+                            "access,description,module name,channel name\r\n"))
         << csv.out.substr(0, 200);
-    EXPECT_NE(csv.out.find("\r\ndiscrete inputs,0,100001,1,dim16 0,i0,bit,,read,input 0\r\n"),
-              std::string::npos);
+    EXPECT_NE(
+        csv.out.find("\r\ndiscrete inputs,0,100001,1,dim16 0,i0,bit,,read,input 0,dim16 0,\r\n"),
+        std::string::npos);
     EXPECT_NE(csv.out.find("\r\ninput registers,326,300327,1,dcvim 7,,float32,V,read,"),
               std::string::npos);
     EXPECT_NE(csv.out.find("\r\ninput registers,1001,301002,1,link hub0,,uint16,0.1 ms,read,"),
               std::string::npos);
+
+    // gateway.md §6.1: module and channel names, and the units of scaled channels.
+    const auto tagged_path =
+        write("tagged-map.yaml", config(hub_link(missing_device, tagged_modules)));
+    const auto tagged = run({IOPORTD_BINARY, "--config", tagged_path, "--print-map"}, 5s);
+    EXPECT_EQ(tagged.exit_code, 0) << tagged.err;
+    for (const char* row :
+         {"| input registers | 200 | 300201 | 1 | acm3p 0 | c0 | float32 | °C | read | channel 0: "
+          "raw / 65535 * 100 %, scaled [0, 100] to [-20, 150] | boiler 1 | supply temperature |",
+          "| input registers | 202 | 300203 | 1 | acm3p 0 | c1 | float32 | bar |",
+          "| input registers | 204 | 300205 | 1 | acm3p 0 | c2 | float32 | % | read | channel 2: "
+          "raw / 65535 * 100 % | boiler 1 |  |",
+          "| input registers | 296 | 300297 | 1 | dccim 0 |  | float32 | mA |",
+          "| discrete inputs | 15 | 100016 | 1 | dim16 0 | i15 | bit |  | read | input 15 | dim16 "
+          "0 "
+          "| pump running |",
+          "| coils | 0 | 000001 | 1 | dom16 0 | o0 | bit |  | read/write | output 0 | dom16 0 | "
+          "horn |"})
+        EXPECT_NE(tagged.out.find(row), std::string::npos) << "missing " << row << " in\n"
+                                                           << tagged.out;
 }
 
 TEST_F(ContractCli, VersionHelpAndBadArguments) {

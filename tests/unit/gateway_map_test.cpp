@@ -1079,11 +1079,12 @@ TEST(GatewayMap, Markdown) {
     const auto text = format_markdown(rows);
     const std::string header =
         "| table | PDU address | Modicon | unit | module | channel | type | units | access | "
-        "description |\n"
-        "|---|---|---|---|---|---|---|---|---|---|\n";
+        "description | module name | channel name |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     ASSERT_EQ(text.substr(0, header.size()), header);
     EXPECT_EQ(text.substr(header.size(), text.find('\n', header.size()) + 1 - header.size()),
-              "| coils | 0 | 000001 | 1 | dom16 0 | o0 | bit |  | read/write | output 0 |\n");
+              "| coils | 0 | 000001 | 1 | dom16 0 | o0 | bit |  | read/write | output 0 | dom16 0 "
+              "|  |\n");
     EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 2 + 70);
     // A | inside a cell would end it.
     EXPECT_NE(text.find("| 16 | 400017 | 1 | mux8m 0 |  | uint16 |  | read/write | (pos << 8) "
@@ -1099,10 +1100,11 @@ TEST(GatewayMap, Csv) {
     const auto rows = map_rows(small_ioport());
     const auto text = format_csv(rows);
     const std::string header =
-        "table,PDU address,Modicon,unit,module,channel,type,units,access,description\r\n";
+        "table,PDU address,Modicon,unit,module,channel,type,units,access,description,module "
+        "name,channel name\r\n";
     ASSERT_EQ(text.substr(0, header.size()), header);
     EXPECT_EQ(text.substr(header.size(), text.find('\n', header.size()) + 1 - header.size()),
-              "coils,0,000001,1,dom16 0,o0,bit,,read/write,output 0\r\n");
+              "coils,0,000001,1,dom16 0,o0,bit,,read/write,output 0,dom16 0,\r\n");
     EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 1 + 70);
     EXPECT_NE(text.find("holding registers,8,400009,1,rgbdm 0,,uint16,,read/write,\"colour: 0 "
                         "off, 1 red,"),
@@ -1111,11 +1113,50 @@ TEST(GatewayMap, Csv) {
 }
 
 TEST(GatewayMap, CsvQuotesOnlyWhatNeedsIt) {
-    const std::vector<MapRow> rows{
-        {Table::input_registers, 7, 9, "a \"b\"", "x,y", "uint16", "", "read", "plain"}};
+    const std::vector<MapRow> rows{{Table::input_registers, 7, 9, "a \"b\"", "x,y", "uint16", "",
+                                    "read", "plain", "m, 1", "°C"}};
     EXPECT_EQ(format_csv(rows),
-              "table,PDU address,Modicon,unit,module,channel,type,units,access,description\r\n"
-              "input registers,7,300008,9,\"a \"\"b\"\"\",\"x,y\",uint16,,read,plain\r\n");
+              "table,PDU address,Modicon,unit,module,channel,type,units,access,description,module "
+              "name,channel name\r\n"
+              "input registers,7,300008,9,\"a \"\"b\"\"\",\"x,y\",uint16,,read,plain,\"m, 1\","
+              "°C\r\n");
+}
+
+// gateway.md §6.1: names, units and scales in the map, after the ten columns of §4.
+TEST(GatewayMap, RowsCarryNamesUnitsAndScales) {
+    auto unit = small_ioport();
+    for (const auto module : unit.modules)
+        unit.tags.push_back(default_tags(module));
+    unit.tags[0].points[5] = "pump running";  // dim16 0
+    unit.tags[1].points[0] = "horn";          // dom16 0
+    unit.tags[2].name = "boiler 1";           // acm3p 0
+    unit.tags[2].channels[0] = {"supply temperature", "°C", Scale{0, 100, -20, 150}, {-20, 150}};
+    const auto rows = map_rows(unit);
+
+    const auto* value = find_row(rows, Table::input_registers, 200);
+    ASSERT_NE(value, nullptr);
+    EXPECT_EQ(value->module, "acm3p 0");  // §4's columns as they were
+    EXPECT_EQ(value->channel, "c0");
+    EXPECT_EQ(value->units, "°C");
+    EXPECT_EQ(value->description, "channel 0: raw / 65535 * 100 %, scaled [0, 100] to [-20, 150]");
+    EXPECT_EQ(value->module_name, "boiler 1");
+    EXPECT_EQ(value->channel_name, "supply temperature");
+    const auto* raw = find_row(rows, Table::input_registers, 16);
+    ASSERT_NE(raw, nullptr);
+    EXPECT_EQ(raw->channel_name, "supply temperature");
+    EXPECT_EQ(raw->units, "");
+    const auto* unscaled = find_row(rows, Table::input_registers, 202);
+    ASSERT_NE(unscaled, nullptr);
+    EXPECT_EQ(unscaled->units, "%");
+    EXPECT_EQ(unscaled->channel_name, "");
+    EXPECT_EQ(find_row(rows, Table::input_registers, 1116)->module_name, "boiler 1");  // status
+    EXPECT_EQ(find_row(rows, Table::discrete_inputs, 5)->channel_name, "pump running");
+    EXPECT_EQ(find_row(rows, Table::discrete_inputs, 4)->channel_name, "");
+    EXPECT_EQ(find_row(rows, Table::coils, 0)->channel_name, "horn");
+    EXPECT_EQ(find_row(rows, Table::input_registers, 1002)->module_name, "");  // the link's
+    EXPECT_NE(format_markdown(rows).find("| read | channel 0: raw / 65535 * 100 %, scaled [0, "
+                                         "100] to [-20, 150] | boiler 1 | supply temperature |"),
+              std::string::npos);
 }
 
 }  // namespace
