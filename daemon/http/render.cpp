@@ -50,7 +50,8 @@ struct Channel {
 };
 
 // The input channels of a module that has been read: dim16/lim16 inputs 0..15 as 0/1, analog
-// channels in engineering units, the ID-2's stop input and count.
+// channels in engineering units (scaled where configured: the float32 of every other path), the
+// ID-2's stop input and count.
 std::vector<Channel> input_channels(const ModuleState& module) {
     std::vector<Channel> channels;
     if (!module.address) {
@@ -65,7 +66,8 @@ std::vector<Channel> input_channels(const ModuleState& module) {
         for (int ch = 0; ch < reading.count; ++ch)
             channels.push_back(
                 {std::to_string(ch),
-                 engineering_value(type, reading.raw[static_cast<std::size_t>(ch)])});
+                 gateway::channel_value(type, reading.raw[static_cast<std::size_t>(ch)],
+                                        *module.tags, static_cast<std::size_t>(ch))});
     } else {
         for (int bit = 0; bit < 16; ++bit)
             channels.push_back({std::to_string(bit), (reading.raw[0] >> bit & 1) != 0 ? 1.0 : 0.0});
@@ -111,6 +113,43 @@ void link_families(Exposition& out, const Links& links) {
                 link->writes()[r]);
 }
 
+// Names and units (gateway.md §6.1) as info metrics, so that a query joins them onto the values:
+// ioportd_input_value * on(link, module, channel) group_left(name, unit) ioportd_channel_info.
+// Their labels come from the configuration alone: bounded, and no client can add a series.
+void info_families(Exposition& out, const Links& links) {
+    out.family("ioportd_module_info", "gauge", "The module's configured name (value 1)");
+    for (const auto& link : links)
+        for (const auto& module : link->modules())
+            if (module.address)
+                out.sample("ioportd_module_info",
+                           {{"link", link->config().name},
+                            {"module", module.name},
+                            {"name", module.tags->name}},
+                           1);
+    out.family("ioportd_channel_info", "gauge",
+               "Name and unit of an input channel (value 1): every analog channel, and the "
+               "digital inputs that have a name");
+    for (const auto& link : links)
+        for (const auto& module : link->modules()) {
+            const auto& tags = *module.tags;
+            const auto info = [&](std::size_t channel, const std::string& name,
+                                  const std::string& unit) {
+                out.sample("ioportd_channel_info",
+                           {{"link", link->config().name},
+                            {"module", module.name},
+                            {"channel", std::to_string(channel)},
+                            {"name", name},
+                            {"unit", unit}},
+                           1);
+            };
+            for (std::size_t c = 0; c < tags.channels.size(); ++c)
+                info(c, tags.channels[c].name, tags.channels[c].unit);
+            if (module.address && !is_output(module.address->type))
+                for (std::size_t k = 0; k < tags.points.size(); ++k)
+                    if (!tags.points[k].empty()) info(k, tags.points[k], "");
+        }
+}
+
 void module_families(Exposition& out, const Links& links) {
     const auto now = Clock::now();
     out.family("ioportd_module_status", "gauge",
@@ -130,7 +169,8 @@ void module_families(Exposition& out, const Links& links) {
                            {{"link", links[l]->config().name}, {"module", module.name}}, *seconds);
     out.family("ioportd_input_value", "gauge",
                "Last good reading of an input channel: 0/1 for digital inputs, engineering "
-               "units for analog channels (%, A, V), the ID-2's stop (0/1) and count");
+               "units for analog channels (scaled where configured, see ioportd_channel_info), "
+               "the ID-2's stop (0/1) and count");
     for (std::size_t l = 0; l < links.size(); ++l)
         for (const auto& module : links[l]->modules())
             for (const auto& channel : input_channels(module))
@@ -139,6 +179,7 @@ void module_families(Exposition& out, const Links& links) {
                             {"module", module.name},
                             {"channel", channel.name}},
                            channel.value);
+    info_families(out, links);
     out.family("ioportd_output_value", "gauge",
                "Output state the device last confirmed: the dom16 word, the rgbdm colour code, "
                "the mux8m setting (pos << 8 | neg)");
@@ -255,30 +296,52 @@ void module_values(Json& json, const ModuleState& module) {
         json.key("word");
         value ? json.value(static_cast<int>(*value)) : json.null();
     };
+    const auto& tags = *module.tags;
+    // Named points only, by number: {"5": "pump running"}.
+    const auto points = [&](std::string_view key) {
+        json.key(key).begin_object();
+        for (std::size_t k = 0; k < tags.points.size(); ++k)
+            if (!tags.points[k].empty()) json.member(std::to_string(k), tags.points[k]);
+        json.end_object();
+    };
     switch (type) {
         case ModuleType::dim16:
         case ModuleType::lim16:
             word(module.reading ? std::optional(module.reading->raw[0]) : std::nullopt);
+            points("inputs");
             return;
         case ModuleType::dom16:
             word(module.output);
+            points("outputs");
             return;
         case ModuleType::acm3p:
         case ModuleType::acm3c:
         case ModuleType::dccim:
         case ModuleType::dcvim: {
             json.key("channels").begin_array();
-            const auto unit = symbol(engineering_unit(type));
-            for (int ch = 0; ch < reply_words(type); ++ch) {
+            for (std::size_t ch = 0; ch < tags.channels.size(); ++ch) {
+                const auto& tag = tags.channels[ch];
                 json.begin_object();
                 if (module.reading) {
-                    const auto raw = module.reading->raw[static_cast<std::size_t>(ch)];
+                    const auto raw = module.reading->raw[ch];
                     json.member("raw", static_cast<int>(raw));
-                    json.member("value", gateway::engineering_float(type, raw));
+                    json.member("value", gateway::channel_value(type, raw, tag.scale));
                 } else {
                     json.key("raw").null().key("value").null();
                 }
-                json.member("unit", unit).end_object();
+                json.member("unit", tag.unit).member("name", tag.name);
+                json.key("range").begin_array().value(tag.range[0]).value(tag.range[1]).end_array();
+                json.key("scale");
+                if (const auto& s = tag.scale)
+                    json.begin_array()
+                        .value(s->in_lo)
+                        .value(s->in_hi)
+                        .value(s->out_lo)
+                        .value(s->out_hi)
+                        .end_array();
+                else
+                    json.null();
+                json.end_object();
             }
             json.end_array();
             return;
@@ -328,6 +391,7 @@ void link_json(Json& json, const LinkScheduler& link, Clock::time_point now) {
     for (const auto& module : link.modules()) {
         json.begin_object()
             .member("module", module.name)
+            .member("name", module.address ? module.tags->name : module.name)
             .member("type", module.address ? name(module.address->type) : "id2")
             .member("number", module.address ? static_cast<int>(module.address->number) : 0)
             .member("slot", module.slot)
@@ -522,19 +586,23 @@ std::string render_trends(const GatewayView& gateway) {
         for (const auto& module : link->modules()) {
             if (!module.trend || !module.address) continue;
             const auto type = module.address->type;
-            for (int ch = 0; ch < reply_words(type); ++ch) {
+            const auto& tags = *module.tags;
+            // The points keep raw words, so the whole span is drawn with today's scale.
+            for (std::size_t ch = 0; ch < tags.channels.size(); ++ch) {
+                const auto& tag = tags.channels[ch];
                 json.begin_object()
                     .member("link", link->config().name)
                     .member("module", module.name)
-                    .member("channel", ch)
-                    .member("unit", symbol(engineering_unit(type)));
+                    .member("channel", static_cast<int>(ch))
+                    .member("name", tag.name)
+                    .member("unit", tag.unit);
+                json.key("range").begin_array().value(tag.range[0]).value(tag.range[1]).end_array();
                 json.key("points").begin_array();
                 for (std::size_t i = 0; i < module.trend->size(); ++i) {
                     const auto& point = (*module.trend)[i];
                     json.begin_array()
                         .value(point.time)
-                        .value(gateway::engineering_float(type,
-                                                          point.raw[static_cast<std::size_t>(ch)]))
+                        .value(gateway::channel_value(type, point.raw[ch], tag.scale))
                         .end_array();
                 }
                 json.end_array().end_object();

@@ -249,6 +249,113 @@ TEST_F(Http, MetricsHasEveryFamilyOfTheContractWithHelpAndTypeAndPassesPromtool)
     expect_promtool_passes(reply.body);
 }
 
+// gateway.md §6.1: names, units and scales on /metrics, the state and the trends. The channel's
+// name holds a quote and a backslash, which the exposition and JSON must escape.
+std::string tagged_yaml(const std::string& device, std::string_view acm3p_name) {
+    return fmt::format(R"(modbus: {{ listen: "127.0.0.1:0" }}
+http: {{ listen: "127.0.0.1:0" }}
+links:
+  - name: hub0
+    protocol: ioport
+    device: {}
+    timeout: 30ms
+    modules:
+      - {{ type: dim16, number: 0, inputs: {{ 5: "pump running" }} }}
+      - {{ type: dom16, number: 0, outputs: {{ 0: horn }} }}
+      - type: acm3p
+        number: 0
+        name: "{}"
+        channels:
+          0: {{ name: "supply \"temp\" \\ 1", unit: "°C", scale: [0, 100, -20, 150] }}
+)",
+                       device, acm3p_name);
+}
+
+class TaggedHttp : public ::testing::Test {
+  protected:
+    TaggedHttp() {
+        hub.ctl("set acm3p:0 13208 41203 0");
+        hub.ctl("set dim16:0 0x0020");
+    }
+    std::uint16_t http_port() const { return gateway.http_port(); }
+
+    SimProcess hub{"--hub", std::string(modules), {"--no-line-timing"}};
+    GatewayProcess gateway{tagged_yaml(hub.link(), "boiler 1")};
+};
+
+TEST_F(TaggedHttp, MetricsStateAndTrendsShowNamesUnitsAndScaledValues) {
+    const double celsius = static_cast<float>(-20.0 + 13208 / 65535.0 * 100.0 * 1.7);
+    const double percent = static_cast<float>(41203 / 65535.0 * 100.0);
+    const std::string value0 = R"(ioportd_input_value{link="hub0",module="acm3p 0",channel="0"})";
+    ASSERT_TRUE(eventually([&] { return sample(http_port(), value0) == celsius; }));
+    const auto text = http_get(http_port(), "/metrics").body;
+    const auto all = samples(text);
+    // The float32 every path shows, unscaled channels included (no longer the double formula).
+    EXPECT_EQ(all.at(R"(ioportd_input_value{link="hub0",module="acm3p 0",channel="1"})"), percent);
+    for (
+        const auto* key :
+        {R"(ioportd_channel_info{link="hub0",module="acm3p 0",channel="0",name="supply \"temp\" \\ 1",unit="°C"})",
+         R"(ioportd_channel_info{link="hub0",module="acm3p 0",channel="1",name="",unit="%"})",
+         R"(ioportd_channel_info{link="hub0",module="dim16 0",channel="5",name="pump running",unit=""})",
+         R"(ioportd_module_info{link="hub0",module="acm3p 0",name="boiler 1"})",
+         R"(ioportd_module_info{link="hub0",module="dim16 0",name="dim16 0"})"})
+        EXPECT_EQ(all.count(key) == 1 ? all.at(key) : 0.0, 1.0) << key << "\n" << text;
+    // Unnamed inputs and outputs have no info series: the values' labels suffice.
+    EXPECT_EQ(text.find(R"(ioportd_channel_info{link="hub0",module="dim16 0",channel="4")"),
+              std::string::npos);
+    EXPECT_EQ(text.find(R"(ioportd_channel_info{link="hub0",module="dom16 0")"), std::string::npos);
+    expect_promtool_passes(text);
+
+    const auto acm3p = [&](const std::string& expression) {
+        return state(http_port(),
+                     "[m for m in d['links'][0]['modules'] if m['module'] == "
+                     "'acm3p 0'][0]" +
+                         expression);
+    };
+    EXPECT_EQ(acm3p("['name']"), R"("boiler 1")");
+    EXPECT_EQ(acm3p("['channels'][0]['name']"), R"("supply \"temp\" \\ 1")");
+    EXPECT_EQ(acm3p("['channels'][0]['unit']"), R"("\u00b0C")");
+    EXPECT_EQ(acm3p("['channels'][0]['scale']"), "[0, 100, -20, 150]");
+    EXPECT_EQ(acm3p("['channels'][0]['range']"), "[-20, 150]");
+    // JSON carries the shortest text that reads back as the float32.
+    EXPECT_EQ(acm3p("['channels'][0]['value']"), fmt::format("{}", static_cast<float>(celsius)));
+    EXPECT_EQ(acm3p("['channels'][1]['scale']"), "null");
+    EXPECT_EQ(acm3p("['channels'][1]['unit']"), R"("%")");
+    EXPECT_EQ(state(http_port(), "d['links'][0]['modules'][0]['inputs']"),
+              R"({"5": "pump running"})");
+    EXPECT_EQ(state(http_port(), "d['links'][0]['modules'][1]['outputs']"), R"({"0": "horn"})");
+
+    const auto trends = http_get(http_port(), "/api/v1/trends").body;
+    const auto series = [&](const std::string& expression) {
+        return json_eval(trends,
+                         "[s for s in d['series'] if s['module'] == 'acm3p 0' and "
+                         "s['channel'] == 0][0]" +
+                             expression);
+    };
+    EXPECT_EQ(series("['unit']"), R"("\u00b0C")");
+    EXPECT_EQ(series("['range']"), "[-20, 150]");
+    EXPECT_TRUE(eventually([&] {
+        const auto now = http_get(http_port(), "/api/v1/trends").body;
+        return json_eval(now, "all(abs(p[1] - " + fmt::format("{:.9g}", celsius) +
+                                  ") < 1e-3 for s in d['series'] if s['module'] == 'acm3p 0' and "
+                                  "s['channel'] == 0 for p in s['points']) and len([s for s in "
+                                  "d['series'] if s['module'] == 'acm3p 0'][0]['points']) > 0") ==
+               "true";
+    }));
+}
+
+TEST_F(TaggedHttp, ARenameShowsOnTheNextScrapeWithoutReopeningThePort) {
+    const std::string info = R"(ioportd_module_info{link="hub0",module="acm3p 0",name="boiler 2"})";
+    ASSERT_TRUE(
+        eventually([&] { return sample(http_port(), "ioportd_link_up{link=\"hub0\"}") == 1; }));
+    gateway.rewrite_config(tagged_yaml(hub.link(), "boiler 2"));
+    gateway.signal(SIGHUP);
+    ASSERT_TRUE(gateway.wait_for_log("names, units or scales changed: hub0"));
+    EXPECT_EQ(sample(http_port(), info), 1);
+    EXPECT_EQ(sample(http_port(), "ioportd_link_reopens_total{link=\"hub0\"}"), 0);
+    EXPECT_EQ(state(http_port(), "d['links'][0]['modules'][2]['name']"), R"("boiler 2")");
+}
+
 TEST_F(Http, MetricsFollowTheInputsTheReadsAndTheWrites) {
     const std::string channel3 = R"(ioportd_input_value{link="hub0",module="dim16 0",channel="3"})";
     hub.ctl("set dim16:0 0x0000");

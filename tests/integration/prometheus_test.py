@@ -2,7 +2,7 @@
 """ioportd scraped by a real Prometheus server (Debian's /usr/bin/prometheus): the exposition of
 /metrics is one that Prometheus ingests, and a change at a simulated device shows in its queries.
 
-ioport-sim (a hub with dim16 0 and dom16 0) on a pty, ioportd on it with HTTP on a free loopback
+ioport-sim (a hub with dim16 0, dom16 0 and acm3p 0) on a pty, ioportd on it with HTTP on a free loopback
 port, Prometheus on another with a 1 s scrape interval and its TSDB in a temporary directory.
 Every wait has a deadline; Prometheus, ioportd and the simulator are killed at the end, always.
 
@@ -11,6 +11,7 @@ Usage: prometheus_test.py IOPORTD IOPORT_SIM [PROMETHEUS]
 import json
 import os
 import shutil
+import struct
 import subprocess
 import sys
 import tempfile
@@ -37,6 +38,11 @@ links:
     modules:
       - {{ type: dim16, number: 0 }}
       - {{ type: dom16, number: 0 }}
+      - type: acm3p
+        number: 0
+        name: "boiler 1"
+        channels:
+          0: {{ name: "supply temperature", unit: "°C", scale: [0, 100, -20, 150] }}
 """
 
 
@@ -110,7 +116,7 @@ class ScrapedByPrometheus(unittest.TestCase):
         self.rig = Rig(self.dir, IOPORTD, IOPORT_SIM, preexec_fn=die_with_parent)
         self.prometheus = None
         try:
-            self.rig.start_hub("dim16:0,dom16:0")
+            self.rig.start_hub("dim16:0,dom16:0,acm3p:0")
             self.rig.write_config(CONFIG.format(hub_link=self.rig.hub_link))
             self.rig.start_daemon()
             self.prometheus = Prometheus(self.dir, self.rig.listening_port("HTTP"))
@@ -179,6 +185,26 @@ class ScrapedByPrometheus(unittest.TestCase):
             "histogram_quantile(0.5, ioportd_modbus_request_duration_seconds_bucket)")
         self.assertIsNotNone(quantile)
         self.assertEqual(self.value('count(ioportd_build_info{job="ioportd"})'), 1)
+
+    def test_prometheus_sees_scaled_values_with_their_names_and_units(self):
+        """gateway.md §6.1: the engineering value, and names and units joined on by PromQL."""
+        self.rig.ctl("set acm3p:0 13208 0 0")
+        celsius = struct.unpack("<f", struct.pack("<f", -20 + 13208 / 65535 * 100 * 1.7))[0]
+        value = 'ioportd_input_value{module="acm3p 0",channel="0"}'
+        eventually(lambda: self.value(value) == celsius, 15,
+                   lambda: f"{value} == {celsius}: {self.prometheus.query(value)}\n"
+                   + self.prometheus.scrape_errors(), interval=0.2)
+        info = 'ioportd_channel_info{name="supply temperature",unit="°C"}'
+        self.assertEqual(self.value(info), 1)
+        self.assertEqual(self.value('ioportd_module_info{module="acm3p 0",name="boiler 1"}'), 1)
+        joined = self.prometheus.query(
+            'ioportd_input_value * on(link, module, channel) group_left(name, unit) '
+            'ioportd_channel_info{name="supply temperature"}')
+        self.assertEqual(len(joined), 1, joined)
+        labels, joined_value = joined[0]
+        self.assertEqual((labels["name"], labels["unit"], labels["channel"]),
+                         ("supply temperature", "°C", "0"))
+        self.assertEqual(joined_value, celsius)
 
 
 if __name__ == "__main__":
