@@ -27,7 +27,7 @@ import urllib.parse
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 PAGE = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..',
-                    'daemon', 'status_page', 'index.html')
+                    'daemon', 'http', 'status_page', 'index.html')
 PREFIX = '/ioportd'  # the same site under a path, as behind a reverse proxy
 STATUS_TEXT = {1: 'online', 2: 'no answer', 3: 'bad answer', 4: 'not polled yet'}
 COLOURS = ['off', 'red', 'green', 'blue', 'cyan', 'magenta', 'yellow', 'white']
@@ -68,25 +68,31 @@ class Module:
         self.values = values
 
     def json(self, now):
-        m = {'module': self.name, 'type': self.type, 'number': self.number, 'slot': self.slot,
+        # Names as gateway.md §6.1 configures them: acm3p 0 and its channel 0, inputs of dim16 0.
+        named = self.type == 'acm3p' and self.number == 0
+        m = {'module': self.name, 'name': 'boiler 1' if named else self.name,
+             'type': self.type, 'number': self.number, 'slot': self.slot,
              'status': self.status, 'status_text': STATUS_TEXT[self.status],
              'age_seconds': None if self.last_good is None else round(now - self.last_good, 3)}
         if self.type in FULL_SCALE:
             full, unit = FULL_SCALE[self.type]
             count = 3 if self.type in ('acm3p', 'acm3c') else 1
-            if self.last_good is None:
-                m['channels'] = [{'raw': None, 'value': None, 'unit': unit}] * count
-            else:
-                m['channels'] = []
-                for c in range(count):
-                    raw = round(analog(self.type, self.number, c, self.last_good) / full * 65535)
-                    m['channels'].append({'raw': raw, 'value': raw / 65535 * full, 'unit': unit})
+            m['channels'] = []
+            for c in range(count):
+                raw = None if self.last_good is None else round(
+                    analog(self.type, self.number, c, self.last_good) / full * 65535)
+                m['channels'].append({'raw': raw, 'value': None if raw is None else raw / 65535 * full,
+                                      'unit': unit, 'name': 'supply' if named and c == 0 else '',
+                                      'range': [0, full], 'scale': None})
         elif self.type == 'rgbdm':
             c = self.values['colour']
             m['colour'] = c
             m['colour_name'] = COLOURS[c] if c is not None else None
         else:
             m.update(self.values)
+            if self.type in ('dim16', 'lim16', 'dom16'):
+                points = {'0': 'door open', '3': 'pump running'} if self.type == 'dim16' else {}
+                m['outputs' if self.type == 'dom16' else 'inputs'] = points
         return m
 
 

@@ -34,6 +34,12 @@ def closed_port():
         return s.getsockname()[1]
 
 
+# Names, units and a scale (gateway.md §6.1), as the page shows them.
+TAGS = {"acm3p:0": ', name: "boiler 1", channels: { 0: { name: "supply temperature", '
+                   'unit: "°C", scale: [0, 100, -20, 150] } }',
+        "dim16:0": ', inputs: { 0: "door open", 3: "pump running" }'}
+
+
 def config(rig, certs, directory):
     """ioportd on a simulated hub with every module type but acm3c and a simulated ID-2, plain
     Modbus TCP and Modbus/TCP Security, and a Sparkplug node with a store whose broker is away."""
@@ -55,7 +61,8 @@ links:
     unit_id: 1
     timeout: 50ms
     modules:
-""" + "".join(f"      - {{ type: {m.split(':')[0]}, number: 0 }}\n" for m in HUB.split(",")) + f"""
+""" + "".join(f"      - {{ type: {m.split(':')[0]}, number: 0{TAGS.get(m, '')} }}\n"
+             for m in HUB.split(",")) + f"""
   - name: press
     protocol: id2
     device: {rig.id2_link}
@@ -132,6 +139,10 @@ def main():
                    # The broker is away: what changes is kept, and the page says how much.
                    ("sp-conn", "not connected"), ("sp-backlog", " records, "),
                    ("sp-oldest", " ago"), ("sp-fwd", "0")],
+            # 13208 is 20.15 %: -20 + 20.15 × 1.7 = 14.26 °C, one decimal for a 170 °C range.
+            tile_shows=[("hub0", "acm3p 0", "boiler 1"), ("hub0", "acm3p 0", "supply temperature"),
+                        ("hub0", "acm3p 0", "14.3°C"), ("hub0", "acm3p 0", "62.9%"),
+                        ("hub0", "dim16 0", "door open"), ("hub0", "dim16 0", "pump running")],
             screenshot_path=os.path.join(OUTDIR, "status-page.png"))
         print(f"live_page_test: passed; screenshots in {OUTDIR}")
         return 0

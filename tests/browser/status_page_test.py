@@ -18,6 +18,7 @@ normally when all passed. What it checks:
   3. fault() is called; within fault_timeout (10 s) the tile of fault_module on fault_link has
      a .status text other than "online";
   4. each (element id, text) of `shows`: within load_timeout the element's text contains it;
+     each (link, module, text) of `tile_shows`: within load_timeout that tile's text contains it;
   5. the browser console has no error (level SEVERE);
   6. screenshots: the whole page at 1280 px wide to screenshot_path, and at 360 px wide to
      narrow_screenshot_path (default: screenshot_path with "-narrow" before the extension).
@@ -73,6 +74,10 @@ if (!tile) return null;
 const e = tile.querySelector(arguments[1]);
 return e ? e.textContent.trim() : '';
 """
+_WHOLE_TILE_TEXT = """
+const tile = document.querySelector(arguments[0]);
+return tile ? tile.textContent : null;
+"""
 _ELEMENT_TEXT = """
 const e = document.getElementById(arguments[0]);
 return e ? e.textContent.trim() : null;
@@ -105,6 +110,10 @@ class _Page:
         """The text of the .cls element of a tile; None if there is no such tile, '' if the
         tile has no such element."""
         return self.driver.execute_script(_TILE_TEXT, _selector(link, module), '.' + cls)
+
+    def tile_text(self, link, module):
+        """All the text of a tile; None if there is no such tile."""
+        return self.driver.execute_script(_WHOLE_TILE_TEXT, _selector(link, module))
 
     def require_tile(self, link, module, timeout):
         try:
@@ -160,7 +169,7 @@ def _driver(profile):
 
 def run(url, change_input, expected_word, fault, screenshot_path, *,
         input_link='hub0', input_module='dim16 0', fault_link='hub0', fault_module='dim16 0',
-        shows=(), narrow_screenshot_path=None, load_timeout=15.0, input_timeout=5.0,
+        shows=(), tile_shows=(), narrow_screenshot_path=None, load_timeout=15.0, input_timeout=5.0,
         fault_timeout=10.0):
     """Checks the status page at `url` in headless Chromium (see the module's docstring).
 
@@ -256,6 +265,17 @@ def run(url, change_input, expected_word, fault, screenshot_path, *,
                 except PageTestFailed as e:
                     raise PageTestFailed('%s (it shows %r)' % (e, last[0])) from None
 
+            def tile_shows_text(link, module, text):
+                last = [None]
+
+                def contains():
+                    last[0] = page.tile_text(link, module)
+                    return True if last[0] and text in last[0] else None
+                try:
+                    _wait('tile %s / %s shows %r' % (link, module, text), load_timeout, contains)
+                except PageTestFailed as e:
+                    raise PageTestFailed('%s (it shows %r)' % (e, last[0])) from None
+
             def console_clean():
                 errors = [e for e in driver.get_log('browser') if e.get('level') == 'SEVERE']
                 if errors:
@@ -274,6 +294,10 @@ def run(url, change_input, expected_word, fault, screenshot_path, *,
                 for element, text in shows:
                     check('#%s shows %r' % (element, text),
                           lambda element=element, text=text: element_shows(element, text))
+                for link, module, text in tile_shows:
+                    check('tile %s / %s shows %r' % (link, module, text),
+                          lambda link=link, module=module, text=text:
+                          tile_shows_text(link, module, text))
             check('no errors in the browser console', console_clean)
             check('screenshots', screenshots)
         finally:
@@ -325,6 +349,8 @@ def main():
             fault=lambda: _post(url, 'fault', link='hub0', module='acm3p 0', status='2'),
             shows=[('clients', 'TLS · operator'), ('clients', 'plain TCP'), ('mb-th', '2'),
                    ('mb-listen', '0.0.0.0:802 (TLS)')],
+            tile_shows=[('hub0', 'acm3p 0', 'boiler 1'), ('hub0', 'acm3p 0', 'supply'),
+                        ('hub0', 'dim16 0', 'pump running')],
             screenshot_path=args.screenshot, narrow_screenshot_path=args.narrow_screenshot,
             input_link=link, input_module=module, fault_link='hub0', fault_module='acm3p 0')
     except PageTestFailed as e:
