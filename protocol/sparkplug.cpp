@@ -208,6 +208,38 @@ std::vector<MetricSpec> module_metrics(std::optional<ModuleType> type) {
     return metrics;
 }
 
+std::vector<std::vector<Property>> module_properties(std::optional<ModuleAddress> module,
+                                                     const gateway::ModuleTags& tags) {
+    const auto type = module ? std::optional(module->type) : std::nullopt;
+    auto out = std::vector<std::vector<Property>>(module_metrics(type).size());
+    if (!module) return out;  // the ID-2 has no names of its own
+    // "boiler 1: supply temperature", "boiler 1", "acm3p 0: supply temperature", or nothing.
+    const bool module_named = !tags.name.empty() && tags.name != to_string(*module);
+    const auto document = [&](std::vector<Property>& properties, const std::string& point) {
+        if (point.empty() && !module_named) return;
+        properties.push_back(
+            {"documentation", point.empty() ? tags.name : fmt::format("{}: {}", tags.name, point)});
+    };
+    const auto channels = tags.channels.size();
+    if (channels > 0) {  // raw/0…raw/n-1, then value/0…value/n-1
+        for (std::size_t ch = 0; ch < channels && channels * 2 <= out.size(); ++ch) {
+            const auto& tag = tags.channels[ch];
+            auto& value = out[channels + ch];
+            if (!tag.unit.empty()) value.push_back({"engUnit", tag.unit});
+            value.push_back({"engLow", tag.range[0]});
+            value.push_back({"engHigh", tag.range[1]});
+            document(value, tag.name);
+            document(out[ch], tag.name);
+        }
+        return out;
+    }
+    for (std::size_t i = 0; i < out.size(); ++i)  // in/k or out/k then word, or colour, pos, neg
+        document(out[i], i < tags.points.size() && gateway::has_points(module->type)
+                             ? tags.points[i]
+                             : std::string());
+    return out;
+}
+
 std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
                                                 const ModuleValues& values) {
     std::vector<std::optional<Value>> out;
@@ -241,8 +273,8 @@ std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
                 out.push_back(reading ? std::optional<Value>(std::uint64_t{reading->raw[ch]})
                                       : std::nullopt);
             for (std::size_t ch = 0; ch < channels; ++ch)
-                out.push_back(reading ? std::optional<Value>(
-                                            gateway::engineering_float(*type, reading->raw[ch]))
+                out.push_back(reading ? std::optional<Value>(gateway::channel_value(
+                                            *type, reading->raw[ch], *values.tags, ch))
                                       : std::nullopt);
             break;
         }

@@ -15,6 +15,7 @@
 #include "protocol/error.hpp"
 #include "protocol/gateway_map.hpp"
 #include "protocol/ioport.hpp"
+#include "protocol/tags.hpp"
 
 namespace ioport::sparkplug {
 
@@ -62,6 +63,14 @@ std::string_view to_string(DataType type);  // "UInt16", …
 // its two's complement bits); Float as float; String as string.
 using Value = std::variant<bool, std::uint64_t, float, std::string>;
 
+// A metric property (Sparkplug 3.0 §6.4.18): a Double (10) or a String (12). ioportd sends the
+// tag properties Ignition's MQTT Engine applies: engUnit, engLow, engHigh, documentation.
+struct Property {
+    std::string key;
+    std::variant<double, std::string> value;
+    friend bool operator==(const Property&, const Property&) = default;
+};
+
 struct Metric {
     std::string name;  // empty when the metric goes by its alias alone (DATA after a BIRTH)
     std::optional<std::uint64_t> alias;
@@ -71,6 +80,7 @@ struct Metric {
     std::uint32_t datatype = 0;
     std::optional<Value> value;  // nullopt: is_null
     bool is_historical = false;  // a value from the store (gateway.md §6.2), not a current one
+    std::vector<Property> properties{};  // births only: names, units and ranges (§6.1)
     friend bool operator==(const Metric&, const Metric&) = default;
 };
 
@@ -133,7 +143,15 @@ struct ModuleValues {
     std::optional<std::uint16_t> output;
     std::optional<bool> stop;
     std::optional<std::uint16_t> count;
+    const gateway::ModuleTags* tags = &gateway::no_tags;  // value/<ch> is scaled as they say
 };
+// The properties of module_metrics(type)'s metrics in a DBIRTH, in the same order (gateway.md
+// §6.1): every value/<ch> has engLow and engHigh (its range) and engUnit when it has a unit; any
+// metric of a named channel or point, or of a named module, has documentation ("boiler 1: supply
+// temperature"). Metric names never change, so a rename never breaks a host's history.
+std::vector<std::vector<Property>> module_properties(std::optional<ModuleAddress> module,
+                                                     const gateway::ModuleTags& tags);
+
 // The values of module_metrics(type), in the same order; nullopt where nothing was read yet
 // (published as is_null). The ID-2's `reset` is always false: a command, not a state.
 std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,

@@ -60,6 +60,55 @@ std::optional<Value> value_of(const wire::Payload::Metric& metric) {
     return std::nullopt;
 }
 
+// Sparkplug 3.0 §6.4.16: every property value names its type (payloads-metric-propertyvalue-
+// type-req); the keys and values arrays have the same length.
+constexpr std::uint32_t property_double = 10;
+constexpr std::uint32_t property_string = 12;
+
+void set_properties(wire::Payload::PropertySet& set, const std::vector<Property>& properties) {
+    for (const auto& property : properties) {
+        set.add_keys(property.key);
+        auto& value = *set.add_values();
+        if (const auto* number = std::get_if<double>(&property.value)) {
+            value.set_type(property_double);
+            value.set_double_value(*number);
+        } else {
+            value.set_type(property_string);
+            value.set_string_value(std::get<std::string>(property.value));
+        }
+    }
+}
+
+// The Double, Float and String properties of a set whose keys and values pair up; others are
+// skipped (ioportd acts on none: it reads properties back in its tests and its fuzzer).
+std::vector<Property> properties_of(const wire::Payload::PropertySet& set) {
+    std::vector<Property> out;
+    const auto count = std::min(set.keys_size(), set.values_size());
+    for (int i = 0; i < count; ++i) {
+        const auto& value = set.values(i);
+        switch (value.value_case()) {
+            case wire::Payload::PropertyValue::kDoubleValue:
+                out.push_back({set.keys(i), value.double_value()});
+                break;
+            case wire::Payload::PropertyValue::kFloatValue:
+                out.push_back({set.keys(i), static_cast<double>(value.float_value())});
+                break;
+            case wire::Payload::PropertyValue::kStringValue:
+                out.push_back({set.keys(i), value.string_value()});
+                break;
+            case wire::Payload::PropertyValue::kIntValue:
+            case wire::Payload::PropertyValue::kLongValue:
+            case wire::Payload::PropertyValue::kBooleanValue:
+            case wire::Payload::PropertyValue::kPropertysetValue:
+            case wire::Payload::PropertyValue::kPropertysetsValue:
+            case wire::Payload::PropertyValue::kExtensionValue:
+            case wire::Payload::PropertyValue::VALUE_NOT_SET:
+                break;
+        }
+    }
+    return out;
+}
+
 }  // namespace
 
 std::vector<std::uint8_t> encode(const Payload& payload, Datatypes datatypes) {
@@ -83,6 +132,7 @@ std::vector<std::uint8_t> encode(const Payload& payload, Datatypes datatypes) {
         else
             m.set_is_null(true);
         if (metric.is_historical) m.set_is_historical(true);
+        if (!metric.properties.empty()) set_properties(*m.mutable_properties(), metric.properties);
     }
     std::vector<std::uint8_t> bytes(out.ByteSizeLong());
     out.SerializeToArray(bytes.data(), static_cast<int>(bytes.size()));
@@ -106,6 +156,7 @@ Result<Payload> decode(std::span<const std::uint8_t> bytes) {
         metric.datatype = m.datatype();
         metric.value = value_of(m);
         metric.is_historical = m.is_historical();
+        if (m.has_properties()) metric.properties = properties_of(m.properties());
         payload.metrics.push_back(std::move(metric));
     }
     return payload;

@@ -33,7 +33,7 @@ std::uint32_t wire(DataType type) {
 }
 
 sparkplug::ModuleValues values_of(const ModuleState& view) {
-    return {view.reading, view.output, view.stop, view.count};
+    return {view.reading, view.output, view.stop, view.count, view.tags};
 }
 
 std::optional<ModuleType> type_of(const std::optional<ModuleAddress>& module) {
@@ -144,7 +144,9 @@ void SparkplugNode::build(const Links& links) {
                           view.address,
                           sparkplug::device_id(link->config().name, view.address),
                           sparkplug::module_metrics(type_of(view.address)),
-                          alias};
+                          alias,
+                          *view.tags,
+                          sparkplug::module_properties(view.address, *view.tags)};
             alias += device.metrics.size();
             devices_.push_back(std::move(device));
         }
@@ -157,7 +159,15 @@ void SparkplugNode::watch_links() {
     subscriptions_.clear();
     for (const auto& link : links_)
         subscriptions_.push_back(link->subscribe([weak, raw = link.get()](const Change& change) {
-            if (change.kind == Change::Kind::write) return;  // its values come as their own change
+            switch (change.kind) {
+                case Change::Kind::write:  // its values come as their own change
+                case Change::Kind::tags:   // set_links() rebirths with the new properties
+                    return;
+                case Change::Kind::values:
+                case Change::Kind::status:
+                case Change::Kind::port:
+                    break;
+            }
             if (auto self = weak.lock()) self->changed(raw, change.slot);
         }));
 }
@@ -171,7 +181,16 @@ void SparkplugNode::set_links(const Links& links) {
         return ids;
     };
     const bool same_map = map_of(links) == map_of(links_);
-    if (same_map) {
+    const auto same_tags = [&] {
+        for (const auto& device : devices_)
+            for (const auto& link : links)
+                if (link->config().name == device.link->config().name)
+                    if (const auto* view = link->module_at(device.slot);
+                        view != nullptr && *view->tags != device.tags)
+                        return false;
+        return true;
+    };
+    if (same_map && same_tags()) {
         // Restarted links are new objects with the same modules: only watched anew.
         for (auto& device : devices_)
             for (const auto& link : links)
@@ -182,7 +201,8 @@ void SparkplugNode::set_links(const Links& links) {
     }
     build(links);
     if (born_) {
-        log_.info({}, "Sparkplug: the module map changed; new births");
+        log_.info({}, "Sparkplug: {} changed; new births",
+                  same_map ? "names, units or scales" : "the module map");
         birth();
     }
 }
@@ -404,7 +424,8 @@ void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
     payload.metrics.reserve(device.metrics.size());
     for (std::size_t i = 0; i < device.metrics.size(); ++i)
         payload.metrics.push_back(Metric{device.metrics[i].name, device.first_alias + i, now,
-                                         wire(device.metrics[i].type), values[i]});
+                                         wire(device.metrics[i].type), values[i], false,
+                                         device.properties[i]});
     if (!publish(MessageType::dbirth, device.id, payload)) return;
     device.published = std::move(values);
     device.born = true;

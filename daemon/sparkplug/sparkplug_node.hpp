@@ -111,6 +111,9 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
         std::string id;
         std::vector<sparkplug::MetricSpec> metrics;
         std::uint64_t first_alias = 0;
+        // As the last births said them: a reload that changes them rebirths (gateway.md §6.1).
+        gateway::ModuleTags tags{};
+        std::vector<std::vector<sparkplug::Property>> properties{};
         bool born = false;  // DBIRTH sent, no DDEATH since, in this session
         std::vector<std::optional<sparkplug::Value>> published{};
     };

@@ -108,11 +108,14 @@ class EdgeNodeRig(Rig):
             raise
         self.configure(hub_modules, mqtt_extra, modbus_extra, hub_extra)
 
-    def configure(self, hub_modules, mqtt_extra="", modbus_extra="", hub_extra=""):
+    def configure(self, hub_modules, mqtt_extra="", modbus_extra="", hub_extra="",
+                  module_extra=None):
         """Writes the configuration: these modules of the hub, and lines to add under mqtt:,
-        modbus: and the link hub0."""
-        modules = "\n".join(f"      - {{ type: {m.split(':')[0]}, number: {m.split(':')[1]} }}"
-                            for m in hub_modules)
+        modbus: and the link hub0; `module_extra` adds keys to modules ("acm3p:0" -> ", name:
+        x")."""
+        extra = module_extra or {}
+        modules = "\n".join(f"      - {{ type: {m.split(':')[0]}, number: {m.split(':')[1]}"
+                            f"{extra.get(m, '')} }}" for m in hub_modules)
         brokers = (f"brokers: {json.dumps(self.broker_urls)}" if self.broker_urls
                    else f'broker: "{self.broker_url}"')
         self.write_config(f"""modbus:
@@ -944,6 +947,110 @@ class Lifecycle(OwnDaemon):
         self.host.dcmd(GROUP, NODE, "hub0.mux8m.0", [{"name": "pos", "value": 3}])
         self.host.wait_metric("hub0.mux8m.0", "pos", 3, since=mark)
         self.assertEqual(int(self.rig.ctl("get mux8m:0")) >> 8, 3)
+
+
+def float32(value):
+    return struct.unpack("<f", struct.pack("<f", value))[0]
+
+
+# gateway.md §6.1: a name, a unit and a scale on acm3p 0's channel 0, a name on an input.
+TAGS = {"acm3p:0": ', name: "boiler 1", channels: { 0: { name: "supply temperature", '
+                   'unit: "°C", scale: [0, 100, -20, 150] } }',
+        "dim16:0": ', inputs: { 2: "door open" }'}
+
+
+class Tags(OwnDaemon):
+    """Names, units and scales (gateway.md §6.1, issue 27): value/<ch> in engineering units, the
+    DBIRTH's metric properties Ignition applies, and a reload that renames with a rebirth."""
+
+    def births_of(self, mark, device):
+        return self.host.wait_message("DBIRTH", device, since=mark, timeout=10)
+
+    @covers("gateway.md §6.1", "tck-id-payloads-propertyset-keys-array-size",
+            "tck-id-payloads-propertyset-values-array-size",
+            "tck-id-payloads-metric-propertyvalue-type-type",
+            "tck-id-payloads-metric-propertyvalue-type-value",
+            "tck-id-payloads-metric-propertyvalue-type-req")
+    def test_births_carry_names_units_and_ranges_as_properties(self):
+        self.rig.configure(HUB_MODULES, module_extra=TAGS)
+        self.rig.ctl("set acm3p:0 13208 41203 0")
+        mark = self.host.mark()
+        self.start()
+        acm = self.births_of(mark, "hub0.acm3p.0")
+        value0, value1, raw0 = acm.metric("value/0"), acm.metric("value/1"), acm.metric("raw/0")
+        self.assertEqual(value0.properties, {
+            "engUnit": "°C", "engLow": -20.0, "engHigh": 150.0,
+            "documentation": "boiler 1: supply temperature"})
+        self.assertEqual(value1.properties, {
+            "engUnit": "%", "engLow": 0.0, "engHigh": 100.0, "documentation": "boiler 1"})
+        self.assertEqual(raw0.properties, {"documentation": "boiler 1: supply temperature"})
+        # Metric names stay as §5.5 says: a rename never breaks a host's history.
+        self.assertEqual(value0.value, float32(-20 + 13208 / 65535 * 100 * 1.7))
+        self.assertEqual(value1.value, float32(41203 / 65535 * 100))
+        dim = self.births_of(mark, "hub0.dim16.0")
+        self.assertEqual(dim.metric("in/2").properties, {"documentation": "dim16 0: door open"})
+        self.assertEqual(dim.metric("in/3").properties, {})
+        # DATA is scaled alike and carries no properties: they are the birth's.
+        mark = self.host.mark()
+        self.rig.ctl("set acm3p:0 32768 41203 0")
+        data = self.host.wait_metric("hub0.acm3p.0", "value/0",
+                                     float32(-20 + 32768 / 65535 * 100 * 1.7), since=mark)
+        self.assertTrue(all(not m.properties for m in data.metrics))
+
+    @covers("gateway.md §6.1")
+    def test_a_reload_renames_and_rescales_with_a_rebirth(self):
+        self.rig.configure(HUB_MODULES, module_extra=TAGS)
+        self.rig.ctl("set acm3p:0 32768 0 0")
+        nbirth = self.start()
+        bdseq = nbirth.metric("bdSeq").value
+        renamed = dict(TAGS, **{"acm3p:0": ', name: "boiler 2", channels: { 0: { name: '
+                                           '"supply", unit: kPa, scale: [0, 100, 0, 1000] } }'})
+        self.rig.configure(HUB_MODULES, module_extra=renamed)
+        mark, log = self.host.mark(), self.rig.log_mark()
+        self.rig.daemon.send_signal(signal.SIGHUP)
+        self.rig.wait_log(r"names, units or scales changed: hub0", since=log)
+        self.rig.wait_log(r"Sparkplug: names, units or scales changed; new births", since=log)
+        again = self.wait_births(mark)
+        self.assertEqual(again.metric("bdSeq").value, bdseq, "the same session")
+        self.assertEqual(self.host.since(mark, "NDEATH"), [])
+        acm = self.births_of(mark, "hub0.acm3p.0")
+        self.assertEqual(acm.metric("value/0").properties, {
+            "engUnit": "kPa", "engLow": 0.0, "engHigh": 1000.0,
+            "documentation": "boiler 2: supply"})
+        self.assertEqual(acm.metric("value/0").value, float32(32768 / 65535 * 100 * 10))
+        # Polling went on; the port was not reopened.
+        self.assertEqual(self.host.since(mark, "DDEATH"), [])
+
+
+    def test_the_properties_rule_finds_each_break(self):
+        """The host app's `properties` rule on a canned NBIRTH of another node: it must catch
+        what it claims to check, or the ids it covers are not checked."""
+        now = int(time.time() * 1000)
+        payload = pb.Payload(timestamp=now, seq=0)
+        for name, datatype, value in (("bdSeq", "Int64", 0),
+                                      ("Node Control/Rebirth", "Boolean", False)):
+            encode_value(payload.metrics.add(name=name, timestamp=now), datatype, value)
+        broken = {"keys": None, "untyped": None, "mistyped": None}
+        for alias, name in enumerate(broken, start=1):
+            m = payload.metrics.add(name=name, alias=alias, timestamp=now)
+            encode_value(m, "Float", 1.0)
+            m.properties.keys.append("engUnit")
+            v = m.properties.values.add()
+            if name == "keys":
+                m.properties.keys.append("engLow")  # two keys, one value
+                v.type, v.string_value = 12, "°C"
+            elif name == "untyped":
+                v.string_value = "°C"
+            else:
+                v.type, v.string_value = 10, "°C"  # a Double in string_value
+        before = len(self.host.violations)
+        with self.host._cond:
+            self.host._receive("spBv1.0/canned/NBIRTH/rules", payload.SerializeToString())
+        new, self.host.violations[before:] = self.host.violations[before:], []
+        found = [v for v in new if v.startswith("[properties]")]
+        self.assertEqual(len(found), 3, new)
+        for name in broken:
+            self.assertTrue(any(f"{name}: " in v for v in found), (name, found))
 
 
 class StoreAndForward(OwnDaemon):

@@ -115,6 +115,14 @@ RULES = {
         "a metric marked is_historical has its acquisition timestamp; it is history and changes "
         "neither the host's view nor counts as data on change",
         ["gateway.md §6.2"]),
+    "properties": (
+        "a metric's PropertySet has as many values as keys, and every PropertyValue has a type "
+        "of the basic or property value data types whose value field it fills",
+        ["tck-id-payloads-propertyset-keys-array-size",
+         "tck-id-payloads-propertyset-values-array-size",
+         "tck-id-payloads-metric-propertyvalue-type-type",
+         "tck-id-payloads-metric-propertyvalue-type-value",
+         "tck-id-payloads-metric-propertyvalue-type-req"]),
     "host app": ("the host app itself did not fail on a message", []),
     # BrokerLog: what mosquitto saw of the node's client.
     "connect": (
@@ -158,6 +166,13 @@ DATATYPES = {name: number for number, name in enumerate(
      "Template"])}
 TYPE_NAMES = {number: name for name, number in DATATYPES.items()}
 INT_TYPES = {"Int8", "Int16", "Int32", "UInt8", "UInt16", "UInt32"}
+# Sparkplug 3.0 §6.4.17: what a PropertyValue may be, and the field each type fills.
+PROPERTY_FIELDS = {**{DATATYPES[t]: "int_value" for t in INT_TYPES},
+                   **{DATATYPES[t]: "long_value" for t in ("Int64", "UInt64", "DateTime")},
+                   DATATYPES["Float"]: "float_value", DATATYPES["Double"]: "double_value",
+                   DATATYPES["Boolean"]: "boolean_value", DATATYPES["String"]: "string_value",
+                   DATATYPES["Text"]: "string_value", 20: "propertyset_value",
+                   21: "propertysets_value"}
 LONG_TYPES = {"Int64", "UInt64", "DateTime"}
 
 
@@ -165,10 +180,11 @@ class Metric:
     """A decoded metric: value None for is_null."""
 
     def __init__(self, name, alias, datatype, value, timestamp, is_historical=False,
-                 is_null=False, has_value=True):
+                 is_null=False, has_value=True, properties=None):
         self.name, self.alias, self.datatype, self.value = name, alias, datatype, value
         self.timestamp, self.is_historical = timestamp, is_historical
         self.is_null, self.has_value = is_null, has_value
+        self.properties = properties or {}  # key -> value
 
     def __repr__(self):
         return (f"Metric({self.name!r}, alias={self.alias}, "
@@ -351,8 +367,13 @@ class HostApp:
                    m.datatype if m.HasField("datatype") else None, decode_value(m),
                    m.timestamp if m.HasField("timestamp") else None,
                    m.HasField("is_historical") and m.is_historical,
-                   m.HasField("is_null") and m.is_null, m.WhichOneof("value") is not None)
+                   m.HasField("is_null") and m.is_null, m.WhichOneof("value") is not None,
+                   {k: getattr(v, v.WhichOneof("value") or "is_null")
+                    for k, v in zip(m.properties.keys, m.properties.values)})
             for m in decoded.metrics]
+        for m in decoded.metrics:
+            if m.HasField("properties"):
+                self._check_properties(message, m)
         if type_ in ("NCMD", "DCMD"):
             return  # commands: ours, or another host's; not the node's to keep rules on
         if message.timestamp is None:
@@ -360,6 +381,21 @@ class HostApp:
         self._check_times(message)
         state = self.nodes.setdefault((group, node), NodeState())
         getattr(self, "_" + type_.lower())(state, message)
+
+    def _check_properties(self, message, metric):
+        keys, values = metric.properties.keys, metric.properties.values
+        if len(keys) != len(values):
+            self.violation(message, "properties",
+                           f"{metric.name or metric.alias}: {len(keys)} keys, {len(values)} values")
+        for key, value in zip(keys, values):
+            field = PROPERTY_FIELDS.get(value.type) if value.HasField("type") else None
+            if field is None:
+                self.violation(message, "properties", f"{metric.name or metric.alias}: property "
+                               f"{key!r} has no valid type ({value.type})")
+            elif not (value.HasField("is_null") and value.is_null) and \
+                    value.WhichOneof("value") != field:
+                self.violation(message, "properties", f"{metric.name or metric.alias}: property "
+                               f"{key!r} of type {value.type} fills {value.WhichOneof('value')}")
 
     def _check_times(self, message):
         now = time.time() * 1000

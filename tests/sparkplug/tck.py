@@ -37,7 +37,7 @@ def covers(*ids):
 
 _TEMPLATES = "ioportd publishes no Template: every metric is a scalar of §5.5's types"
 _DATASETS = "ioportd publishes no DataSet"
-_PROPERTIES = "ioportd sends no PropertySet or PropertyValue (no metric has properties)"
+_QUALITY = "ioportd sends no quality property (its metrics' properties are gateway.md §6.1's)"
 _MQTT5 = "ioportd connects with MQTT 3.1.1 only (the -311 twin of this id is checked)"
 
 NOT_APPLICABLE = {
@@ -46,5 +46,5 @@ NOT_APPLICABLE = {
     **{i: _TEMPLATES for i in IDS if "-template-" in i and "dataset" not in i},
     "tck-id-payloads-template-dataset-value": _DATASETS,
     **{i: _DATASETS for i in IDS if "-dataset-" in i and "template" not in i},
-    **{i: _PROPERTIES for i in IDS if "propertyset" in i or "propertyvalue" in i},
+    **{i: _QUALITY for i in IDS if "propertyset-quality" in i},
 }

@@ -2,6 +2,7 @@
 // wire, the metrics of each module and their values, and DCMD metrics as gateway writes.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <vector>
 
 #include <fmt/format.h>
@@ -115,6 +116,25 @@ TEST(SparkplugPayload, DecodesWhatItEncodes) {
     const auto decoded = decode(encode(payload));
     ASSERT_TRUE(decoded) << decoded.error().message;
     EXPECT_EQ(*decoded, payload);
+}
+
+TEST(SparkplugPayload, PropertiesAreTypedAndDecodeAsTheyWereSent) {
+    Payload payload{1, 3, {Metric{"value/0", 12, 17, 9, Value(14.25f)}}};
+    payload.metrics[0].properties = {{"engUnit", std::string("°C")},
+                                     {"engLow", -20.0},
+                                     {"engHigh", 150.0},
+                                     {"documentation", std::string("boiler 1: supply")}};
+    const auto bytes = encode(payload);
+    const auto decoded = decode(bytes);
+    ASSERT_TRUE(decoded) << decoded.error().message;
+    EXPECT_EQ(*decoded, payload);
+    // On the wire (Sparkplug 3.0 §6.4.18): metric field 9, a PropertySet of keys (1) and values
+    // (2), each value with its type (1): Double 10 in double_value (6), String 12 in string_value
+    // (8). engLow: type 10, then -20.0 as a little-endian double.
+    const Bytes eng_low{0x12, 0x0B, 0x08, 0x0A, 0x31, 0, 0, 0, 0, 0, 0, 0x34, 0xC0};
+    EXPECT_NE(std::search(bytes.begin(), bytes.end(), eng_low.begin(), eng_low.end()), bytes.end());
+    const Bytes unit{0x12, 0x07, 0x08, 0x0C, 0x42, 0x03, 0xC2, 0xB0, 'C'};
+    EXPECT_NE(std::search(bytes.begin(), bytes.end(), unit.begin(), unit.end()), bytes.end());
 }
 
 TEST(SparkplugPayload, AHistoricalMetricSaysSo) {
@@ -240,6 +260,56 @@ TEST(SparkplugModule, ValuesFollowTheMetrics) {
     const auto id2 = module_values(std::nullopt, {{}, {}, true, 42});
     EXPECT_EQ(id2, (std::vector<std::optional<Value>>{Value(true), Value(std::uint64_t{42}),
                                                       Value(false)}));
+}
+
+TEST(SparkplugModule, ScaledChannelsPublishTheEngineeringValue) {
+    auto tags = gateway::default_tags({ModuleType::acm3p, 0});
+    tags.channels[0].scale = gateway::Scale{0, 100, -20, 150};
+    const auto acm =
+        module_values(ModuleType::acm3p, {Reading{{0, 32768, 65535}, 3}, {}, {}, {}, &tags});
+    EXPECT_EQ(acm[3], Value(-20.0f));            // value/0, scaled
+    EXPECT_EQ(acm[0], Value(std::uint64_t{0}));  // raw/0 as it was
+    EXPECT_EQ(acm[5], Value(100.0f));            // value/2, unscaled %
+}
+
+TEST(SparkplugModule, BirthPropertiesNameUnitAndRange) {
+    const ModuleAddress acm3p{ModuleType::acm3p, 0};
+    auto tags = gateway::default_tags(acm3p);
+    const auto plain = module_properties(acm3p, tags);
+    ASSERT_EQ(plain.size(), 6u);
+    EXPECT_TRUE(plain[0].empty());  // raw/0: nothing to say
+    EXPECT_EQ(plain[3], (std::vector<Property>{
+                            {"engUnit", std::string("%")}, {"engLow", 0.0}, {"engHigh", 100.0}}));
+
+    tags.name = "boiler 1";
+    tags.channels[0] = {"supply temperature", "°C", gateway::Scale{0, 100, -20, 150}, {-20, 150}};
+    tags.channels[1].unit = "";
+    const auto named = module_properties(acm3p, tags);
+    EXPECT_EQ(
+        named[0],
+        (std::vector<Property>{{"documentation", std::string("boiler 1: supply temperature")}}));
+    EXPECT_EQ(named[1], (std::vector<Property>{{"documentation", std::string("boiler 1")}}));
+    EXPECT_EQ(named[3], (std::vector<Property>{
+                            {"engUnit", std::string("°C")},
+                            {"engLow", -20.0},
+                            {"engHigh", 150.0},
+                            {"documentation", std::string("boiler 1: supply temperature")}}));
+    EXPECT_EQ(named[4], (std::vector<Property>{{"engLow", 0.0},
+                                               {"engHigh", 100.0},
+                                               {"documentation", std::string("boiler 1")}}));
+
+    const ModuleAddress dim16{ModuleType::dim16, 2};
+    auto inputs = gateway::default_tags(dim16);
+    inputs.points[5] = "pump running";
+    const auto points = module_properties(dim16, inputs);
+    ASSERT_EQ(points.size(), 17u);
+    EXPECT_EQ(points[5],
+              (std::vector<Property>{{"documentation", std::string("dim16 2: pump running")}}));
+    EXPECT_TRUE(points[4].empty());
+    EXPECT_TRUE(points[16].empty());                                          // word
+    EXPECT_EQ(module_properties(std::nullopt, gateway::no_tags).size(), 3u);  // the ID-2: none
+    for (const auto& properties : module_properties(std::nullopt, gateway::no_tags))
+        EXPECT_TRUE(properties.empty());
 }
 
 gateway::WritePlan planned(std::optional<ModuleAddress> module, std::string_view name,
