@@ -1195,6 +1195,15 @@ TEST(GatewayConfig, TheSimulatorExampleIsWhatTheDemoExpects) {
     EXPECT_EQ(hub0.device, "/tmp/ioportd-sim/ttyIOPORT0");
     EXPECT_EQ(hub0.unit_id, 1);
     EXPECT_EQ(hub0.modules.size(), 8u);
+    // Names, a unit and a scale, as the README's first screen and scripts/demo --check show.
+    const auto& dim16 = hub0.modules.at(0).tags;
+    EXPECT_EQ(dim16.points[0], "door open");
+    EXPECT_EQ(dim16.points[15], "pump running");
+    const auto& acm3p = hub0.modules.at(2).tags;
+    EXPECT_EQ(acm3p.name, "boiler 1");
+    EXPECT_EQ(acm3p.channels.at(0).name, "supply temperature");
+    EXPECT_EQ(acm3p.channels.at(0).unit, "°C");
+    EXPECT_EQ(acm3p.channels.at(0).scale, (gateway::Scale{0, 100, -20, 150}));
     const LinkConfig& id2 = config->links.at(1);
     EXPECT_EQ(id2.name, "press");
     EXPECT_EQ(id2.protocol, Protocol::id2);
