@@ -25,21 +25,17 @@ void append_number(std::string& out, T value) {
 }  // namespace
 
 void append_escaped_label(std::string& out, std::string_view value) {
-    for (const char c : value) {
-        switch (c) {
-            case '\\':
-                out += "\\\\";
-                break;
-            case '"':
-                out += "\\\"";
-                break;
-            case '\n':
-                out += "\\n";
-                break;
-            default:
-                out += c;
-        }
+    // Whole runs at a time: names and units (gateway.md §6.1) make labels long, and most of a
+    // scrape is labels.
+    std::size_t run = 0;
+    for (std::size_t i = 0; i < value.size(); ++i) {
+        const char c = value[i];
+        if (c != '\\' && c != '"' && c != '\n') continue;
+        out.append(value.substr(run, i - run));
+        out += c == '\n' ? "\\n" : c == '"' ? "\\\"" : "\\\\";
+        run = i + 1;
     }
+    out.append(value.substr(run));
 }
 
 void Exposition::family(std::string_view name, std::string_view type, std::string_view help) {
@@ -103,6 +99,17 @@ void Exposition::sample(std::string_view name, std::initializer_list<Label> labe
 void append_json_string(std::string& out, std::string_view text) {
     out += '"';
     while (!text.empty()) {
+        // Printable ASCII other than " and \ goes as it is, a whole run at a time: most of a
+        // page is keys, ids and names of that kind.
+        std::size_t plain = 0;
+        while (plain < text.size()) {
+            const auto c = static_cast<unsigned char>(text[plain]);
+            if (c < 0x20 || c >= 0x7F || c == '"' || c == '\\') break;
+            ++plain;
+        }
+        out.append(text.substr(0, plain));
+        text.remove_prefix(plain);
+        if (text.empty()) break;
         const char c = text.front();
         std::size_t used = 1;
         switch (c) {
