@@ -1,5 +1,6 @@
 // ioportd: load the configuration, start the links and the Modbus server on one io_context,
 // run until SIGTERM or SIGINT, stop in reverse order. SIGHUP re-reads the configuration.
+#include <malloc.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -41,8 +42,16 @@ Log::Target log_target(Options::LogTarget target) {
     return journal ? Log::Target::journal : Log::Target::standard_error;
 }
 
+// The YAML tree of a large configuration (names on every point of 8 links × 72 modules) takes
+// megabytes while it is read; glibc keeps what was freed in the heap unless asked to give it
+// back. Measured on that configuration: 6 MiB of RSS returned (bench/README.md, issue 27).
+void return_parse_memory() {
+    ::malloc_trim(0);
+}
+
 std::optional<ioport::config::GatewayConfig> load(const std::string& path) {
     auto loaded = ioport::config::load_config(path);
+    return_parse_memory();
     if (loaded) return std::move(*loaded);
     for (const auto& error : loaded.error())
         std::cerr << to_string(error) << "\n";
@@ -123,6 +132,7 @@ class Daemon {
                 log_.info({}, "SIGHUP: reloaded {}: {}", path, *applied);
             }
         }
+        return_parse_memory();
         service_.ready();
     }
 
