@@ -22,6 +22,8 @@
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
+#include "protocol/tags.hpp"
+
 namespace ioport::bench {
 namespace {
 
@@ -266,6 +268,27 @@ std::chrono::nanoseconds wire_time(std::size_t bytes, int baud) {
     return std::chrono::nanoseconds(static_cast<std::int64_t>(bytes) * 10 * 1'000'000'000LL / baud);
 }
 
+// ", name: …, channels: {…}" or ", inputs: {…}": every key of §6.1 the module takes.
+std::string tags_yaml(ModuleAddress module) {
+    std::string yaml =
+        fmt::format(R"(, name: "{} {} in cabinet 3")", name(module.type), module.number);
+    if (gateway::has_channels(module.type)) {
+        yaml += ", channels: {";
+        for (int c = 0; c < reply_words(module.type); ++c)
+            yaml += fmt::format(R"({} {}: {{ name: "supply temperature {}", unit: "°C", )"
+                                R"(scale: [0, {:g}, -20, 150] }})",
+                                c == 0 ? "" : ",", c, c, full_scale(module.type));
+        yaml += " }";
+    }
+    if (gateway::has_points(module.type)) {
+        yaml += module.type == ModuleType::dom16 ? ", outputs: {" : ", inputs: {";
+        for (int k = 0; k < 16; ++k)
+            yaml += fmt::format(R"({} {}: "point {} of line 2")", k == 0 ? "" : ",", k, k);
+        yaml += " }";
+    }
+    return yaml;
+}
+
 std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections, bool http,
                          std::string_view more, std::string_view modbus_more) {
     std::string yaml =
@@ -279,11 +302,12 @@ std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections
             "    unit_id: {}\n    modules:\n",
             i, links[i].device, links[i].baud, i + 1);
         for (const auto module : links[i].modules)
-            yaml += fmt::format("      - {{ type: {}, number: {}{} }}\n", name(module.type),
+            yaml += fmt::format("      - {{ type: {}, number: {}{}{} }}\n", name(module.type),
                                 module.number,
                                 links[i].poll.count() > 0 && !is_output(module.type)
                                     ? fmt::format(", poll: {}ms", links[i].poll.count())
-                                    : std::string());
+                                    : std::string(),
+                                links[i].tags ? tags_yaml(module) : std::string());
     }
     yaml += more;
     return yaml;

@@ -174,6 +174,10 @@ struct LinkSpec {
     std::vector<ModuleAddress> modules;
     // The input modules' `poll:` (read at most this often); 0: every cycle, as fast as the line.
     std::chrono::milliseconds poll{0};
+    // Names, units and scales (gateway.md §6.1) on everything that takes them: a name per
+    // module, a name, a unit and a scale per analog channel, a name per digital point. The most
+    // an ioportd of issue 27 renders; an earlier build (--baseline) refuses the keys.
+    bool tags = false;
 };
 // `http`: the HTTP side on as well (gateway.md §5.4), on a port of its own choosing. `more`:
 // further top-level sections, YAML as it goes into the file (the `mqtt:` of benchmark 7).

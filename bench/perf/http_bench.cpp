@@ -468,7 +468,8 @@ TrendsShape trends_shape(const std::string& json) {
 // Eight simulators (every type, 8 of each, 115200 baud, turnaround 0) whose analog values change
 // once a second, and an ioportd with its HTTP side polling them.
 struct EightLinks {
-    EightLinks(const Environment& env, const std::vector<ModuleAddress>& modules) {
+    // `tags`: names, units and scales on every module (gateway.md §6.1); not for a baseline.
+    EightLinks(const Environment& env, const std::vector<ModuleAddress>& modules, bool tags) {
         std::vector<std::string> controls;
         ready = true;
         for (int i = 0; i < 8; ++i) {
@@ -479,7 +480,7 @@ struct EightLinks {
                 std::vector<std::string>{"--baud", "115200", "--turnaround", "0", "--control",
                                          controls.back()}));
             ready = ready && sims.back()->ready();
-            links.push_back({link, 115200, modules});
+            links.push_back({link, 115200, modules, {}, tags});
         }
         gateway.emplace(env, dir, gateway_yaml(links, 300, true));
         http_port = gateway->started() ? gateway->http_port() : std::uint16_t{0};
@@ -509,38 +510,56 @@ double idle_cpu_fraction(const Environment& env, const Gateway& gateway) {
 }
 
 // --baseline: an earlier ioportd on eight links of its own beside this one, and the same scrapes
-// of both in alternating rounds, so that the machine's noise falls on both alike.
+// of both in alternating rounds, so that the machine's noise falls on both alike. `ours` names,
+// units and scales everything (issue 27), which the earlier build cannot read; a third daemon,
+// this build without them, tells what the code costs apart from the series the names add.
 void baseline_scrapes(const Environment& env, const std::vector<ModuleAddress>& modules, int n,
                       const EightLinks& ours) {
-    EightLinks theirs(env.baseline(), modules);
-    if (!theirs.ready) {
-        fmt::print("\nThe baseline {} did not start.\n", env.binaries.baseline);
+    EightLinks theirs(env.baseline(), modules, false);
+    EightLinks plain(env, modules, false);
+    if (!theirs.ready || !plain.ready) {
+        fmt::print("\nThe baseline {} or this ioportd without names did not start.\n",
+                   env.binaries.baseline);
         return;
     }
     constexpr int rounds = 4;
     const int per_round = std::max(n / rounds, 3);
     fmt::print(
-        "\nAgainst the baseline {}: both polling eight links of their own, the same scrapes in "
-        "{} alternating rounds of {}:\n\n",
+        "\nAgainst the baseline {}: each polling eight links of its own, the same scrapes in "
+        "{} alternating rounds of {}. \"named\": this ioportd with a name on every module, "
+        "channel and point and a scale on every channel; \"plain\": this ioportd on the "
+        "baseline's configuration:\n\n",
         env.binaries.baseline, rounds, per_round);
-    const Table table({"page", "ioportd CPU ms/scrape", "baseline", "ratio"});
+    const Table table({"page", "named ms/scrape (KiB)", "plain ms/scrape (KiB)",
+                       "baseline ms/scrape (KiB)", "plain ÷ baseline", "named ÷ baseline"});
     for (const auto page : {"/metrics", "/api/v1/state"}) {
         const auto& headers =
             std::string_view(page) == "/metrics" ? prometheus_headers : browser_headers;
-        HttpClient our_client(ours.http_port, headers);
-        HttpClient their_client(theirs.http_port, headers);
-        double our_ms = 0;
-        double their_ms = 0;
-        for (int r = 0; r < rounds; ++r) {
-            our_ms += scrape_cost(*ours.gateway, our_client, page, per_round, 0).gross_ms;
-            their_ms += scrape_cost(*theirs.gateway, their_client, page, per_round, 0).gross_ms;
-        }
-        table.row({page, fmt::format("{:.3f}", our_ms / rounds),
-                   fmt::format("{:.3f}", their_ms / rounds),
-                   fmt::format("**{:.3f}**", our_ms / their_ms)});
+        struct Scraped {
+            const EightLinks& bus;
+            HttpClient client;
+            double ms = 0;
+            std::size_t bytes = 0;
+        };
+        std::array<Scraped, 3> sides{Scraped{ours, HttpClient(ours.http_port, headers)},
+                                     Scraped{plain, HttpClient(plain.http_port, headers)},
+                                     Scraped{theirs, HttpClient(theirs.http_port, headers)}};
+        for (int r = 0; r < rounds; ++r)
+            for (auto& side : sides) {
+                const auto cost = scrape_cost(*side.bus.gateway, side.client, page, per_round, 0);
+                side.ms += cost.gross_ms / rounds;
+                side.bytes = cost.bytes;
+            }
+        const auto cell = [](const Scraped& side) {
+            return fmt::format("{:.3f} ({:.0f})", side.ms, static_cast<double>(side.bytes) / 1024);
+        };
+        table.row({page, cell(sides[0]), cell(sides[1]), cell(sides[2]),
+                   fmt::format("**{:.3f}**", sides[1].ms / sides[2].ms),
+                   fmt::format("{:.3f}", sides[0].ms / sides[2].ms)});
         machine_line(fmt::format(
-            R"({{"bench":"http_scrape_baseline","page":"{}","cpu_ms":{:.4f},"baseline_cpu_ms":{:.4f},"ratio":{:.4f}}})",
-            page, our_ms / rounds, their_ms / rounds, our_ms / their_ms));
+            R"({{"bench":"http_scrape_baseline","page":"{}","named_cpu_ms":{:.4f},"named_bytes":{},"cpu_ms":{:.4f},"bytes":{},"baseline_cpu_ms":{:.4f},"baseline_bytes":{},"ratio":{:.4f},"named_ratio":{:.4f}}})",
+            page, sides[0].ms, sides[0].bytes, sides[1].ms, sides[1].bytes, sides[2].ms,
+            sides[2].bytes, sides[1].ms / sides[2].ms, sides[0].ms / sides[2].ms));
     }
 }
 
@@ -555,7 +574,7 @@ std::vector<Verdict> eight_links(const Environment& env) {
     std::vector<Verdict> verdicts;
     const auto modules = every_module();
     const auto started = Clock::now();
-    EightLinks bus(env, modules);
+    EightLinks bus(env, modules, true);
     if (!bus.ready) return {{"6b. scrape CPU", "did not start", "< 5 ms", false}};
     auto& gateway = *bus.gateway;
     const auto& links = bus.links;

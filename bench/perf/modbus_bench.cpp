@@ -50,7 +50,8 @@ std::vector<Verdict> modbus_throughput(const Environment& env) {
     const auto outputs = modules_of(ModuleType::dom16);
     modules.insert(modules.end(), outputs.begin(), outputs.end());
     SimProcess sim(env, dir / "tty", modules, {"--baud", "115200", "--turnaround", "0"});
-    Gateway gateway(env, dir, gateway_yaml({{dir / "tty", 115200, modules}}, 300));
+    // Names, units and scales on every module (issue 27): the baseline, an earlier build, has none.
+    Gateway gateway(env, dir, gateway_yaml({{dir / "tty", 115200, modules, {}, true}}, 300));
     PlainServer plain(env, dir);
     if (!sim.ready() || !gateway.started() || plain.port() == 0 || !gateway.wait_until_polling())
         return {{"4. Modbus", "servers did not start", "", false}};
