@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -70,7 +71,9 @@ float channel_value(ModuleType type, std::uint16_t raw, const ModuleTags& tags,
 }
 
 Result<> check_tag_text(std::string_view text, bool may_be_empty) {
-    const auto bad = [](std::string message) { return fail(Errc::invalid_argument, message); };
+    const auto bad = [](std::string message) {
+        return fail(Errc::invalid_argument, std::move(message));
+    };
     if (text.empty() && !may_be_empty) return bad("must not be empty");
     if (text.size() > max_tag_bytes)
         return bad(

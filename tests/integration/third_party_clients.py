@@ -113,8 +113,10 @@ class ThirdPartyClients(unittest.TestCase):
         eventually(updated, what="dim16 0 is 0x8001")
         bits = self.client.read_discrete_inputs(0, 16, slave=1)
         self.assertEqual(bits.bits[:16], [True] + [False] * 14 + [True])
-        eventually(lambda: self.client.read_input_registers(16, 1, slave=1).registers[0] == 13208,
-                   what="acm3p 0 channel 0 is 13208")
+        # Both channels: another test may have left channel 0 at 13208 already.
+        eventually(lambda: self.client.read_input_registers(16, 2, slave=1).registers == [13208,
+                                                                                        41203],
+                   what="acm3p 0 channels 0 and 1 are 13208 and 41203")
         r = self.client.read_input_registers(200, 4, slave=1)
         values = struct.unpack(">ff", struct.pack(">HHHH", *r.registers))
         # Channel 0 is scaled (gateway.md §6.1): the double formula, rounded once to float32.
