@@ -1,8 +1,7 @@
 // Writers of the two text formats the HTTP side serves, kept free of the daemon's types so that
 // they are tested (and fuzzed through the routes) alone:
 // - Prometheus text exposition format 0.0.4: families with HELP and TYPE, samples with labels;
-// - JSON, written straight into a string (no document tree: a scrape of a full bus is a few
-//   thousand values, built and sent once).
+// - JSON (protocol/json.hpp).
 #pragma once
 
 #include <cstdint>
@@ -11,7 +10,13 @@
 #include <string_view>
 #include <utility>
 
+#include "protocol/json.hpp"
+
 namespace ioport::daemon {
+
+// The JSON writer is protocol/json.hpp's, which the MQTT JSON output uses too.
+using ioport::append_json_string;
+using ioport::Json;
 
 class Exposition {
   public:
@@ -36,41 +41,5 @@ class Exposition {
 
 // A label value or HELP text as 0.0.4 wants it: \ " and newline escaped.
 void append_escaped_label(std::string& out, std::string_view value);
-
-class Json {
-  public:
-    Json& begin_object();
-    Json& end_object();
-    Json& begin_array();
-    Json& end_array();
-    // Inside an object: the next value's name.
-    Json& key(std::string_view name);
-    Json& value(std::string_view text);
-    Json& value(const char* text) { return value(std::string_view(text)); }
-    Json& value(bool flag);
-    Json& value(double number);  // NaN and infinities, which JSON lacks, as null
-    Json& value(float number);   // the shortest text that reads back as this float
-    Json& value(std::uint64_t number);
-    Json& value(std::int64_t number);
-    Json& value(int number) { return value(static_cast<std::int64_t>(number)); }
-    Json& null();
-    template <class T>
-    Json& member(std::string_view name, const T& v) {
-        key(name);
-        return value(v);
-    }
-    std::string take() { return std::move(text_); }
-
-  private:
-    void separate();
-    std::string text_;
-    bool first_ = true;  // no comma before the next value or key
-};
-
-// `text` as a JSON string literal, quotes included: control characters and DEL as \u00XX, valid
-// UTF-8 as it is, and each byte that does not begin a valid UTF-8 sequence (a stray continuation
-// byte, a cut or overlong sequence, a surrogate, past U+10FFFF) as U+FFFD, so that the document
-// is valid JSON whatever bytes a network peer put into a name or a message.
-void append_json_string(std::string& out, std::string_view text);
 
 }  // namespace ioport::daemon
