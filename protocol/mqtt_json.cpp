@@ -1,0 +1,442 @@
+#include "protocol/mqtt_json.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <utility>
+#include <variant>
+
+#include <fmt/format.h>
+
+#include "protocol/json.hpp"
+
+namespace ioport::mqtt_json {
+namespace {
+
+using sparkplug::DataType;
+using sparkplug::Value;
+
+// A Sparkplug metric name as a state key: "in/5" → "in5", "value/0" → "value0".
+std::string key_of(std::string_view metric) {
+    std::string key(metric);
+    std::erase(key, '/');
+    return key;
+}
+
+// The other way: "out5" → "out/5"; words without a number stay as they are.
+std::string metric_of(std::string_view point) {
+    const auto digit = point.find_first_of("0123456789");
+    if (digit == std::string_view::npos || digit == 0) return std::string(point);
+    return fmt::format("{}/{}", point.substr(0, digit), point.substr(digit));
+}
+
+std::string sanitized(std::string_view text) {
+    std::string out(text);
+    for (auto& c : out) {
+        const bool kept = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') ||
+                          (c >= '0' && c <= '9') || c == '_' || c == '-';
+        if (!kept) c = '_';
+    }
+    return out;
+}
+
+void json_value(Json& json, const std::optional<Value>& value, std::string_view key) {
+    if (!value) {
+        json.null();
+        return;
+    }
+    if (key == "colour") {
+        const auto code = std::get<std::uint64_t>(*value);
+        if (code < colour_count)
+            json.value(name(static_cast<Colour>(code)));
+        else
+            json.null();
+        return;
+    }
+    std::visit(
+        [&](const auto& v) {
+            using T = std::decay_t<decltype(v)>;
+            if constexpr (std::is_same_v<T, std::string>)
+                json.value(std::string_view(v));
+            else
+                json.value(v);
+        },
+        *value);
+}
+
+std::optional<bool> parse_switch(std::string_view payload) {
+    for (const auto on : {"ON", "on", "1", "true"})
+        if (payload == on) return true;
+    for (const auto off : {"OFF", "off", "0", "false"})
+        if (payload == off) return false;
+    return std::nullopt;
+}
+
+// A whole number 0…max, decimal or 0x hex, nothing else (no sign, no fraction, no space).
+std::optional<std::uint64_t> parse_number(std::string_view payload, std::uint64_t max) {
+    int base = 10;
+    if (payload.starts_with("0x") || payload.starts_with("0X")) {
+        base = 16;
+        payload.remove_prefix(2);
+    }
+    if (payload.empty() || payload.size() > 8) return std::nullopt;
+    std::uint64_t number = 0;
+    for (const char c : payload) {
+        int digit = -1;
+        if (c >= '0' && c <= '9') digit = c - '0';
+        if (base == 16 && c >= 'a' && c <= 'f') digit = c - 'a' + 10;
+        if (base == 16 && c >= 'A' && c <= 'F') digit = c - 'A' + 10;
+        if (digit < 0 || digit >= base) return std::nullopt;
+        number = number * static_cast<std::uint64_t>(base) + static_cast<std::uint64_t>(digit);
+    }
+    if (number > max) return std::nullopt;
+    return number;
+}
+
+}  // namespace
+
+std::string module_id(std::optional<ModuleAddress> module) {
+    if (!module) return "id2";
+    return fmt::format("{}_{}", name(module->type), module->number);
+}
+
+std::string status_topic(std::string_view prefix) {
+    return fmt::format("{}/status", prefix);
+}
+
+std::string module_topic(std::string_view prefix, std::string_view link,
+                         std::optional<ModuleAddress> module, std::string_view leaf) {
+    return fmt::format("{}/{}/{}/{}", prefix, link, module_id(module), leaf);
+}
+
+std::string set_subscription(std::string_view prefix) {
+    return fmt::format("{}/+/+/+/set", prefix);
+}
+
+std::optional<SetTopic> parse_set_topic(std::string_view prefix, std::string_view topic) {
+    if (!topic.starts_with(prefix) || topic.size() <= prefix.size() || topic[prefix.size()] != '/')
+        return std::nullopt;
+    topic.remove_prefix(prefix.size() + 1);
+    std::array<std::string_view, 4> parts{};
+    for (std::size_t i = 0; i < parts.size(); ++i) {
+        const auto slash = topic.find('/');
+        parts[i] = topic.substr(0, slash);
+        if (parts[i].empty()) return std::nullopt;
+        if (slash == std::string_view::npos) {
+            if (i != parts.size() - 1) return std::nullopt;
+            topic = {};
+        } else {
+            topic.remove_prefix(slash + 1);
+        }
+    }
+    if (!topic.empty() || parts[3] != "set") return std::nullopt;
+    return SetTopic{std::string(parts[0]), std::string(parts[1]), std::string(parts[2])};
+}
+
+std::vector<std::string> state_keys(std::optional<ModuleType> type) {
+    std::vector<std::string> keys;
+    for (const auto& metric : sparkplug::module_metrics(type))
+        if (metric.name != "reset") keys.push_back(key_of(metric.name));
+    return keys;
+}
+
+std::string state_json(std::optional<ModuleType> type, const sparkplug::ModuleValues& values) {
+    const auto metrics = sparkplug::module_metrics(type);
+    const auto now = sparkplug::module_values(type, values);
+    Json json;
+    json.begin_object();
+    for (std::size_t i = 0; i < metrics.size(); ++i) {
+        if (metrics[i].name == "reset") continue;  // a command, not a state
+        const auto key = key_of(metrics[i].name);
+        json.key(key);
+        json_value(json, now[i], key);
+    }
+    json.end_object();
+    return json.take();
+}
+
+Result<gateway::WritePlan> plan_set(std::optional<ModuleAddress> module, std::string_view point,
+                                    std::string_view payload) {
+    const auto refused = [&](std::string why) {
+        return fail(Errc::invalid_argument,
+                    fmt::format("{} {}: {}", module_id(module), printable(point, 40), why));
+    };
+    const auto metric_name = metric_of(point);
+    const auto metrics =
+        sparkplug::module_metrics(module ? std::optional(module->type) : std::nullopt);
+    const auto spec = std::ranges::find(metrics, metric_name, &sparkplug::MetricSpec::name);
+    if (spec == metrics.end() || key_of(metric_name) != point) return refused("no such point");
+    if (!spec->writable) return refused("an input: it cannot be set");
+    if (payload.size() > max_set_bytes)
+        return refused(
+            fmt::format("a payload of {} bytes: at most {}", payload.size(), max_set_bytes));
+    const auto bad = [&](std::string_view allowed) {
+        return refused(fmt::format("'{}' is not allowed: {}", printable(payload, 40), allowed));
+    };
+    std::optional<Value> value;
+    switch (spec->type) {
+        case DataType::boolean:
+            if (const auto on = parse_switch(payload)) value = *on;
+            if (!value) return bad("send ON or OFF (or 1/0, true/false)");
+            break;
+        case DataType::uint16:
+            if (const auto n = parse_number(payload, 0xFFFF)) value = *n;
+            if (!value) return bad("send a number 0-65535 (or 0x0000-0xFFFF)");
+            break;
+        case DataType::uint8:
+            if (point == "colour") {
+                if (const auto colour = colour_from_name(payload))
+                    value = std::uint64_t{static_cast<std::uint8_t>(*colour)};
+                else if (const auto n = parse_number(payload, colour_count - 1))
+                    value = *n;
+                if (!value)
+                    return bad(
+                        "send a colour: off, red, green, blue, cyan, magenta, "
+                        "yellow, white (or 0-7)");
+            } else {
+                if (const auto n = parse_number(payload, mux_test_points - 1)) value = *n;
+                if (!value) return bad("send a test point 0-7");
+            }
+            break;
+        case DataType::int64:
+        case DataType::uint64:
+        case DataType::float32:
+        case DataType::string:
+            return refused("cannot be set");
+    }
+    auto plan = sparkplug::plan_command(module, metric_name, 0, value);
+    if (!plan) return refused(plan.error().message);
+    return plan;
+}
+
+// --- Home Assistant discovery -------------------------------------------------------------
+
+std::string node_id(std::string_view topic_prefix) {
+    return sanitized(topic_prefix);
+}
+
+std::string_view device_class(std::string_view unit) {
+    // Home Assistant's units per class (home-assistant.io, sensor#device-class), exact spelling.
+    static constexpr std::array<std::pair<std::string_view, std::string_view>, 27> classes{{
+        {"°C", "temperature"}, {"°F", "temperature"}, {"K", "temperature"}, {"Pa", "pressure"},
+        {"kPa", "pressure"},   {"hPa", "pressure"},   {"bar", "pressure"},  {"cbar", "pressure"},
+        {"mbar", "pressure"},  {"mmHg", "pressure"},  {"inHg", "pressure"}, {"psi", "pressure"},
+        {"V", "voltage"},      {"mV", "voltage"},     {"µV", "voltage"},    {"kV", "voltage"},
+        {"MV", "voltage"},     {"A", "current"},      {"mA", "current"},    {"W", "power"},
+        {"kW", "power"},       {"MW", "power"},       {"Hz", "frequency"},  {"kHz", "frequency"},
+        {"MHz", "frequency"},  {"GHz", "frequency"},  {"mHz", "frequency"},
+    }};
+    for (const auto& [symbol, device] : classes)
+        if (symbol == unit) return device;
+    return "";
+}
+
+namespace {
+
+struct Entity {
+    std::string_view component;  // binary_sensor, switch, sensor, select, number, button
+    std::string point;           // state key, and the last part of the object id
+    std::string name;
+};
+
+void common(Json& json, const Node& node, std::string_view object_id, const Entity& entity,
+            std::string_view availability) {
+    json.member("name", entity.name)
+        .member("unique_id", fmt::format("{}_{}", node_id(node.topic_prefix), object_id))
+        .key("availability")
+        .begin_array()
+        .begin_object()
+        .member("topic", status_topic(node.topic_prefix))
+        .end_object();
+    if (!availability.empty()) json.begin_object().member("topic", availability).end_object();
+    json.end_array().member("availability_mode", "all");
+    json.key("origin")
+        .begin_object()
+        .member("name", "ioportd")
+        .member("sw_version", node.version)
+        .end_object();
+}
+
+std::string config_topic(const Node& node, std::string_view component, std::string_view object) {
+    return fmt::format("{}/{}/{}/{}/config", node.discovery_prefix, component,
+                       node_id(node.topic_prefix), object);
+}
+
+std::string point_name(const std::string& configured, std::string fallback) {
+    return configured.empty() ? std::move(fallback) : configured;
+}
+
+// The entities of a module: one per point Home Assistant shows.
+std::vector<Entity> entities(std::optional<ModuleAddress> module, const gateway::ModuleTags& tags) {
+    std::vector<Entity> out;
+    if (!module) {
+        out.push_back({"binary_sensor", "stop", "stop"});
+        out.push_back({"sensor", "count", "count"});
+        out.push_back({"button", "reset", "reset count"});
+        return out;
+    }
+    const auto type = module->type;
+    const auto point = [&](std::size_t k) {
+        return k < tags.points.size() ? tags.points[k] : std::string();
+    };
+    switch (type) {
+        case ModuleType::dim16:
+        case ModuleType::lim16:
+            for (std::size_t k = 0; k < 16; ++k)
+                out.push_back({"binary_sensor", fmt::format("in{}", k),
+                               point_name(point(k), fmt::format("input {}", k))});
+            break;
+        case ModuleType::dom16:
+            for (std::size_t k = 0; k < 16; ++k)
+                out.push_back({"switch", fmt::format("out{}", k),
+                               point_name(point(k), fmt::format("output {}", k))});
+            break;
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            for (std::size_t c = 0; c < tags.channels.size(); ++c)
+                out.push_back({"sensor", fmt::format("value{}", c),
+                               point_name(tags.channels[c].name, tags.channels.size() > 1
+                                                                     ? fmt::format("channel {}", c)
+                                                                     : std::string("value"))});
+            break;
+        case ModuleType::rgbdm:
+            out.push_back({"select", "colour", "colour"});
+            break;
+        case ModuleType::mux8m:
+            out.push_back({"number", "pos", "pos"});
+            out.push_back({"number", "neg", "neg"});
+            break;
+    }
+    return out;
+}
+
+// Decimals Home Assistant shows: those the status page shows for the channel's range.
+int display_precision(const std::array<double, 2>& range) {
+    const double span = range[1] - range[0];
+    return std::clamp(3 - static_cast<int>(std::floor(std::log10(span > 0 ? span : 1))), 0, 3);
+}
+
+void component_keys(Json& json, const Entity& entity, std::optional<ModuleAddress> module,
+                    const gateway::ModuleTags& tags, const std::string& state,
+                    const std::string& command) {
+    const auto& key = entity.point;
+    const auto on_off = fmt::format("{{{{ 'ON' if value_json.{} else 'OFF' }}}}", key);
+    const auto plain = fmt::format("{{{{ value_json.{} }}}}", key);
+    if (entity.component == "binary_sensor") {
+        json.member("state_topic", state).member("value_template", on_off);
+        if (!module) json.member("device_class", "problem");  // the machine-stop input
+    } else if (entity.component == "switch") {
+        json.member("state_topic", state)
+            .member("value_template", on_off)
+            .member("command_topic", command)
+            .member("payload_on", "ON")
+            .member("payload_off", "OFF")
+            .member("optimistic", false);  // on only once the device confirmed it
+    } else if (entity.component == "sensor" && !module) {
+        json.member("state_topic", state)
+            .member("value_template", plain)
+            .member("state_class", "total_increasing");
+    } else if (entity.component == "sensor") {
+        const auto channel = static_cast<std::size_t>(std::stoul(key.substr(5)));
+        const auto& tag = tags.channels.at(channel);
+        json.member("state_topic", state)
+            .member("value_template", plain)
+            .member("state_class", "measurement")
+            .member("suggested_display_precision", display_precision(tag.range));
+        if (!tag.unit.empty()) json.member("unit_of_measurement", tag.unit);
+        if (const auto device = device_class(tag.unit); !device.empty())
+            json.member("device_class", device);
+    } else if (entity.component == "select") {
+        json.member("state_topic", state)
+            .member("value_template", plain)
+            .member("command_topic", command)
+            .member("optimistic", false)
+            .key("options")
+            .begin_array();
+        for (int c = 0; c < colour_count; ++c)
+            json.value(name(static_cast<Colour>(c)));
+        json.end_array();
+    } else if (entity.component == "number") {
+        json.member("state_topic", state)
+            .member("value_template", plain)
+            .member("command_topic", command)
+            .member("command_template", "{{ value | int }}")
+            .member("min", 0)
+            .member("max", mux_test_points - 1)
+            .member("step", 1)
+            .member("mode", "box")
+            .member("optimistic", false);
+    } else if (entity.component == "button") {
+        json.member("command_topic", command).member("payload_press", "ON");
+    }
+}
+
+}  // namespace
+
+Discovery gateway_discovery(const Node& node) {
+    const auto id = node_id(node.topic_prefix);
+    Json json;
+    json.begin_object();
+    json.member("name", "connection")
+        .member("unique_id", fmt::format("{}_connection", id))
+        .member("state_topic", status_topic(node.topic_prefix))
+        .member("payload_on", "online")
+        .member("payload_off", "offline")
+        .member("device_class", "connectivity")
+        .member("entity_category", "diagnostic");
+    json.key("device")
+        .begin_object()
+        .key("identifiers")
+        .begin_array()
+        .value(id)
+        .end_array()
+        .member("name", fmt::format("ioportd {}", node.topic_prefix))
+        .member("manufacturer", "ioportd")
+        .member("model", "serial-to-Modbus gateway")
+        .member("sw_version", node.version)
+        .end_object();
+    json.key("origin")
+        .begin_object()
+        .member("name", "ioportd")
+        .member("sw_version", node.version)
+        .end_object();
+    json.end_object();
+    return {config_topic(node, "binary_sensor", "connection"), json.take()};
+}
+
+std::vector<Discovery> module_discovery(const Node& node, std::string_view link,
+                                        std::optional<ModuleAddress> module,
+                                        const gateway::ModuleTags& tags) {
+    const auto id = node_id(node.topic_prefix);
+    const auto device_id = fmt::format("{}_{}", sanitized(link), module_id(module));
+    const auto state = module_topic(node.topic_prefix, link, module, "state");
+    const auto availability = module_topic(node.topic_prefix, link, module, "availability");
+    std::vector<Discovery> out;
+    for (const auto& entity : entities(module, tags)) {
+        const auto object = fmt::format("{}_{}", device_id, entity.point);
+        const auto command =
+            module_topic(node.topic_prefix, link, module, fmt::format("{}/set", entity.point));
+        Json json;
+        json.begin_object();
+        common(json, node, object, entity, availability);
+        component_keys(json, entity, module, tags, state, command);
+        json.key("device")
+            .begin_object()
+            .key("identifiers")
+            .begin_array()
+            .value(fmt::format("{}_{}", id, device_id))
+            .end_array()
+            .member("name", module ? tags.name : fmt::format("ID-2 {}", link))
+            .member("manufacturer", "iomlogic")
+            .member("model", module ? std::string(name(module->type)) : std::string("ID-2"))
+            .member("via_device", id)
+            .end_object();
+        json.end_object();
+        out.push_back({config_topic(node, entity.component, object), json.take()});
+    }
+    return out;
+}
+
+}  // namespace ioport::mqtt_json

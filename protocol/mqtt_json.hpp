@@ -1,0 +1,88 @@
+// Plain MQTT with JSON and Home Assistant discovery (gateway.md §6.3) as pure functions: the
+// topics, a module's retained state document, a `set` as the write it asks for, and the
+// discovery configs of a module. No I/O: the daemon's JSON output owns the connection.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "protocol/error.hpp"
+#include "protocol/gateway_map.hpp"
+#include "protocol/ioport.hpp"
+#include "protocol/sparkplug.hpp"  // ModuleValues: what a module holds now
+#include "protocol/tags.hpp"
+
+namespace ioport::mqtt_json {
+
+// A module in topics and ids: "dim16_0"; the ID-2: "id2".
+std::string module_id(std::optional<ModuleAddress> module);
+
+std::string status_topic(std::string_view prefix);  // <prefix>/status
+// <prefix>/<link>/<module>/<leaf>: leaf "state", "availability", or "<point>/set".
+std::string module_topic(std::string_view prefix, std::string_view link,
+                         std::optional<ModuleAddress> module, std::string_view leaf);
+std::string set_subscription(std::string_view prefix);  // <prefix>/+/+/+/set
+
+struct SetTopic {
+    std::string link;
+    std::string module;  // as module_id() writes it
+    std::string point;
+    friend bool operator==(const SetTopic&, const SetTopic&) = default;
+};
+// nullopt for a topic that is not <prefix>/<link>/<module>/<point>/set.
+std::optional<SetTopic> parse_set_topic(std::string_view prefix, std::string_view topic);
+
+// The state keys of a module in document order: dim16/lim16 in0…in15 and word; dom16 out0…out15
+// and word; analog value0…, raw0…; rgbdm colour; mux8m pos, neg; the ID-2 stop, count.
+std::vector<std::string> state_keys(std::optional<ModuleType> type);
+
+// The retained state document: every key of the module, null where nothing was read yet (so that
+// a template never meets a missing key). Inputs and outputs are true/false, words and raw values
+// numbers, value<ch> the engineering value (gateway.md §6.1), colour its name.
+std::string state_json(std::optional<ModuleType> type, const sparkplug::ModuleValues& values);
+
+// The longest `set` payload read; a longer one is refused unread.
+inline constexpr std::size_t max_set_bytes = 32;
+
+// A `set` as the write the gateway plans like any other (gateway.md §6.3): outK and reset take
+// ON/OFF, 1/0, true/false; word a number 0–65535 (decimal or 0x hex); colour a colour name or
+// 0–7; pos and neg 0–7. Fails (invalid_argument, saying what is allowed) for a point the module
+// does not have or cannot write, and for any other payload: never truncated, never guessed.
+Result<gateway::WritePlan> plan_set(std::optional<ModuleAddress> module, std::string_view point,
+                                    std::string_view payload);
+
+// --- Home Assistant discovery -------------------------------------------------------------
+
+// What every discovery config of this gateway shares.
+struct Node {
+    std::string discovery_prefix;  // "homeassistant"
+    std::string topic_prefix;      // "ioportd/box7"
+    std::string version;           // ioportd's, for the device and origin blocks
+};
+
+// The topic prefix as an id Home Assistant takes in topics and unique ids: letters, digits, _
+// and - as they are, anything else as _ ("ioportd/box7" → "ioportd_box7").
+std::string node_id(std::string_view topic_prefix);
+
+// Home Assistant's sensor device class for a unit, where it spells the unit exactly so
+// ("°C" → temperature, "bar" → pressure, "A" → current, "V" → voltage); "" otherwise, as a
+// class with a unit it does not accept makes Home Assistant refuse the whole config.
+std::string_view device_class(std::string_view unit);
+
+struct Discovery {
+    std::string topic;    // <discovery_prefix>/<component>/<node>/<object>/config
+    std::string payload;  // the JSON config; "" clears it (retained)
+    friend bool operator==(const Discovery&, const Discovery&) = default;
+};
+
+// The gateway's own device: a binary sensor of its connectivity on <prefix>/status.
+Discovery gateway_discovery(const Node& node);
+// One entity per point of a module, in one Home Assistant device named as §6.1 names the
+// module, routed via the gateway's device.
+std::vector<Discovery> module_discovery(const Node& node, std::string_view link,
+                                        std::optional<ModuleAddress> module,
+                                        const gateway::ModuleTags& tags);
+
+}  // namespace ioport::mqtt_json

@@ -1,0 +1,220 @@
+// Plain MQTT with JSON and Home Assistant discovery (gateway.md §6.3) as pure functions.
+#include "protocol/mqtt_json.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+
+namespace ioport::mqtt_json {
+namespace {
+
+const ModuleAddress dim16{ModuleType::dim16, 0};
+const ModuleAddress dom16{ModuleType::dom16, 1};
+const ModuleAddress acm3p{ModuleType::acm3p, 0};
+const ModuleAddress rgbdm{ModuleType::rgbdm, 2};
+const ModuleAddress mux8m{ModuleType::mux8m, 0};
+
+TEST(MqttJsonTopics, AsGatewayMdSays) {
+    EXPECT_EQ(module_id(dim16), "dim16_0");
+    EXPECT_EQ(module_id(std::nullopt), "id2");
+    EXPECT_EQ(status_topic("ioportd/box7"), "ioportd/box7/status");
+    EXPECT_EQ(module_topic("ioportd/box7", "hub0", dom16, "state"),
+              "ioportd/box7/hub0/dom16_1/state");
+    EXPECT_EQ(module_topic("ioportd/box7", "press", std::nullopt, "availability"),
+              "ioportd/box7/press/id2/availability");
+    EXPECT_EQ(set_subscription("ioportd/box7"), "ioportd/box7/+/+/+/set");
+    EXPECT_EQ(parse_set_topic("ioportd/box7", "ioportd/box7/hub0/dom16_1/out3/set"),
+              (SetTopic{"hub0", "dom16_1", "out3"}));
+    for (const char* topic :
+         {"ioportd/box7/hub0/dom16_1/out3", "ioportd/box7/hub0/dom16_1/out3/set/x",
+          "ioportd/box7/hub0//out3/set", "ioportd/box7x/hub0/dom16_1/out3/set",
+          "ioportd/box7/hub0/dom16_1/out3/get", "ioportd/box7", "ioportd/box7/", ""})
+        EXPECT_EQ(parse_set_topic("ioportd/box7", topic), std::nullopt) << topic;
+}
+
+TEST(MqttJsonState, EveryKeyOfTheModuleNullUntilRead) {
+    EXPECT_EQ(state_json(ModuleType::dim16, {}),
+              R"({"in0":null,"in1":null,"in2":null,"in3":null,"in4":null,"in5":null,"in6":null,)"
+              R"("in7":null,"in8":null,"in9":null,"in10":null,"in11":null,"in12":null,)"
+              R"("in13":null,"in14":null,"in15":null,"word":null})");
+    const auto dim = state_json(ModuleType::dim16, {Reading{{0x8001, 0, 0}, 1}, {}, {}, {}});
+    EXPECT_NE(dim.find(R"("in0":true,"in1":false)"), std::string::npos) << dim;
+    EXPECT_NE(dim.find(R"("in15":true,"word":32769})"), std::string::npos) << dim;
+    EXPECT_EQ(state_json(ModuleType::rgbdm, {{}, 3, {}, {}}), R"({"colour":"blue"})");
+    EXPECT_EQ(state_json(ModuleType::mux8m, {{}, 0x0302, {}, {}}), R"({"pos":3,"neg":2})");
+    EXPECT_EQ(state_json(std::nullopt, {{}, {}, true, 42}), R"({"stop":true,"count":42})");
+}
+
+TEST(MqttJsonState, AnalogValuesAreTheEngineeringValues) {
+    auto tags = gateway::default_tags(acm3p);
+    tags.channels[0].scale = gateway::Scale{0, 100, -20, 150};
+    const auto text =
+        state_json(ModuleType::acm3p, {Reading{{0, 32768, 65535}, 3}, {}, {}, {}, &tags});
+    EXPECT_EQ(text, R"({"raw0":0,"raw1":32768,"raw2":65535,"value0":-20,"value1":50.000763,)"
+                    R"("value2":100})");
+    EXPECT_EQ(state_keys(ModuleType::dccim), (std::vector<std::string>{"raw0", "value0"}));
+}
+
+TEST(MqttJsonSet, WritesAsTheOneWritePathPlansThem) {
+    const auto out3 = plan_set(dom16, "out3", "ON");
+    ASSERT_TRUE(out3) << out3.error().message;
+    EXPECT_EQ(out3->changes, (std::vector<gateway::OutputChange>{{dom16, 0x0008, 0x0008}}));
+    EXPECT_EQ(plan_set(dom16, "out3", "0")->changes,
+              (std::vector<gateway::OutputChange>{{dom16, 0x0008, 0x0000}}));
+    EXPECT_EQ(plan_set(dom16, "word", "0x00F0")->changes,
+              (std::vector<gateway::OutputChange>{{dom16, 0xFFFF, 0x00F0}}));
+    EXPECT_EQ(plan_set(dom16, "word", "65535")->changes[0].value, 0xFFFF);
+    EXPECT_EQ(plan_set(rgbdm, "colour", "magenta")->changes[0].value, 5);
+    EXPECT_EQ(plan_set(rgbdm, "colour", "3")->changes[0].value, 3);
+    EXPECT_EQ(plan_set(mux8m, "pos", "7")->changes,
+              (std::vector<gateway::OutputChange>{{mux8m, 0xFF00, 0x0700}}));
+    const auto reset = plan_set(std::nullopt, "reset", "ON");
+    ASSERT_TRUE(reset) << reset.error().message;
+    EXPECT_TRUE(reset->reset_counter);
+}
+
+TEST(MqttJsonSet, AnythingElseIsRefusedSayingWhatIsAllowed) {
+    const auto refused = [](std::optional<ModuleAddress> module, std::string_view point,
+                            std::string_view payload, std::string_view why) {
+        const auto plan = plan_set(module, point, payload);
+        ASSERT_FALSE(plan) << point << " " << payload;
+        EXPECT_EQ(plan.error().code, Errc::invalid_argument);
+        EXPECT_NE(plan.error().message.find(why), std::string::npos) << plan.error().message;
+    };
+    refused(dom16, "out3", "yes", "'yes' is not allowed: send ON or OFF");
+    refused(dom16, "out3", "ON ", "not allowed");
+    refused(dom16, "out16", "ON", "no such point");
+    refused(dom16, "out03", "ON", "no such point");
+    refused(dom16, "word", "65536", "send a number 0-65535");
+    refused(dom16, "word", "-1", "not allowed");
+    refused(dom16, "word", "1.0", "not allowed");
+    refused(dim16, "in3", "ON", "an input: it cannot be set");
+    refused(dim16, "word", "1", "an input");
+    refused(rgbdm, "colour", "pink", "send a colour: off, red");
+    refused(rgbdm, "colour", "8", "send a colour");
+    refused(mux8m, "neg", "8", "send a test point 0-7");
+    refused(acm3p, "value0", "1", "an input");
+    refused(std::nullopt, "count", "0", "an input");
+    refused(dom16, "out3", std::string(33, '1'), "a payload of 33 bytes: at most 32");
+    refused(dom16, "out3\n", "ON", "no such point");
+    refused(dom16, "out3", "\x1b[2J", "'\\x1B[2J' is not allowed");
+}
+
+// --- Home Assistant discovery -------------------------------------------------------------
+
+const Node node{"homeassistant", "ioportd/box7", "0.1.0"};
+
+const Discovery* find(const std::vector<Discovery>& configs, std::string_view topic) {
+    const auto found = std::ranges::find(configs, topic, &Discovery::topic);
+    return found == configs.end() ? nullptr : &*found;
+}
+
+TEST(MqttJsonDiscovery, NodeIdsAndDeviceClasses) {
+    EXPECT_EQ(node_id("ioportd/box7"), "ioportd_box7");
+    EXPECT_EQ(node_id("plant 1/ä"), "plant_1___");
+    EXPECT_EQ(device_class("°C"), "temperature");
+    EXPECT_EQ(device_class("bar"), "pressure");
+    EXPECT_EQ(device_class("mA"), "current");
+    EXPECT_EQ(device_class("V"), "voltage");
+    EXPECT_EQ(device_class("%"), "");  // a plain percentage has no class
+    EXPECT_EQ(device_class("C"), "");  // Home Assistant would refuse the config
+    EXPECT_EQ(device_class("degC"), "");
+}
+
+TEST(MqttJsonDiscovery, TheGatewaysOwnDevice) {
+    const auto gateway = gateway_discovery(node);
+    EXPECT_EQ(gateway.topic, "homeassistant/binary_sensor/ioportd_box7/connection/config");
+    EXPECT_EQ(gateway.payload,
+              R"({"name":"connection","unique_id":"ioportd_box7_connection",)"
+              R"("state_topic":"ioportd/box7/status","payload_on":"online",)"
+              R"("payload_off":"offline","device_class":"connectivity",)"
+              R"("entity_category":"diagnostic","device":{"identifiers":["ioportd_box7"],)"
+              R"("name":"ioportd ioportd/box7","manufacturer":"ioportd",)"
+              R"("model":"serial-to-Modbus gateway","sw_version":"0.1.0"},)"
+              R"("origin":{"name":"ioportd","sw_version":"0.1.0"}})");
+}
+
+TEST(MqttJsonDiscovery, AnAnalogChannelIsASensorInItsUnit) {
+    auto tags = gateway::default_tags(acm3p);
+    tags.name = "boiler 1";
+    tags.channels[0] = {"supply temperature", "°C", gateway::Scale{0, 100, -20, 150}, {-20, 150}};
+    const auto configs = module_discovery(node, "hub0", acm3p, tags);
+    ASSERT_EQ(configs.size(), 3U);
+    const auto* value0 =
+        find(configs, "homeassistant/sensor/ioportd_box7/hub0_acm3p_0_value0/config");
+    ASSERT_NE(value0, nullptr);
+    EXPECT_EQ(value0->payload,
+              R"({"name":"supply temperature","unique_id":"ioportd_box7_hub0_acm3p_0_value0",)"
+              R"("availability":[{"topic":"ioportd/box7/status"},)"
+              R"({"topic":"ioportd/box7/hub0/acm3p_0/availability"}],"availability_mode":"all",)"
+              R"("origin":{"name":"ioportd","sw_version":"0.1.0"},)"
+              R"("state_topic":"ioportd/box7/hub0/acm3p_0/state",)"
+              R"("value_template":"{{ value_json.value0 }}","state_class":"measurement",)"
+              R"("suggested_display_precision":1,"unit_of_measurement":"°C",)"
+              R"("device_class":"temperature","device":{"identifiers":)"
+              R"(["ioportd_box7_hub0_acm3p_0"],"name":"boiler 1","manufacturer":"iomlogic",)"
+              R"("model":"acm3p","via_device":"ioportd_box7"}})");
+    const auto* value1 =
+        find(configs, "homeassistant/sensor/ioportd_box7/hub0_acm3p_0_value1/config");
+    ASSERT_NE(value1, nullptr);
+    EXPECT_NE(value1->payload.find(R"("name":"channel 1")"), std::string::npos);
+    EXPECT_NE(value1->payload.find(R"("unit_of_measurement":"%")"), std::string::npos);
+    EXPECT_EQ(value1->payload.find("device_class"), std::string::npos);
+}
+
+TEST(MqttJsonDiscovery, EveryModuleTypeHasItsComponents) {
+    const auto count = [](const std::vector<Discovery>& configs, std::string_view component) {
+        return std::ranges::count_if(configs, [&](const Discovery& d) {
+            return d.topic.starts_with("homeassistant/" + std::string(component) + "/");
+        });
+    };
+    auto inputs = gateway::default_tags(dim16);
+    inputs.points[5] = "pump running";
+    const auto dim = module_discovery(node, "hub0", dim16, inputs);
+    EXPECT_EQ(count(dim, "binary_sensor"), 16);
+    const auto* in5 = find(dim, "homeassistant/binary_sensor/ioportd_box7/hub0_dim16_0_in5/config");
+    ASSERT_NE(in5, nullptr);
+    EXPECT_NE(in5->payload.find(R"("name":"pump running")"), std::string::npos);
+    EXPECT_NE(in5->payload.find(R"("value_template":"{{ 'ON' if value_json.in5 else 'OFF' }}")"),
+              std::string::npos);
+
+    const auto dom = module_discovery(node, "hub0", dom16, gateway::default_tags(dom16));
+    EXPECT_EQ(count(dom, "switch"), 16);
+    const auto* out0 = find(dom, "homeassistant/switch/ioportd_box7/hub0_dom16_1_out0/config");
+    ASSERT_NE(out0, nullptr);
+    for (const auto* key :
+         {R"("command_topic":"ioportd/box7/hub0/dom16_1/out0/set")", R"("payload_on":"ON")",
+          R"("payload_off":"OFF")", R"("optimistic":false)", R"("name":"output 0")"})
+        EXPECT_NE(out0->payload.find(key), std::string::npos) << key << "\n" << out0->payload;
+
+    const auto rgb = module_discovery(node, "hub0", rgbdm, gateway::default_tags(rgbdm));
+    ASSERT_EQ(count(rgb, "select"), 1);
+    EXPECT_NE(rgb[0].payload.find(
+                  R"("options":["off","red","green","blue","cyan","magenta","yellow","white"])"),
+              std::string::npos)
+        << rgb[0].payload;
+
+    const auto mux = module_discovery(node, "hub0", mux8m, gateway::default_tags(mux8m));
+    ASSERT_EQ(count(mux, "number"), 2);
+    EXPECT_NE(mux[0].payload.find(R"("min":0,"max":7,"step":1,"mode":"box")"), std::string::npos);
+    EXPECT_NE(mux[0].payload.find(R"("command_template":"{{ value | int }}")"), std::string::npos);
+
+    const auto id2 = module_discovery(node, "press", std::nullopt, gateway::no_tags);
+    ASSERT_EQ(id2.size(), 3U);
+    EXPECT_EQ(id2[0].topic, "homeassistant/binary_sensor/ioportd_box7/press_id2_stop/config");
+    EXPECT_NE(id2[0].payload.find(R"("device_class":"problem")"), std::string::npos);
+    EXPECT_NE(id2[1].payload.find(R"("state_class":"total_increasing")"), std::string::npos);
+    EXPECT_EQ(id2[2].topic, "homeassistant/button/ioportd_box7/press_id2_reset/config");
+    EXPECT_NE(id2[2].payload.find(R"("payload_press":"ON")"), std::string::npos);
+    EXPECT_NE(id2[2].payload.find(R"("name":"ID-2 press")"), std::string::npos);
+    // Every unique id is unique.
+    std::vector<std::string> ids;
+    for (const auto* configs : {&dim, &dom, &rgb, &mux, &id2})
+        for (const auto& d : *configs)
+            ids.push_back(d.topic);
+    std::ranges::sort(ids);
+    EXPECT_EQ(std::ranges::adjacent_find(ids), ids.end());
+}
+
+}  // namespace
+}  // namespace ioport::mqtt_json
