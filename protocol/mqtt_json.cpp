@@ -262,8 +262,8 @@ std::string config_topic(const Node& node, std::string_view component, std::stri
                        node_id(node.topic_prefix), object);
 }
 
-std::string point_name(const std::string& configured, std::string fallback) {
-    return configured.empty() ? std::move(fallback) : configured;
+std::string point_name(const std::string& configured, std::string_view fallback) {
+    return configured.empty() ? std::string(fallback) : configured;
 }
 
 // The entities of a module: one per point Home Assistant shows.
