@@ -20,6 +20,7 @@
 #include "config/duration.hpp"
 #include "config/number.hpp"
 #include "config/tls_files.hpp"
+#include "protocol/mqtt_json.hpp"
 #include "protocol/sparkplug.hpp"
 
 namespace ioport::config {
@@ -438,11 +439,14 @@ struct Fields {
 };
 
 using Keys = std::span<const std::string_view>;
-constexpr std::array<std::string_view, 6> top_keys{"modbus", "http",        "mqtt",
+constexpr std::array<std::string_view, 7> top_keys{"modbus", "http",        "mqtt",     "mqtt_json",
                                                    "links",  "on_shutdown", "log_level"};
 constexpr std::array<std::string_view, 12> mqtt_keys{
     "broker",        "brokers", "group_id",  "edge_node_id",    "client_id", "username",
     "password_file", "ca_file", "keepalive", "primary_host_id", "deadband",  "store"};
+constexpr std::array<std::string_view, 11> mqtt_json_keys{
+    "broker",    "brokers",      "client_id", "username",         "password_file", "ca_file",
+    "keepalive", "topic_prefix", "discovery", "discovery_prefix", "deadband"};
 constexpr std::array<std::string_view, 3> store_keys{"path", "max_size", "forward_rate"};
 constexpr std::array<std::string_view, 3> http_keys{"listen", "allow", "server_names"};
 constexpr std::array<std::string_view, 10> modbus_keys{
@@ -523,9 +527,14 @@ class Loader {
     void read_http(const Entry& entry, std::optional<HttpSettings>& http);
     void read_server_names(const Fields& fields, std::vector<std::string>& names);
     void read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt);
+    void read_mqtt_json(const Entry& entry, std::optional<MqttJsonSettings>& mqtt_json);
+    // The keys of an MQTT connection, shared by mqtt: and mqtt_json: (client_id is the
+    // section's own: its default differs).
+    void read_connection(const Fields& fields, MqttSettings& connection);
     void read_brokers(const Fields& fields, MqttSettings& mqtt);
     void read_store(const Entry& entry, std::optional<StoreSettings>& store);
     void check_sparkplug_ids(const GatewayConfig& config);
+    void check_topic_levels(const GatewayConfig& config);
     void read_links(const Entry& entry, std::vector<LinkConfig>& links);
     void read_link(const YAML::Node& node, std::size_t index, std::vector<LinkConfig>& links);
     struct LinkOutcome {
@@ -631,6 +640,8 @@ void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
     if (const Entry* links = top.find("links")) read_links(*links, config.links);
     if (const Entry* mqtt = top.find("mqtt")) read_mqtt(*mqtt, config.mqtt);
     if (config.mqtt) check_sparkplug_ids(config);
+    if (const Entry* json = top.find("mqtt_json")) read_mqtt_json(*json, config.mqtt_json);
+    if (config.mqtt_json) check_topic_levels(config);
     check_role_units(config);
     read(top, "on_shutdown", "keep or initial", config.on_shutdown,
          choice<OnShutdown>(on_shutdown_choices));
@@ -850,7 +861,7 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
     // absent = off (gateway.md §5.5)
     if (f.find("broker") == nullptr && f.find("brokers") == nullptr) return;
     MqttSettings m;
-    read_brokers(f, m);
+    read_connection(f, m);
     const auto sparkplug_id = [](const YAML::Node& value) -> Parsed<std::string> {
         if (auto checked = sparkplug::check_id(value.Scalar()); !checked)
             return Unexpected(checked.error().message);
@@ -860,8 +871,20 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
     read(f, "group_id", "a Sparkplug group id", m.group_id, sparkplug_id);
     require(f, "edge_node_id", "this box's Sparkplug edge node id, e.g. edge_node_id: box7");
     read(f, "edge_node_id", "a Sparkplug edge node id", m.edge_node_id, sparkplug_id);
-    read(f, "client_id", "an MQTT client id", m.client_id, text_value);
     if (m.client_id.empty()) m.client_id = fmt::format("ioportd-{}-{}", m.group_id, m.edge_node_id);
+    read(f, "primary_host_id", "a Sparkplug host id", m.primary_host_id,
+         [&](const YAML::Node& value) -> Parsed<std::string> {
+             if (value.Scalar().empty()) return std::string();
+             return sparkplug_id(value);
+         });
+    read(f, "deadband", "a number of engineering units, e.g. 0.5", m.deadband, non_negative);
+    if (const Entry* store = f.find("store")) read_store(*store, m.store);
+    mqtt = std::move(m);
+}
+
+void Loader::read_connection(const Fields& f, MqttSettings& m) {
+    read_brokers(f, m);
+    read(f, "client_id", "an MQTT client id", m.client_id, text_value);
     read(f, "username", "a user name", m.username, text_value);
     read(f, "password_file", "a file's path", m.password_file, text_value);
     if (!m.password_file.empty()) {
@@ -879,14 +902,33 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
             add(f.line_of("ca_file"), f.key("ca_file"), std::move(readable).error());
     }
     read(f, "keepalive", "a duration such as 30s", m.keepalive, duration(5s, 65535s));
-    read(f, "primary_host_id", "a Sparkplug host id", m.primary_host_id,
-         [&](const YAML::Node& value) -> Parsed<std::string> {
-             if (value.Scalar().empty()) return std::string();
-             return sparkplug_id(value);
-         });
-    read(f, "deadband", "a number of engineering units, e.g. 0.5", m.deadband, non_negative);
-    if (const Entry* store = f.find("store")) read_store(*store, m.store);
-    mqtt = std::move(m);
+}
+
+void Loader::read_mqtt_json(const Entry& entry, std::optional<MqttJsonSettings>& mqtt_json) {
+    if (entry.value.IsNull()) return;  // "mqtt_json:" alone: no broker, so off
+    const auto settings =
+        mapping(entry, "mqtt_json", mqtt_json_keys,
+                "{ broker: \"mqtt://127.0.0.1:1883\", topic_prefix: \"ioportd/box7\" }");
+    if (!settings) return;
+    const Fields& f = *settings;
+    // absent = off (gateway.md §6.3)
+    if (f.find("broker") == nullptr && f.find("brokers") == nullptr) return;
+    MqttJsonSettings j;
+    read_connection(f, j.connection);
+    const auto prefix = [](const YAML::Node& value) -> Parsed<std::string> {
+        if (auto checked = mqtt_json::check_topic_prefix(value.Scalar()); !checked)
+            return Unexpected(
+                fmt::format("'{}' {}", printable(value.Scalar(), 80), checked.error().message));
+        return value.Scalar();
+    };
+    read(f, "topic_prefix", "a topic prefix such as ioportd/box7", j.topic_prefix, prefix);
+    read(f, "discovery", "true or false", j.discovery, boolean);
+    read(f, "discovery_prefix", "a topic prefix such as homeassistant", j.discovery_prefix, prefix);
+    read(f, "deadband", "a number of engineering units, e.g. 0.5", j.deadband, non_negative);
+    // Distinct from the Sparkplug node's, so that the two sessions never take each other's place.
+    if (j.connection.client_id.empty())
+        j.connection.client_id = fmt::format("ioportd-json-{}", mqtt_json::node_id(j.topic_prefix));
+    mqtt_json = std::move(j);
 }
 
 // `broker: URL` or `brokers: [URL, …]` (gateway.md §6.2), not both; each broker once.
@@ -962,6 +1004,18 @@ void Loader::check_sparkplug_ids(const GatewayConfig& config) {
         if (auto checked = sparkplug::check_id(link.name); !checked)
             add(link.line, fmt::format("links[{}].name", i),
                 fmt::format("with mqtt on, a link name is part of Sparkplug device ids: {}",
+                            checked.error().message));
+    }
+}
+
+// Link names are a level of every plain MQTT topic ("ioportd/box7/hub0/dim16_0/state").
+void Loader::check_topic_levels(const GatewayConfig& config) {
+    for (std::size_t i = 0; i < config.links.size(); ++i) {
+        const auto& link = config.links[i];
+        if (link.name.empty()) continue;  // reported already
+        if (auto checked = sparkplug::check_id(link.name); !checked && !config.mqtt)
+            add(link.line, fmt::format("links[{}].name", i),
+                fmt::format("with mqtt_json on, a link name is a topic level: {}",
                             checked.error().message));
     }
 }
@@ -1532,13 +1586,17 @@ std::vector<std::string> warnings(const GatewayConfig& config) {
             host_port(modbus.listen_host, modbus.listen_port),
             modbus.read_only ? "read" : "read and write"));
     }
-    if (const auto& mqtt = config.mqtt; mqtt && !mqtt->password.empty())
-        for (const auto& broker : mqtt->brokers)
+    const auto password_in_clear = [&](const MqttSettings& connection, std::string_view section) {
+        if (connection.password.empty()) return;
+        for (const auto& broker : connection.brokers)
             if (!broker.tls)
                 found.push_back(fmt::format(
-                    "the MQTT password (mqtt.password_file) goes to the broker {} unencrypted "
+                    "the MQTT password ({}.password_file) goes to the broker {} unencrypted "
                     "over mqtt://, readable by anyone on the way: use mqtts://",
-                    broker.host));
+                    section, broker.host));
+    };
+    if (config.mqtt) password_in_clear(*config.mqtt, "mqtt");
+    if (config.mqtt_json) password_in_clear(config.mqtt_json->connection, "mqtt_json");
     return found;
 }
 

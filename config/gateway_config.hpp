@@ -138,6 +138,19 @@ struct MqttSettings {
     friend bool operator==(const MqttSettings&, const MqttSettings&) = default;
 };
 
+// Plain MQTT with JSON and Home Assistant discovery (gateway.md §6.3). Its own connection, which
+// may run beside the Sparkplug node's.
+struct MqttJsonSettings {
+    // brokers, client_id, username, password, ca_file and keepalive as in mqtt:; the Sparkplug
+    // keys stay empty.
+    MqttSettings connection;
+    std::string topic_prefix = "ioportd";
+    bool discovery = true;
+    std::string discovery_prefix = "homeassistant";
+    double deadband = 0;  // analog channels, in engineering units
+    friend bool operator==(const MqttJsonSettings&, const MqttJsonSettings&) = default;
+};
+
 struct ModuleConfig {
     ModuleAddress address;
     std::chrono::microseconds poll{0};       // input modules: at most this often; 0 = every cycle
@@ -187,6 +200,8 @@ struct GatewayConfig {
     std::optional<HttpSettings> http;
     // No `mqtt:` section, or no `broker`: no Sparkplug edge node.
     std::optional<MqttSettings> mqtt;
+    // No `mqtt_json:` section, or no `broker`: no plain MQTT output.
+    std::optional<MqttJsonSettings> mqtt_json;
     std::vector<LinkConfig> links;
     OnShutdown on_shutdown = OnShutdown::keep;
     LogLevel log_level = LogLevel::info;

@@ -29,7 +29,7 @@ std::shared_ptr<HttpServer> Gateway::make_http(const config::HttpSettings& setti
 }
 
 GatewayView Gateway::view() const {
-    return {config_, links_, *server_, sparkplug_.get(), events_, started_};
+    return {config_, links_, *server_, sparkplug_.get(), mqtt_json_.get(), events_, started_};
 }
 
 Result<> Gateway::start() {
@@ -49,7 +49,8 @@ Result<> Gateway::start() {
         http_ = make_http(*config_.http);
         if (auto started = http_->start(); !started) return started;
     }
-    return start_sparkplug();
+    if (auto started = start_sparkplug(); !started) return started;
+    return start_mqtt_json();
 }
 
 void Gateway::log_warnings() {
@@ -67,12 +68,25 @@ Result<> Gateway::start_sparkplug(std::uint64_t next_bdseq) {
     return {};
 }
 
+Result<> Gateway::start_mqtt_json() {
+    if (!config_.mqtt_json) return {};
+    auto output = MqttJsonOutput::create(executor_, *config_.mqtt_json, log_, events_);
+    if (!output) return Unexpected(output.error());
+    mqtt_json_ = std::move(*output);
+    mqtt_json_->set_read_only(config_.modbus.read_only);
+    mqtt_json_->start(links_);
+    return {};
+}
+
 void Gateway::shut_down(std::function<void()> done) {
-    // Shared by the links' and the edge node's callbacks; `done` runs when the last has finished.
-    auto remaining = std::make_shared<std::size_t>(links_.size() + (sparkplug_ ? 1 : 0));
+    // Shared by the links' and the MQTT sessions' callbacks; `done` runs when the last has
+    // finished.
+    auto remaining =
+        std::make_shared<std::size_t>(links_.size() + (sparkplug_ ? 1 : 0) + (mqtt_json_ ? 1 : 0));
     auto finished = [remaining, done = std::move(done)] {
         if (--*remaining == 0) done();
     };
+    if (mqtt_json_) mqtt_json_->stop(mqtt_json_stop_deadline, finished);
     if (sparkplug_) sparkplug_->stop(sparkplug_stop_deadline, finished);
     if (http_) http_->stop();
     server_->shut_down();
@@ -81,6 +95,7 @@ void Gateway::shut_down(std::function<void()> done) {
 }
 
 void Gateway::stop() {
+    if (mqtt_json_) mqtt_json_->stop(std::chrono::milliseconds(0), [] {});
     if (sparkplug_) sparkplug_->stop(std::chrono::milliseconds(0), [] {});
     if (http_) http_->stop();
     if (server_) server_->stop();
@@ -95,6 +110,7 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
     const bool modbus_changed = !(next.modbus == config_.modbus);
     const bool http_changed = next.http != config_.http;
     const bool mqtt_changed = next.mqtt != config_.mqtt;
+    const bool mqtt_json_changed = next.mqtt_json != config_.mqtt_json;
     Links links;
     struct {
         std::vector<std::string> kept, retagged, restarted, added, removed;
@@ -149,15 +165,26 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
         sparkplug_->set_read_only(config_.modbus.read_only);
         sparkplug_->set_links(links_);
     }
+    if (mqtt_json_changed) {
+        // Another broker or prefix: this session ends cleanly (offline), a new one begins.
+        if (mqtt_json_) mqtt_json_->stop(mqtt_json_stop_deadline, [] {});
+        mqtt_json_.reset();
+        if (auto started = start_mqtt_json(); !started)
+            log_.error({}, "SIGHUP: MQTT JSON output not started: {}", started.error().message);
+    } else if (mqtt_json_) {
+        mqtt_json_->set_read_only(config_.modbus.read_only);
+        mqtt_json_->set_links(links_);
+    }
     const auto list = [](const std::vector<std::string>& of) {
         return of.empty() ? std::string("none") : fmt::format("{}", fmt::join(of, " "));
     };
     auto summary = fmt::format(
         "links kept: {}; restarted: {}; added: {}; removed: {}; Modbus settings {}; HTTP {}; "
-        "MQTT {}; names, units or scales changed: {}",
+        "MQTT {}; MQTT JSON {}; names, units or scales changed: {}",
         list(names.kept), list(names.restarted), list(names.added), list(names.removed),
         modbus_changed ? "changed" : "unchanged", http_changed ? "changed" : "unchanged",
-        mqtt_changed ? "changed" : "unchanged", list(names.retagged));
+        mqtt_changed ? "changed" : "unchanged", mqtt_json_changed ? "changed" : "unchanged",
+        list(names.retagged));
     events_.add(EventKind::reload, {}, {}, {}, fmt::format("configuration reloaded: {}", summary));
     return summary;
 }
@@ -309,7 +336,19 @@ std::string check_config_text(const config::GatewayConfig& config) {
         else
             text += "Sparkplug store off: what changes while no broker takes it is lost\n";
     } else {
-        text += "MQTT off\n";
+        text += "Sparkplug B off\n";
+    }
+    if (const auto& json = config.mqtt_json) {
+        std::vector<std::string> brokers;
+        for (const auto& broker : json->connection.brokers)
+            brokers.push_back(config::to_string(broker));
+        text += fmt::format(
+            "MQTT JSON under {} on {}, {}\n", json->topic_prefix, fmt::join(brokers, ", then "),
+            json->discovery
+                ? fmt::format("Home Assistant discovery under {}", json->discovery_prefix)
+                : std::string("no discovery"));
+    } else {
+        text += "MQTT JSON off\n";
     }
     text += fmt::format(
         "on shutdown: outputs {}; on communication loss: {}; log level {}\n",

@@ -1,7 +1,8 @@
 // The running gateway: one LinkScheduler per configured link, the Modbus server in front of them,
-// the read-only HTTP side and the Sparkplug edge node, on one io_context. Started and stopped in
-// a fixed order: links first (so the first clients find ports already being opened), then the
-// Modbus server, HTTP, Sparkplug; stopped the other way round.
+// the read-only HTTP side, the Sparkplug edge node and the plain MQTT (JSON) output, on one
+// io_context. Started and stopped in a fixed order: links first (so the first clients find ports
+// already being opened), then the Modbus server, HTTP, Sparkplug, MQTT JSON; stopped the other
+// way round.
 // A reload swaps in a new configuration while running, touching only what it changes.
 #pragma once
 
@@ -16,6 +17,7 @@
 #include "daemon/http/http_server.hpp"
 #include "daemon/http/render.hpp"
 #include "daemon/modbus/modbus_server.hpp"
+#include "daemon/mqtt_json/mqtt_json_output.hpp"
 #include "daemon/sparkplug/sparkplug_node.hpp"
 
 namespace ioport::daemon {
@@ -57,6 +59,7 @@ class Gateway {
     Result<> prepare_http(const std::optional<config::HttpSettings>& next);
     void apply_http(const std::optional<config::HttpSettings>& next);
     Result<> start_sparkplug(std::uint64_t next_bdseq = 0);
+    Result<> start_mqtt_json();
     // What the configuration weakens (config::warnings), at start-up and after each reload.
     void log_warnings();
 
@@ -73,6 +76,7 @@ class Gateway {
     std::shared_ptr<HttpServer> http_;
     std::shared_ptr<HttpServer> next_http_;  // bound by prepare_http(), taken by apply_http()
     std::shared_ptr<SparkplugNode> sparkplug_;
+    std::shared_ptr<MqttJsonOutput> mqtt_json_;
 };
 
 // The lines printed by --check-config: the links, their modules and the Modbus front.

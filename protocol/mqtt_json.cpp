@@ -113,6 +113,30 @@ std::string set_subscription(std::string_view prefix) {
     return fmt::format("{}/+/+/+/set", prefix);
 }
 
+Result<> check_topic_prefix(std::string_view prefix) {
+    const auto bad = [](std::string message) {
+        return fail(Errc::invalid_argument, std::move(message));
+    };
+    if (prefix.empty()) return bad("must not be empty");
+    if (prefix.size() > max_topic_prefix)
+        return bad(fmt::format("is {} bytes long: at most {}", prefix.size(), max_topic_prefix));
+    if (prefix.front() == '$')
+        return bad("starts with '$', which brokers keep for their own topics");
+    if (prefix.front() == '/' || prefix.back() == '/' || prefix.find("//") != prefix.npos)
+        return bad("has an empty topic level: no '/' at either end, none twice in a row");
+    for (std::size_t at = 0; at < prefix.size();) {
+        const auto length = utf8_sequence(prefix.substr(at));
+        if (length == 0) return bad(fmt::format("is not valid UTF-8 at byte {}", at));
+        const auto c = static_cast<unsigned char>(prefix[at]);
+        if (c < 0x20 || c == 0x7F)
+            return bad(fmt::format("has a control character at byte {}", at));
+        if (c == '+' || c == '#')
+            return bad(fmt::format("has '{}', an MQTT wildcard, at byte {}", prefix[at], at));
+        at += length;
+    }
+    return {};
+}
+
 std::optional<SetTopic> parse_set_topic(std::string_view prefix, std::string_view topic) {
     if (!topic.starts_with(prefix) || topic.size() <= prefix.size() || topic[prefix.size()] != '/')
         return std::nullopt;

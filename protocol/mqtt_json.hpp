@@ -25,6 +25,13 @@ std::string module_topic(std::string_view prefix, std::string_view link,
                          std::optional<ModuleAddress> module, std::string_view leaf);
 std::string set_subscription(std::string_view prefix);  // <prefix>/+/+/+/set
 
+// Of a topic prefix: room beside it for link, module, point and "set".
+inline constexpr std::size_t max_topic_prefix = 128;
+// A topic_prefix or discovery_prefix: 1..128 bytes of UTF-8 without control characters, levels
+// that are not empty ("a//b", "/a", "a/"), no wildcard ('+', '#') and no leading '$' (brokers
+// keep $-topics to themselves). The error says which rule the text breaks.
+Result<> check_topic_prefix(std::string_view prefix);
+
 struct SetTopic {
     std::string link;
     std::string module;  // as module_id() writes it

@@ -272,6 +272,27 @@ void sparkplug_families(Exposition& out, const SparkplugNode* node) {
     out.sample("ioportd_sparkplug_forwarded_total", {}, store.forwarded);
 }
 
+void mqtt_json_families(Exposition& out, const MqttJsonOutput* output) {
+    if (output == nullptr) return;  // MQTT JSON off: no such families
+    const auto stats = output->stats();
+    out.family("ioportd_mqtt_json_connected", "gauge",
+               "1 while the MQTT JSON output is connected to its broker");
+    out.sample("ioportd_mqtt_json_connected", {}, stats.connected ? 1 : 0);
+    out.family("ioportd_mqtt_json_messages_published_total", "counter",
+               "MQTT JSON messages handed to the broker connection");
+    out.sample("ioportd_mqtt_json_messages_published_total", {}, stats.published);
+    out.family("ioportd_mqtt_json_messages_dropped_total", "counter",
+               "MQTT JSON messages dropped: not connected, or the send queue full");
+    out.sample("ioportd_mqtt_json_messages_dropped_total", {}, stats.dropped);
+    out.family("ioportd_mqtt_json_sets_total", "counter", "set messages received, by result");
+    out.sample("ioportd_mqtt_json_sets_total", {{"result", "accepted"}},
+               stats.sets - stats.sets_refused);
+    out.sample("ioportd_mqtt_json_sets_total", {{"result", "refused"}}, stats.sets_refused);
+    out.family("ioportd_mqtt_json_discovery_cleared_total", "counter",
+               "Home Assistant discovery configs cleared: their module is no longer configured");
+    out.sample("ioportd_mqtt_json_discovery_cleared_total", {}, stats.discovery_cleared);
+}
+
 void process_families(Exposition& out, const ProcessStats& process) {
     out.family("process_cpu_seconds_total", "counter", "User and system CPU time spent");
     out.sample("process_cpu_seconds_total", {}, process.cpu_seconds);
@@ -435,6 +456,27 @@ void modbus_json(Json& json, const ModbusServer& server) {
     json.end_array().end_object();
 }
 
+void mqtt_json_json(Json& json, const MqttJsonOutput* output) {
+    json.key("mqtt_json");
+    if (output == nullptr) {
+        json.null();
+        return;
+    }
+    const auto stats = output->stats();
+    const auto& settings = output->settings();
+    json.begin_object()
+        .member("broker", output->broker())
+        .member("topic_prefix", settings.topic_prefix)
+        .member("discovery_prefix", settings.discovery ? settings.discovery_prefix : "")
+        .member("connected", stats.connected)
+        .member("published", stats.published)
+        .member("dropped", stats.dropped)
+        .member("sets", stats.sets)
+        .member("sets_refused", stats.sets_refused)
+        .member("discovery_cleared", stats.discovery_cleared)
+        .end_object();
+}
+
 void sparkplug_json(Json& json, const SparkplugNode* node) {
     json.key("sparkplug");
     if (node == nullptr) {
@@ -536,6 +578,7 @@ std::string render_metrics(const GatewayView& gateway, const ProcessStats& proce
     module_families(out, gateway.links);
     modbus_families(out, gateway.modbus);
     sparkplug_families(out, gateway.sparkplug);
+    mqtt_json_families(out, gateway.mqtt_json);
     process_families(out, process);
     return out.take();
 }
@@ -556,6 +599,7 @@ std::string render_state(const GatewayView& gateway) {
     json.end_array();
     modbus_json(json, gateway.modbus);
     sparkplug_json(json, gateway.sparkplug);
+    mqtt_json_json(json, gateway.mqtt_json);
     json.key("links").begin_array();
     for (const auto& link : gateway.links)
         link_json(json, *link, now);

@@ -10,6 +10,7 @@
 #include "daemon/http/http_server.hpp"
 #include "daemon/http/process_stats.hpp"
 #include "daemon/modbus/modbus_server.hpp"
+#include "daemon/mqtt_json/mqtt_json_output.hpp"
 #include "daemon/sparkplug/sparkplug_node.hpp"
 
 namespace ioport::daemon {
@@ -20,7 +21,8 @@ struct GatewayView {
     const config::GatewayConfig& config;
     const Links& links;
     const ModbusServer& modbus;
-    const SparkplugNode* sparkplug;  // null when MQTT is off
+    const SparkplugNode* sparkplug;   // null when MQTT is off
+    const MqttJsonOutput* mqtt_json;  // null when MQTT JSON is off
     const EventLog& events;
     std::chrono::system_clock::time_point started;
 };

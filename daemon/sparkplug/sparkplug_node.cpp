@@ -72,7 +72,7 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
     node->next_bdseq_ = next_bdseq % 256;
     std::weak_ptr<SparkplugNode> weak = node;
     auto client = MqttClient::create(
-        executor, settings, log,
+        executor, settings, "mqtt", log,
         {.connecting =
              [weak] {
                  if (auto self = weak.lock()) self->connecting();
@@ -86,7 +86,7 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
                  if (auto self = weak.lock()) self->disconnected();
              },
          .message =
-             [weak](std::string_view topic, std::span<const std::uint8_t> payload) {
+             [weak](std::string_view topic, std::span<const std::uint8_t> payload, bool) {
                  if (auto self = weak.lock()) self->message(topic, payload);
              },
          .subscribed =

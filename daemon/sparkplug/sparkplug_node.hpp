@@ -47,7 +47,7 @@
 #include "daemon/core/events.hpp"
 #include "daemon/core/link_scheduler.hpp"
 #include "daemon/log.hpp"
-#include "daemon/sparkplug/mqtt_client.hpp"
+#include "daemon/mqtt/mqtt_client.hpp"
 #include "daemon/sparkplug/store.hpp"
 #include "protocol/sparkplug.hpp"
 

@@ -13,7 +13,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import struct
 import subprocess
 import sys
@@ -32,6 +31,7 @@ from pymodbus.client import ModbusTcpClient  # noqa: E402
 import sparkplug_b_pb2 as pb  # noqa: E402
 from host_app import BrokerLog, HostApp, encode_value  # noqa: E402
 from tck import covers  # noqa: E402
+from broker import Broker  # noqa: E402
 from rig import Rig, eventually, free_port  # noqa: E402
 
 GROUP, NODE = "plant1", "box7"
@@ -54,40 +54,6 @@ METRICS = {
     "press.id2": [("stop", "Boolean"), ("count", "UInt16"), ("reset", "Boolean")],
 }
 TYPE_NUMBERS = {"Int64": 4, "UInt8": 5, "UInt16": 6, "UInt64": 8, "Float": 9, "Boolean": 11}
-
-
-class Broker:
-    """mosquitto on 127.0.0.1:port, anonymous, no persistence, logging everything (BrokerLog);
-    stop() and start() again on the same port."""
-
-    def __init__(self, directory, port=None):
-        self.port = port or free_port()
-        self.config = os.path.join(directory, "mosquitto.conf")
-        self.log = os.path.join(directory, "mosquitto.log")
-        with open(self.config, "w") as f:
-            f.write(f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
-                    f"log_type all\n")
-        self.process = None
-
-    def start(self):
-        with open(self.log, "a") as log:
-            self.process = subprocess.Popen(["/usr/sbin/mosquitto", "-c", self.config],
-                                            stdout=log, stderr=log)
-
-        def listening():
-            assert self.process.poll() is None, open(self.log).read()
-            try:
-                socket.create_connection(("127.0.0.1", self.port), timeout=1).close()
-                return True
-            except OSError:
-                return False
-        eventually(listening, 10, "mosquitto listening")
-
-    def stop(self):
-        if self.process and self.process.poll() is None:
-            self.process.terminate()
-            self.process.wait(10)
-        self.process = None
 
 
 class EdgeNodeRig(Rig):

@@ -406,6 +406,54 @@ TEST(GatewayConfig, TheMqttSection) {
     EXPECT_FALSE(parse(links)->mqtt);
 }
 
+// §6.3, the example verbatim: plain MQTT beside (or instead of) Sparkplug, its own connection.
+TEST(GatewayConfig, TheMqttJsonSection) {
+    const std::string links = R"(links:
+  - { name: hub0, protocol: ioport, device: /dev/ttyUSB0, modules: [{ type: dim16, number: 0 }] }
+)";
+    const auto spec = parse(
+        R"(mqtt_json:                                # absent = off; may run beside mqtt: (Sparkplug)
+  broker: "mqtt://127.0.0.1:1883"         # client_id, username, password_file, ca_file,
+  topic_prefix: "ioportd/box7"            #   keepalive as in mqtt:
+  discovery: true                         # Home Assistant MQTT discovery
+  discovery_prefix: "homeassistant"
+  deadband: 0.0
+)" + links);
+    ASSERT_TRUE(spec) << describe(spec.error());
+    ASSERT_TRUE(spec->mqtt_json);
+    EXPECT_FALSE(spec->mqtt);
+    const auto& j = *spec->mqtt_json;
+    EXPECT_EQ(j.connection.brokers,
+              (std::vector<config::BrokerAddress>{{false, "127.0.0.1", 1883}}));
+    EXPECT_EQ(j.connection.client_id, "ioportd-json-ioportd_box7");
+    EXPECT_EQ(j.connection.keepalive, 30s);
+    EXPECT_EQ(j.topic_prefix, "ioportd/box7");
+    EXPECT_TRUE(j.discovery);
+    EXPECT_EQ(j.discovery_prefix, "homeassistant");
+    EXPECT_EQ(j.deadband, 0.0);
+
+    const auto both = parse(
+        "mqtt:\n  broker: mqtt://b\n  group_id: g\n  edge_node_id: n\n"
+        "mqtt_json:\n  brokers: [mqtt://b, mqtt://c]\n  client_id: json-7\n  keepalive: 10s\n"
+        "  discovery: false\n  deadband: 0.5\n" +
+        links);
+    ASSERT_TRUE(both) << describe(both.error());
+    ASSERT_TRUE(both->mqtt && both->mqtt_json);
+    EXPECT_EQ(both->mqtt->client_id, "ioportd-g-n");
+    EXPECT_EQ(both->mqtt_json->connection.client_id, "json-7");
+    EXPECT_EQ(both->mqtt_json->connection.brokers.size(), 2U);
+    EXPECT_EQ(both->mqtt_json->connection.keepalive, 10s);
+    EXPECT_EQ(both->mqtt_json->topic_prefix, "ioportd");  // the default
+    EXPECT_FALSE(both->mqtt_json->discovery);
+    EXPECT_DOUBLE_EQ(both->mqtt_json->deadband, 0.5);
+    EXPECT_TRUE(both->mqtt_json->connection.group_id.empty());
+
+    const auto off = parse("mqtt_json:\n  topic_prefix: x\n" + links);
+    ASSERT_TRUE(off) << describe(off.error());
+    EXPECT_FALSE(off->mqtt_json);
+    EXPECT_FALSE(parse("mqtt_json:\n" + links)->mqtt_json);
+}
+
 // A link whose one module, an acm3p, is in block style: keys may be appended at line 8.
 const std::string hub_for_tags = R"(links:
   - name: hub0
@@ -566,8 +614,8 @@ TEST(GatewayConfigErrors, TheFileAsAWhole) {
     expect_one_error({"links: []\n", 1, "links", "at least one link, found an empty list"});
     expect_one_error({"links: hub0\n", 1, "links", "at least one link, found a single value"});
     expect_one_error({hub + "---\n" + hub, 8, "", "one YAML document"});
-    expect_one_error(
-        {"logging: debug\n" + hub, 1, "logging", "allowed here are modbus, http, mqtt, links"});
+    expect_one_error({"logging: debug\n" + hub, 1, "logging",
+                      "allowed here are modbus, http, mqtt, mqtt_json, links"});
 }
 
 TEST(GatewayConfigErrors, UnknownAndDuplicateKeys) {
@@ -938,6 +986,36 @@ TEST(GatewayConfigErrors, TheMqttSection) {
                           "links:\n  - { name: \"hub/0\", protocol: ioport, device: /dev/x, "
                           "modules: [{ type: dim16, number: 0 }] }\n",
                       6, "links[0].name", "part of Sparkplug device ids"});
+}
+
+TEST(GatewayConfigErrors, TheMqttJsonSection) {
+    const std::string j = "mqtt_json:\n  broker: mqtt://127.0.0.1\n";  // lines 1-2
+    const auto prefix = [&](const std::string& key, const std::string& value,
+                            const std::string& fragment) {
+        expect_one_error(
+            {j + "  " + key + ": " + value + "\n" + hub, 3, "mqtt_json." + key, fragment});
+    };
+    prefix("topic_prefix", "\"\"", "must not be empty");
+    prefix("topic_prefix", "\"a/+/b\"", "'+', an MQTT wildcard");
+    prefix("topic_prefix", "\"a/#\"", "'#', an MQTT wildcard");
+    prefix("topic_prefix", "\"/a\"", "empty topic level");
+    prefix("topic_prefix", "\"a/\"", "empty topic level");
+    prefix("topic_prefix", "\"a//b\"", "empty topic level");
+    prefix("topic_prefix", "\"$SYS/x\"", "starts with '$'");
+    prefix("topic_prefix", "\"a\\x01b\"", "'a\\x01b' has a control character at byte 1");
+    prefix("topic_prefix", std::string(129, 'p'), "129 bytes long: at most 128");
+    prefix("discovery_prefix", "\"home+assistant\"", "'+', an MQTT wildcard");
+    prefix("discovery", "yes", "use true or false");
+    prefix("deadband", "-0.5", "at least 0");
+    prefix("keepalive", "1s", "out of range");
+    prefix("ca_file", "/dev/null", "mqtts:// brokers only");
+    prefix("group_id", "g", "unknown key: allowed here are broker, brokers, client_id");
+    expect_one_error(
+        {"mqtt_json:\n  broker: tcp://x\n" + hub, 2, "mqtt_json.broker", "not an MQTT URL"});
+    expect_one_error({"mqtt_json: mqtt://x\n" + hub, 1, "mqtt_json", "expected a mapping"});
+    expect_one_error({j + "links:\n  - { name: \"hub/0\", protocol: ioport, device: /dev/x, "
+                          "modules: [{ type: dim16, number: 0 }] }\n",
+                      4, "links[0].name", "with mqtt_json on, a link name is a topic level"});
 }
 
 TEST(GatewayConfig, SeveralBrokersAndAStore) {

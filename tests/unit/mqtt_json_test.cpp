@@ -32,6 +32,27 @@ TEST(MqttJsonTopics, AsGatewayMdSays) {
         EXPECT_EQ(parse_set_topic("ioportd/box7", topic), std::nullopt) << topic;
 }
 
+TEST(MqttJsonTopics, APrefixIsLevelsOfPrintableUtf8WithoutWildcards) {
+    for (const char* good : {"ioportd", "ioportd/box7", "plant 1/hall-2/box_7", "Ü/°C"})
+        EXPECT_TRUE(check_topic_prefix(good)) << good;
+    const auto why = [](std::string_view prefix) {
+        const auto checked = check_topic_prefix(prefix);
+        return checked ? std::string("accepted") : checked.error().message;
+    };
+    EXPECT_EQ(why(""), "must not be empty");
+    EXPECT_EQ(why("a/+"), "has '+', an MQTT wildcard, at byte 2");
+    EXPECT_EQ(why("#"), "has '#', an MQTT wildcard, at byte 0");
+    EXPECT_EQ(why("$SYS"), "starts with '$', which brokers keep for their own topics");
+    for (const char* empty_level : {"/a", "a/", "a//b", "/"})
+        EXPECT_NE(why(empty_level).find("empty topic level"), std::string::npos) << empty_level;
+    EXPECT_EQ(why(std::string_view("a\0b", 3)), "has a control character at byte 1");
+    EXPECT_EQ(why("a\x7F"), "has a control character at byte 1");
+    EXPECT_EQ(why("ab\xC3"), "is not valid UTF-8 at byte 2");
+    EXPECT_EQ(why("a\xFF"), "is not valid UTF-8 at byte 1");
+    EXPECT_EQ(why(std::string(max_topic_prefix, 'p')), "accepted");
+    EXPECT_EQ(why(std::string(max_topic_prefix + 1, 'p')), "is 129 bytes long: at most 128");
+}
+
 TEST(MqttJsonState, EveryKeyOfTheModuleNullUntilRead) {
     EXPECT_EQ(state_json(ModuleType::dim16, {}),
               R"({"in0":null,"in1":null,"in2":null,"in3":null,"in4":null,"in5":null,"in6":null,)"

@@ -1,4 +1,4 @@
-#include "daemon/sparkplug/mqtt_client.hpp"
+#include "daemon/mqtt/mqtt_client.hpp"
 
 #include <mosquitto.h>
 
@@ -16,17 +16,19 @@ std::string mosquitto_error(int rc) {
 
 Result<std::shared_ptr<MqttClient>> MqttClient::create(const asio::any_io_executor& executor,
                                                        const config::MqttSettings& settings,
-                                                       Log& log, Handlers handlers) {
+                                                       std::string section, Log& log,
+                                                       Handlers handlers) {
     std::shared_ptr<MqttClient> client(
-        new MqttClient(executor, settings, log, std::move(handlers)));
+        new MqttClient(executor, settings, std::move(section), log, std::move(handlers)));
     if (auto configured = client->configure(); !configured) return Unexpected(configured.error());
     return client;
 }
 
 MqttClient::MqttClient(const asio::any_io_executor& executor, const config::MqttSettings& settings,
-                       Log& log, Handlers handlers)
+                       std::string section, Log& log, Handlers handlers)
     : executor_(executor),
       settings_(settings),
+      section_(std::move(section)),
       log_(log),
       handlers_(std::move(handlers)),
       socket_(executor),
@@ -54,7 +56,7 @@ Result<> MqttClient::configure() {
     // A clean session, as Sparkplug 3.0 requires of an edge node (§7.1).
     client_ = mosquitto_new(settings_.client_id.c_str(), true, this);
     if (client_ == nullptr)
-        return fail(Errc::io_error, fmt::format("mqtt: cannot make an MQTT client: {}",
+        return fail(Errc::io_error, fmt::format("{}: cannot make an MQTT client: {}", section_,
                                                 std::generic_category().message(errno)));
     for (std::size_t i = settings_.brokers.size(); i-- > 0;) {
         current_ = i;
@@ -68,8 +70,8 @@ Result<> MqttClient::configure() {
 Result<> MqttClient::configure_for(const config::BrokerAddress& broker) {
     if (const int rc = mosquitto_reinitialise(client_, settings_.client_id.c_str(), true, this);
         rc != MOSQ_ERR_SUCCESS)
-        return fail(Errc::io_error,
-                    fmt::format("mqtt: cannot make an MQTT client: {}", mosquitto_error(rc)));
+        return fail(Errc::io_error, fmt::format("{}: cannot make an MQTT client: {}", section_,
+                                                mosquitto_error(rc)));
     mosquitto_int_option(client_, MOSQ_OPT_PROTOCOL_VERSION, MQTT_PROTOCOL_V311);
     mosquitto_int_option(client_, MOSQ_OPT_TCP_NODELAY, 1);
     mosquitto_connect_callback_set(client_, &MqttClient::on_connect);
@@ -83,7 +85,7 @@ Result<> MqttClient::configure_for(const config::BrokerAddress& broker) {
             settings_.password.empty() ? nullptr : settings_.password.c_str());
         if (rc != MOSQ_ERR_SUCCESS)
             return fail(Errc::invalid_argument,
-                        fmt::format("mqtt.username: {}", mosquitto_error(rc)));
+                        fmt::format("{}.username: {}", section_, mosquitto_error(rc)));
     }
     if (broker.tls) {
         // Without ca_file, the system's CAs: a broker with a public certificate.
@@ -91,9 +93,9 @@ Result<> MqttClient::configure_for(const config::BrokerAddress& broker) {
             client_, settings_.ca_file.empty() ? nullptr : settings_.ca_file.c_str(),
             settings_.ca_file.empty() ? "/etc/ssl/certs" : nullptr, nullptr, nullptr, nullptr);
         if (rc != MOSQ_ERR_SUCCESS)
-            return fail(
-                Errc::invalid_argument,
-                fmt::format("mqtt.ca_file: {}: {}", settings_.ca_file, mosquitto_error(rc)));
+            return fail(Errc::invalid_argument,
+                        fmt::format("{}.ca_file: {}: {}", section_, settings_.ca_file,
+                                    mosquitto_error(rc)));
         mosquitto_tls_opts_set(client_, 1, "tlsv1.2", nullptr);  // verify the broker, TLS >= 1.2
     }
     return {};
@@ -176,7 +178,7 @@ void MqttClient::watch() {
         boost::system::error_code ec;
         socket_.assign(fd, ec);
         if (ec) {
-            log_.error({}, "mqtt: cannot watch the broker's socket: {}", ec.message());
+            log_.error({}, "{}: cannot watch the broker's socket: {}", section_, ec.message());
             return;
         }
     }
@@ -210,7 +212,7 @@ void MqttClient::after_io(int rc, std::string_view during) {
     // A lost connection was reported through on_disconnect already; other errors are said here.
     if (rc != MOSQ_ERR_SUCCESS && rc != MOSQ_ERR_CONN_LOST && rc != MOSQ_ERR_NO_CONN &&
         mosquitto_socket(client_) >= 0)
-        log_.debug({}, "mqtt: {} {}: {}", during, broker(), mosquitto_error(rc));
+        log_.debug({}, "{}: {} {}: {}", section_, during, broker(), mosquitto_error(rc));
     if (stopped_ && !mosquitto_want_write(client_)) {
         finish_stop();
         return;
@@ -246,7 +248,7 @@ void MqttClient::lost(const std::string& why) {
     // flood the log.
     auto& last_error = last_errors_[current_];
     if (was_connected || why != last_error)
-        log_.warn({}, "mqtt: {}; reconnecting within {} s", why, reconnect_delay_.count());
+        log_.warn({}, "{}: {}; reconnecting within {} s", section_, why, reconnect_delay_.count());
     last_error = why;
     // Several brokers: the next one in the list is tried (gateway.md §6.2).
     current_ = (current_ + 1) % settings_.brokers.size();
@@ -352,7 +354,7 @@ void MqttClient::on_connect(mosquitto* /*client*/, void* self, int rc) {
     me.connected_ = true;
     me.reconnect_delay_ = first_reconnect_delay;
     me.last_errors_[me.current_].clear();
-    me.log_.info({}, "mqtt: connected to {} as {}", me.broker(), me.settings_.client_id);
+    me.log_.info({}, "{}: connected to {} as {}", me.section_, me.broker(), me.settings_.client_id);
     if (me.handlers_.connected) me.handlers_.connected();
 }
 
@@ -386,8 +388,10 @@ void MqttClient::on_subscribe(mosquitto* /*client*/, void* self, int mid, int /*
 void MqttClient::on_message(mosquitto* /*client*/, void* self, const mosquitto_message* message) {
     auto& me = *static_cast<MqttClient*>(self);
     if (!me.handlers_.message || message->topic == nullptr) return;
-    me.handlers_.message(message->topic, {static_cast<const std::uint8_t*>(message->payload),
-                                          static_cast<std::size_t>(message->payloadlen)});
+    me.handlers_.message(message->topic,
+                         {static_cast<const std::uint8_t*>(message->payload),
+                          static_cast<std::size_t>(message->payloadlen)},
+                         message->retain);
 }
 
 }  // namespace ioport::daemon

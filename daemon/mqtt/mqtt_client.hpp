@@ -42,17 +42,22 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
         std::function<void()> connected;
         // The connection is gone, or the CONNECT was refused; a reconnect is scheduled.
         std::function<void(const std::string& why)> disconnected;
-        std::function<void(std::string_view topic, std::span<const std::uint8_t> payload)> message;
+        // `retained`: the broker kept it from before (a state, not news).
+        std::function<void(std::string_view topic, std::span<const std::uint8_t> payload,
+                           bool retained)>
+            message;
         // SUBACK of subscribe()'s message id: the broker has read everything sent before the
         // SUBSCRIBE on this connection (MQTT keeps a connection's packets in order).
         std::function<void(int mid)> subscribed;
     };
 
     // Fails when libmosquitto cannot make the client or take the settings (a CA file it
-    // cannot load, say).
+    // cannot load, say). `section`: the configuration's ("mqtt", "mqtt_json"), which begins its
+    // log lines and errors.
     static Result<std::shared_ptr<MqttClient>> create(const asio::any_io_executor& executor,
                                                       const config::MqttSettings& settings,
-                                                      Log& log, Handlers handlers);
+                                                      std::string section, Log& log,
+                                                      Handlers handlers);
     ~MqttClient();
     MqttClient(const MqttClient&) = delete;
     MqttClient& operator=(const MqttClient&) = delete;
@@ -86,7 +91,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
 
   private:
     MqttClient(const asio::any_io_executor& executor, const config::MqttSettings& settings,
-               Log& log, Handlers handlers);
+               std::string section, Log& log, Handlers handlers);
     Result<> configure();
     Result<> configure_for(const config::BrokerAddress& broker);
     const config::BrokerAddress& current() const { return settings_.brokers[current_]; }
@@ -108,6 +113,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
 
     asio::any_io_executor executor_;
     config::MqttSettings settings_;
+    std::string section_;
     Log& log_;
     Handlers handlers_;
     mosquitto* client_ = nullptr;

@@ -1,0 +1,489 @@
+#!/usr/bin/python3
+"""ioportd's plain MQTT output with Home Assistant discovery (gateway.md §6.3, issue 28), end to
+end: a real mosquitto broker on a free loopback port, the real simulators on ptys, the real
+daemon, and a subscriber (paho-mqtt) that records every message with its retain flag. Node-RED,
+when it has been installed (tests/mqtt_json/node_red.py), runs a flow of its own against the
+same broker: it reads a state topic and publishes a set.
+
+Usage: mqtt_json_test.py IOPORTD IOPORT_SIM [NODE_RED_DIR]
+  NODE_RED_DIR: where Node-RED is (or is first installed, npm ci of tests/mqtt_json/node-red/);
+  without it the Node-RED test is skipped.
+"""
+import json
+import os
+import shutil
+import signal
+import sys
+import tempfile
+import threading
+import time
+import unittest
+import urllib.request
+
+IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
+NODE_RED_DIR = sys.argv[3] if len(sys.argv) > 3 else ""
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+
+import paho.mqtt.client as mqtt  # noqa: E402
+
+import node_red  # noqa: E402
+from broker import Broker  # noqa: E402
+from rig import Rig, eventually  # noqa: E402
+
+PREFIX = "ioportd/box7"
+NODE = "ioportd_box7"  # mqtt_json::node_id(PREFIX)
+HA = "homeassistant"
+HUB = "dim16:0,dom16:0,acm3p:0,rgbdm:0,mux8m:0"
+
+# Every module's Home Assistant entities as gateway.md §6.3 lists them: component -> object ids.
+ENTITIES = {
+    "hub0_dim16_0": {"binary_sensor": [f"in{k}" for k in range(16)]},
+    "hub0_dom16_0": {"switch": [f"out{k}" for k in range(16)]},
+    "hub0_acm3p_0": {"sensor": ["value0", "value1", "value2"]},
+    "hub0_rgbdm_0": {"select": ["colour"]},
+    "hub0_mux8m_0": {"number": ["pos", "neg"]},
+    "press_id2": {"binary_sensor": ["stop"], "sensor": ["count"], "button": ["reset"]},
+}
+
+
+class Message:
+    def __init__(self, index, topic, payload, retain):
+        self.index, self.topic, self.payload, self.retain = index, topic, payload, retain
+
+    def json(self):
+        return json.loads(self.payload)
+
+
+class Subscriber:
+    """An MQTT client that records every message of `topics` in arrival order."""
+
+    def __init__(self, port, topics=("#",), client_id="test-subscriber"):
+        self.messages = []
+        self.lock = threading.Lock()
+        self.client = mqtt.Client(client_id=client_id, clean_session=True)
+        self.client.on_message = self._message
+        subscribed = threading.Event()
+        self.client.on_subscribe = lambda *_: subscribed.set()
+        self.client.connect("127.0.0.1", port, keepalive=30)
+        self.client.loop_start()
+        self.client.subscribe([(t, 1) for t in topics])
+        assert subscribed.wait(10), "no SUBACK"
+
+    def _message(self, _client, _userdata, m):
+        with self.lock:
+            self.messages.append(Message(len(self.messages), m.topic,
+                                         m.payload.decode("utf-8", "replace"), bool(m.retain)))
+
+    def mark(self):
+        with self.lock:
+            return len(self.messages)
+
+    def since(self, mark=0, topic=None):
+        with self.lock:
+            return [m for m in self.messages[mark:] if topic is None or m.topic == topic]
+
+    def wait(self, topic, where=lambda m: True, since=0, timeout=10):
+        def found():
+            return next((m for m in self.since(since, topic) if where(m)), None)
+        return eventually(found, timeout, lambda: f"{topic} since {since}: " +
+                          repr([(m.topic, m.payload) for m in self.since(since)][-10:]))
+
+    def latest(self, topic):
+        found = self.since(0, topic)
+        return found[-1] if found else None
+
+    def publish(self, topic, payload, retain=False):
+        self.client.publish(topic, payload, qos=1, retain=retain).wait_for_publish()
+
+    def close(self):
+        self.client.loop_stop()
+        self.client.disconnect()
+
+
+def retained(port, pattern):
+    """What the broker keeps under `pattern` now: a fresh subscriber's retained messages. The
+    broker queues them when it takes the SUBSCRIBE, so a message the subscriber publishes after
+    the SUBACK, to a topic of its own, arrives after the last of them."""
+    barrier = f"test/barrier/{time.monotonic_ns()}"
+    sub = Subscriber(port, (pattern, barrier), client_id=f"retained-{time.monotonic_ns()}")
+    try:
+        sub.publish(barrier, "end")
+        end = sub.wait(barrier)
+        return {m.topic: m.payload for m in sub.since()[:end.index] if m.retain}
+    finally:
+        sub.close()
+
+
+class JsonRig(Rig):
+    def __init__(self, directory, broker_port, hub_modules=HUB, json_extra="", modbus_extra=""):
+        super().__init__(directory, IOPORTD, IOPORT_SIM)
+        self.broker_port = broker_port
+        try:
+            self.start_hub(HUB)
+            self.start_id2()
+        except BaseException:
+            self.close()
+            raise
+        self.configure(hub_modules, json_extra, modbus_extra)
+
+    def configure(self, hub_modules, json_extra="", modbus_extra=""):
+        modules = "\n".join(f"      - {{ type: {m.split(':')[0]}, number: {m.split(':')[1]}"
+                            + (', name: "boiler 1", channels: { 0: { name: "supply '
+                               'temperature", unit: "°C", scale: [0, 100, -20, 150] } }'
+                               if m == "acm3p:0" else "")
+                            + (', inputs: { 5: "pump running" }' if m == "dim16:0" else "")
+                            + " }" for m in hub_modules.split(","))
+        self.write_config(f"""modbus:
+  listen: "127.0.0.1:0"
+{modbus_extra}http:
+  listen: "127.0.0.1:0"
+links:
+  - name: hub0
+    protocol: ioport
+    device: {self.hub_link}
+    unit_id: 1
+    timeout: 100ms
+    modules:
+{modules}
+  - name: press
+    protocol: id2
+    device: {self.id2_link}
+    unit_id: 2
+mqtt_json:
+  broker: "mqtt://127.0.0.1:{self.broker_port}"
+  topic_prefix: "{PREFIX}"
+  keepalive: 5s
+{json_extra}""")
+
+    def start_daemon(self):
+        super().start_daemon()
+        self.http_port = self.listening_port("HTTP")
+
+    def state(self):
+        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/api/v1/state",
+                                    timeout=5) as reply:
+            return json.load(reply)
+
+    def metrics(self):
+        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/metrics",
+                                    timeout=5) as reply:
+            return reply.read().decode()
+
+
+def topic(module, leaf):
+    return f"{PREFIX}/{module}/{leaf}"
+
+
+class JsonCase(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.dir = tempfile.mkdtemp(prefix="ioportd-json-")
+        cls.broker = Broker(cls.dir)
+        cls.broker.start()
+        cls.sub = Subscriber(cls.broker.port)
+        cls.rig = None
+
+    @classmethod
+    def tearDownClass(cls):
+        if cls.rig:
+            cls.rig.close()
+        cls.sub.close()
+        cls.broker.stop()
+        shutil.rmtree(cls.dir, ignore_errors=True)
+
+    def new_rig(self, **kwargs):
+        return JsonRig(tempfile.mkdtemp(dir=self.dir), self.broker.port, **kwargs)
+
+    def wait_online(self, rig, since=0):
+        """The daemon is online and every module's state is out."""
+        self.sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online", since)
+        for module in ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "press/id2"):
+            self.sub.wait(topic(module, "state"), since=since)
+
+
+class Output(JsonCase):
+    """One daemon for the class."""
+
+    @classmethod
+    def setUpClass(cls):
+        super().setUpClass()
+        cls.rig = JsonRig(tempfile.mkdtemp(dir=cls.dir), cls.broker.port)
+        cls.rig.ctl("set dim16:0 0x0005")
+        cls.rig.ctl("set acm3p:0 0 32768 65535")
+        cls.rig.ctl("set count 7", cls.rig.id2_ctl)
+        cls.rig.start_daemon()
+
+    def setUp(self):
+        self.wait_online(self.rig)
+
+    def test_discovery_configs_are_retained_and_complete_for_every_module_type(self):
+        configs = retained(self.broker.port, f"{HA}/#")
+        gateway = json.loads(configs[f"{HA}/binary_sensor/{NODE}/connection/config"])
+        self.assertEqual(gateway["state_topic"], f"{PREFIX}/status")
+        self.assertEqual(gateway["device"]["identifiers"], [NODE])
+        unique_ids = set()
+        for device, components in ENTITIES.items():
+            for component, points in components.items():
+                for point in points:
+                    name = f"{HA}/{component}/{NODE}/{device}_{point}/config"
+                    self.assertIn(name, configs)
+                    config = json.loads(configs[name])
+                    unique_ids.add(config["unique_id"])
+                    self.assertEqual(config["unique_id"], f"{NODE}_{device}_{point}")
+                    self.assertEqual(config["device"]["identifiers"], [f"{NODE}_{device}"])
+                    self.assertEqual(config["device"]["manufacturer"], "iomlogic")
+                    self.assertEqual(config["device"]["via_device"], NODE)
+                    self.assertIn(config["device"]["model"],
+                                  ("dim16", "dom16", "acm3p", "rgbdm", "mux8m", "ID-2"))
+                    self.assertEqual([a["topic"] for a in config["availability"]],
+                                     [f"{PREFIX}/status",
+                                      topic(device.replace("_", "/", 1), "availability")])
+                    if component != "button":
+                        self.assertEqual(config["state_topic"],
+                                         topic(device.replace("_", "/", 1), "state"))
+                        self.assertIn(f"value_json.{point}", config["value_template"])
+                    if component in ("switch", "select", "number", "button"):
+                        self.assertEqual(config["command_topic"],
+                                         topic(device.replace("_", "/", 1), f"{point}/set"))
+        self.assertEqual(len(unique_ids), sum(len(p) for c in ENTITIES.values()
+                                              for p in c.values()))
+        # names and units of gateway.md §6.1
+        supply = json.loads(configs[f"{HA}/sensor/{NODE}/hub0_acm3p_0_value0/config"])
+        self.assertEqual((supply["name"], supply["unit_of_measurement"], supply["device_class"],
+                          supply["state_class"], supply["device"]["name"]),
+                         ("supply temperature", "°C", "temperature", "measurement", "boiler 1"))
+        pump = json.loads(configs[f"{HA}/binary_sensor/{NODE}/hub0_dim16_0_in5/config"])
+        self.assertEqual(pump["name"], "pump running")
+        count = json.loads(configs[f"{HA}/sensor/{NODE}/press_id2_count/config"])
+        self.assertEqual(count["state_class"], "total_increasing")
+        colour = json.loads(configs[f"{HA}/select/{NODE}/hub0_rgbdm_0_colour/config"])
+        self.assertEqual(colour["options"][:3], ["off", "red", "green"])
+
+    def test_status_availability_and_state_are_retained(self):
+        kept = retained(self.broker.port, f"{PREFIX}/#")
+        self.assertEqual(kept[f"{PREFIX}/status"], "online")
+        for module in ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "hub0/rgbdm_0",
+                       "hub0/mux8m_0", "press/id2"):
+            self.assertEqual(kept[topic(module, "availability")], "online", module)
+            self.assertIn(topic(module, "state"), kept)
+        acm = json.loads(kept[topic("hub0/acm3p_0", "state")])
+        self.assertEqual((acm["raw0"], acm["raw2"]), (0, 65535))
+        self.assertAlmostEqual(acm["value0"], -20)   # scaled as §6.1 says
+        self.assertAlmostEqual(acm["value2"], 100)   # unscaled: percent
+        self.assertEqual(json.loads(kept[topic("press/id2", "state")])["count"],
+                         int(self.rig.ctl("get count", self.rig.id2_ctl)))
+
+    def test_a_changed_input_reaches_the_state_topic(self):
+        mark = self.sub.mark()
+        self.rig.ctl("set dim16:0 0x0125")
+        state = self.sub.wait(topic("hub0/dim16_0", "state"),
+                              lambda m: m.json()["word"] == 0x0125, mark)
+        document = state.json()
+        self.assertEqual([document[f"in{k}"] for k in (0, 1, 5, 8)], [True, False, True, True])
+
+    def test_set_on_a_dom16_output_reaches_the_device_then_the_state(self):
+        mark, log = self.sub.mark(), self.rig.log_mark()
+        before = int(self.rig.ctl("get dom16:0"), 0)
+        self.sub.publish(topic("hub0/dom16_0", "out3/set"), "ON")
+        eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0008, 5, "out3 on the device")
+        state = self.sub.wait(topic("hub0/dom16_0", "state"), lambda m: m.json()["out3"], mark)
+        self.assertEqual(state.json()["word"], before | 0x0008)
+        self.rig.wait_log(r"write by mqtt_json to unit 1 \(hub0\): "
+                          r"set hub0/dom16_0/out3 = ON: confirmed", since=log)
+        self.sub.publish(topic("hub0/dom16_0", "out3/set"), "OFF")
+        self.sub.wait(topic("hub0/dom16_0", "state"), lambda m: not m.json()["out3"], mark)
+        self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0008, 0)
+
+    def test_other_writable_points(self):
+        mark = self.sub.mark()
+        self.sub.publish(topic("hub0/rgbdm_0", "colour/set"), "magenta")
+        self.sub.wait(topic("hub0/rgbdm_0", "state"), lambda m: m.json()["colour"] == "magenta",
+                      mark)
+        self.assertEqual(self.rig.ctl("get rgbdm:0"), "5")
+        self.sub.publish(topic("hub0/mux8m_0", "pos/set"), "6")
+        self.sub.wait(topic("hub0/mux8m_0", "state"), lambda m: m.json()["pos"] == 6, mark)
+        self.rig.ctl("set count 42", self.rig.id2_ctl)
+        self.sub.wait(topic("press/id2", "state"), lambda m: m.json()["count"] == 42, mark)
+        self.sub.publish(topic("press/id2", "reset/set"), "ON")  # Home Assistant's button
+        self.sub.wait(topic("press/id2", "state"), lambda m: m.json()["count"] == 0, mark)
+
+    def test_a_set_to_a_silent_module_never_shows_as_set(self):
+        mark, log = self.sub.mark(), self.rig.log_mark()
+        self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0020, 0)
+        self.rig.ctl("fault dom16:0 silent")
+        try:
+            self.sub.publish(topic("hub0/dom16_0", "out5/set"), "ON")
+            self.rig.wait_log(r"set hub0/dom16_0/out5 = ON: (?!confirmed)", since=log)
+            self.sub.wait(topic("hub0/dom16_0", "availability"), lambda m: m.payload == "offline",
+                          mark)
+        finally:
+            self.rig.ctl("fault dom16:0 none")
+        self.sub.wait(topic("hub0/dom16_0", "availability"), lambda m: m.payload == "online",
+                      mark)
+        state = json.loads(retained(self.broker.port, topic("hub0/dom16_0", "state"))[
+            topic("hub0/dom16_0", "state")])
+        self.assertFalse(state["out5"], "the confirmed value, not the command")
+        self.assertFalse(any(m.json().get("out5") for m in
+                             self.sub.since(mark, topic("hub0/dom16_0", "state"))))
+        self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0020, 0)
+
+    def test_a_bad_set_is_refused_and_logged_and_changes_nothing(self):
+        log = self.rig.log_mark()
+        refused_before = self.rig.state()["mqtt_json"]["sets_refused"]
+        before = self.rig.ctl("get dom16:0")
+        self.sub.publish(topic("hub0/dom16_0", "out2/set"), "maybe")
+        self.rig.wait_log(r"set hub0/dom16_0/out2 = maybe refused: .*'maybe' is not allowed: "
+                          r"send ON or OFF", since=log)
+        self.sub.publish(topic("hub0/dim16_0", "in2/set"), "ON")
+        self.rig.wait_log(r"set hub0/dim16_0/in2 = ON refused: .*an input", since=log)
+        self.sub.publish(topic("hub0/dom16_9", "out2/set"), "ON")
+        self.rig.wait_log(r"set hub0/dom16_9/out2 = ON refused: no such link and module", since=log)
+        # a second bad payload to dom16_0 within the minute is counted, not logged; to another
+        # module it is logged, escaped
+        self.sub.publish(topic("hub0/rgbdm_0", "colour/set"), "\x1b[2J\nforged line")
+        self.rig.wait_log(r"set hub0/rgbdm_0/colour = \\x1B\[2J\\nforged line refused", since=log)
+        eventually(lambda: self.rig.state()["mqtt_json"]["sets_refused"] >= refused_before + 4, 5,
+                   "four refusals counted")
+        self.assertIn('ioportd_mqtt_json_sets_total{result="refused"}', self.rig.metrics())
+        self.assertEqual(self.rig.ctl("get dom16:0"), before)
+        self.assertNotIn("write by mqtt_json to unit 1 (hub0): set hub0/dom16_0/out2",
+                         self.rig.log_text()[log:])
+
+
+class OwnDaemon(JsonCase):
+    """A daemon of its own for each test."""
+
+    def setUp(self):
+        self.rig = None
+
+    def tearDown(self):
+        if self.rig:
+            self.rig.close()
+            self.rig = None
+
+    def start(self, **kwargs):
+        self.rig = self.new_rig(**kwargs)
+        mark = self.sub.mark()
+        self.rig.start_daemon()
+        self.wait_online(self.rig, mark)
+
+    def test_read_only_refuses_sets(self):
+        self.start(modbus_extra="  read_only: true\n")
+        log = self.rig.log_mark()
+        before = self.rig.ctl("get dom16:0")
+        self.sub.publish(topic("hub0/dom16_0", "out1/set"), "ON")
+        self.rig.wait_log(r"set hub0/dom16_0/out1 = ON refused: modbus\.read_only is set", since=log)
+        self.assertEqual(self.rig.ctl("get dom16:0"), before)
+
+    def test_a_retained_set_left_on_the_broker_does_not_act_at_connect(self):
+        # A broker hands a retained message to a new subscription with the retain flag set
+        # (a live one arrives without it, and acts as any set does).
+        set_topic = topic("hub0/dom16_0", "out1/set")
+        self.sub.publish(set_topic, "ON", retain=True)
+        try:
+            self.start()
+            self.rig.wait_log(r"set hub0/dom16_0/out1 = ON refused: it is a retained message")
+            self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0002, 0)
+        finally:
+            self.sub.publish(set_topic, "", retain=True)  # cleared
+
+    def test_the_will_says_offline_when_the_daemon_is_killed(self):
+        self.start()
+        mark = self.sub.mark()
+        self.rig.daemon.send_signal(signal.SIGKILL)
+        self.rig.daemon.wait(5)
+        offline = self.sub.wait(f"{PREFIX}/status", lambda m: m.payload == "offline", mark)
+        self.assertIsNotNone(offline)
+        self.assertEqual(retained(self.broker.port, f"{PREFIX}/status")[f"{PREFIX}/status"],
+                         "offline")
+
+    def test_a_clean_stop_says_offline_itself(self):
+        self.start()
+        mark = self.sub.mark()
+        _, code = self.rig.stop_daemon()
+        self.assertEqual(code, 0)
+        self.sub.wait(f"{PREFIX}/status", lambda m: m.payload == "offline", mark)
+
+    def test_a_removed_module_has_its_configs_cleared_at_reload_and_at_start(self):
+        self.start()
+        colour = f"{HA}/select/{NODE}/hub0_rgbdm_0_colour/config"
+        pos = f"{HA}/number/{NODE}/hub0_mux8m_0_pos/config"
+        self.assertIn(colour, retained(self.broker.port, f"{HA}/#"))
+        # SIGHUP without the rgbdm: its config goes at once
+        self.rig.configure("dim16:0,dom16:0,acm3p:0,mux8m:0")
+        text = self.rig.reload(read(self.rig.config))
+        self.assertIn("MQTT JSON unchanged", text)
+        self.rig.wait_log(r"MQTT JSON: 1 discovery config\(s\) cleared")
+        configs = retained(self.broker.port, f"{HA}/#")
+        self.assertNotIn(colour, configs)
+        self.assertIn(pos, configs)
+        # stopped, then started without the mux8m: the configs it left are cleared at start
+        self.rig.stop_daemon()
+        self.rig.configure("dim16:0,dom16:0,acm3p:0")
+        mark = self.sub.mark()
+        self.rig.start_daemon()
+        self.wait_online(self.rig, mark)
+        self.rig.wait_log(r"discovery config homeassistant/number/ioportd_box7/"
+                          r"hub0_mux8m_0_(pos|neg)/config cleared")
+        eventually(lambda: pos not in retained(self.broker.port, f"{HA}/#"), 5,
+                   "the mux8m's configs cleared")
+        self.assertIn(f"{HA}/switch/{NODE}/hub0_dom16_0_out0/config",
+                      retained(self.broker.port, f"{HA}/#"))
+
+    def test_a_reload_renames_live(self):
+        self.start()
+        config = read(self.rig.config).replace("supply temperature", "flow temperature")
+        mark = self.sub.mark()
+        self.rig.reload(config)
+        name = f"{HA}/sensor/{NODE}/hub0_acm3p_0_value0/config"
+        self.sub.wait(name, lambda m: json.loads(m.payload)["name"] == "flow temperature", mark)
+
+    def test_the_broker_going_away_costs_nothing_and_the_session_comes_back(self):
+        self.start()
+        self.broker.stop()
+        log = self.rig.log_mark()
+        self.rig.wait_log(r"mqtt_json: .*reconnecting within", since=log)
+        self.rig.ctl("set dim16:0 0x00FF")  # while the broker is away
+        self.broker.start()
+        self.sub.close()  # its session went with the broker
+        type(self).sub = Subscriber(self.broker.port)
+        self.rig.wait_log(r"mqtt_json: connected to", 10, since=log)
+        kept = retained(self.broker.port, f"{PREFIX}/#")
+        self.assertEqual(kept[f"{PREFIX}/status"], "online")
+        self.assertEqual(json.loads(kept[topic("hub0/dim16_0", "state")])["word"], 0x00FF)
+
+
+@unittest.skipUnless(NODE_RED_DIR, "Node-RED is not installed (tests/mqtt_json/node_red.py)")
+class NodeRed(JsonCase):
+    """A real consumer: a Node-RED flow subscribes to dim16_0's state and, when in0 is on, sets
+    dom16_0's out7 (an interlock a plant would wire the same way)."""
+
+    def test_a_flow_reads_a_state_and_sets_an_output(self):
+        self.rig = self.new_rig()
+        self.rig.ctl("set dim16:0 0x0000")
+        mark = self.sub.mark()
+        self.rig.start_daemon()
+        self.wait_online(self.rig, mark)
+        with node_red.NodeRed(NODE_RED_DIR, self.dir, self.broker.port,
+                              topic("hub0/dim16_0", "state"),
+                              topic("hub0/dom16_0", "out7/set")):
+            self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 0)
+            self.rig.ctl("set dim16:0 0x0001")
+            eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 20,
+                       "Node-RED set out7")
+            self.sub.wait(topic("hub0/dom16_0", "state"), lambda m: m.json()["out7"], mark)
+            self.rig.wait_log(r"write by mqtt_json to unit 1 \(hub0\): set hub0/dom16_0/out7 = "
+                              r"ON: confirmed")
+        self.rig.close()
+
+
+def read(path):
+    with open(path) as f:
+        return f.read()
+
+
+if __name__ == "__main__":
+    if NODE_RED_DIR:
+        node_red.install(NODE_RED_DIR)
+    unittest.main(argv=sys.argv[:1], verbosity=2)

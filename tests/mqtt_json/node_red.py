@@ -1,0 +1,104 @@
+"""Node-RED, from the npm registry, as a real consumer of ioportd's plain MQTT output.
+
+    python3 node_red.py install DIR   # npm ci of tests/mqtt_json/node-red/ into DIR (once per
+                                      # lock file: DIR keeps a copy and is left alone after)
+    with NodeRed(DIR, workdir, broker_port, state_topic, set_topic):
+        ...                           # a flow: state_topic's in0 drives set_topic (ON/OFF)
+"""
+import filecmp
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", "support"))
+
+from rig import die_with_parent, eventually, free_port  # noqa: E402
+
+
+def install(directory):
+    lock = os.path.join(HERE, "node-red", "package-lock.json")
+    installed = os.path.join(directory, "package-lock.json")
+    red = os.path.join(directory, "node_modules", "node-red", "red.js")
+    if os.path.exists(red) and os.path.exists(installed) and filecmp.cmp(lock, installed, False):
+        return
+    os.makedirs(directory, exist_ok=True)
+    for name in ("package.json", "package-lock.json"):
+        shutil.copy(os.path.join(HERE, "node-red", name), directory)
+    started = time.monotonic()
+    done = subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--omit=dev", "--prefix",
+                           directory], capture_output=True, text=True, timeout=600)
+    if done.returncode != 0:
+        sys.exit(f"node_red.py: npm ci of Node-RED into {directory} failed "
+                 f"(exit {done.returncode}); the npm registry must be reachable:\n{done.stderr}")
+    print(f"node_red.py: Node-RED installed into {directory} in "
+          f"{time.monotonic() - started:.0f} s")
+
+
+def flow(broker_port, state_topic, set_topic):
+    """An interlock as a plant would wire it: in0 of a dim16 drives out7 of a dom16."""
+    return [
+        {"id": "tab", "type": "tab", "label": "ioportd"},
+        {"id": "broker", "type": "mqtt-broker", "name": "ioportd's broker",
+         "broker": "127.0.0.1", "port": str(broker_port), "clientid": "node-red-test",
+         "autoConnect": True, "usetls": False, "protocolVersion": "4", "keepalive": "15",
+         "cleansession": True},
+        {"id": "state", "type": "mqtt in", "z": "tab", "name": "dim16_0 state",
+         "topic": state_topic, "qos": "1", "datatype": "json", "broker": "broker",
+         "nl": False, "rap": True, "rh": 0, "inputs": 0, "wires": [["interlock"]]},
+        {"id": "interlock", "type": "function", "z": "tab", "name": "in0 drives out7",
+         "func": "if (typeof msg.payload.in0 !== 'boolean') return null;\n"
+                 "return { payload: msg.payload.in0 ? 'ON' : 'OFF' };",
+         "outputs": 1, "wires": [["set"]]},
+        {"id": "set", "type": "mqtt out", "z": "tab", "name": "dom16_0 out7 set",
+         "topic": set_topic, "qos": "1", "retain": "false", "broker": "broker", "wires": []},
+    ]
+
+
+class NodeRed:
+    def __init__(self, directory, workdir, broker_port, state_topic, set_topic):
+        self.red = os.path.join(directory, "node_modules", "node-red", "red.js")
+        self.user_dir = os.path.join(workdir, "node-red-user")
+        os.makedirs(self.user_dir, exist_ok=True)
+        self.flows = os.path.join(self.user_dir, "flows.json")
+        with open(self.flows, "w") as f:
+            json.dump(flow(broker_port, state_topic, set_topic), f)
+        self.port = free_port()
+        self.log = os.path.join(workdir, "node-red.log")
+        self.process = None
+
+    def log_text(self):
+        with open(self.log) as f:
+            return f.read()
+
+    def __enter__(self):
+        with open(self.log, "w") as log:
+            # Its editor and admin API on a loopback port of its own; no telemetry, no projects.
+            self.process = subprocess.Popen(
+                ["node", self.red, "--userDir", self.user_dir, "--port", str(self.port),
+                 "--settings", os.path.join(HERE, "node_red_settings.js"), self.flows],
+                stdout=log, stderr=log, preexec_fn=die_with_parent)
+
+        def connected():
+            assert self.process.poll() is None, self.log_text()
+            return "Connected to broker" in self.log_text()
+        eventually(connected, 60, lambda: "Node-RED connected to the broker:\n" +
+                   self.log_text()[-3000:])
+        return self
+
+    def __exit__(self, *_):
+        self.process.terminate()
+        try:
+            self.process.wait(10)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait(5)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 3 or sys.argv[1] != "install":
+        sys.exit("usage: node_red.py install DIR")
+    install(sys.argv[2])
