@@ -474,8 +474,8 @@ TEST_F(Http, StateIsJsonThatFollowsTheInputsAndRecordsWritesWithTheClient) {
     EXPECT_TRUE(reply.header("Content-Type").value_or("").starts_with("application/json"))
         << reply.header("Content-Type").value_or("none");
     EXPECT_EQ(json_eval(reply.body, "sorted(d.keys())"),
-              R"(["events", "health", "links", "modbus", "sparkplug", "started", "time", )"
-              R"("version", "warnings"])")
+              R"(["events", "health", "links", "modbus", "mqtt_json", "sparkplug", "started", )"
+              R"("time", "version", "warnings"])")
         << reply.body;
     EXPECT_EQ(json_eval(reply.body, "d['sparkplug']"), "null");  // no mqtt: section
     EXPECT_EQ(json_eval(reply.body, "d['warnings']"), "[]");     // nothing weakened
