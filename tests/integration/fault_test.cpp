@@ -475,6 +475,9 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
     });
     Misbehaviour half("half a frame then silence", [&]() -> std::optional<std::string> {
         RawClient client(port);
+        // A whole request first: the frame timeout runs from the half frame, not from the
+        // connection's wait behind the crowd being accepted.
+        if (!client.ask(1, pdu(4, {1000, 1}))) return std::string("not answered");
         const auto frame = adu(9, 1, pdu(4, {1000, 1}));
         client.send(Bytes(frame.begin(), frame.begin() + 5));
         const auto sent = Clock::now();
@@ -506,8 +509,10 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
     });
     // Reads of 125 registers, never read back: MBs of responses, more than the socket buffers
     // hold. The daemon stops reading its requests and closes it once it has read nothing for
-    // 5 s.
-    std::atomic<int> deaf_closed{0};
+    // 5 s (its log says so: the client itself finds out only by reading).
+    const auto deaf_closed = [&] {
+        return gateway.log().find("read nothing for 5 s") != std::string::npos;
+    };
     Misbehaviour deaf("never reading the responses", [&]() -> std::optional<std::string> {
         RawClient client(port, "127.0.0.1", 4096);
         Bytes burst;
@@ -517,10 +522,7 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
         }
         client.send(burst);
         const auto sent = Clock::now();
-        // The deaf client is closed by the daemon; it finds out by reading, much later.
         eventually([&] { return deaf.stopping() || since(sent) >= 7s; }, 10s);
-        if (since(sent) >= 7s && gateway.log().find("read nothing for 5 s") != std::string::npos)
-            ++deaf_closed;
         return std::nullopt;
     });
     std::atomic<int> crowd_served{0};
@@ -538,14 +540,15 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
         for (auto& client : clients)
             client->send(adu(1, 1, pdu(4, {1000, 1})));
         for (auto& client : clients) {
-            if (!client->receive(3s)) return std::string("a connection was not served");
+            if (!client->receive()) return std::string("a connection was not served");
             ++crowd_served;
         }
         return std::nullopt;
     });
-    // About 8 s, paced by the workload: the deaf client needs 5 s to be closed.
+    // At least 8 s, paced by the workload, and until the deaf client has been closed (5 s after
+    // the daemon last read from it: later on a busy machine, where its burst takes longer).
     const auto started = Clock::now();
-    EXPECT_TRUE(eventually([&] { return since(started) >= 8s; }, 20s));
+    EXPECT_TRUE(eventually([&] { return since(started) >= 8s && deaf_closed(); }, 20s * slowdown));
     for (auto* misbehaviour :
          {&malformed, &oversize, &unknown, &quantities, &half, &pipelined, &deaf, &crowd})
         misbehaviour->expect_ok();
@@ -555,7 +558,7 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
     figure("read latency of the well-behaved clients, max", ms(report.read_latency.max));
     figure("read latency of the well-behaved clients, p99", ms(report.read_latency.p99));
     EXPECT_EQ(crowd_served.load(), 1000);
-    EXPECT_GT(deaf_closed.load(), 0);
+    EXPECT_TRUE(deaf_closed());
     EXPECT_LT(report.read_latency.p99, 50ms * slowdown);
 }
 

@@ -17,6 +17,8 @@
 #include <string>
 #include <vector>
 
+#include "tests/support/timing.hpp"
+
 namespace ioport::test {
 
 using namespace std::chrono_literals;
@@ -101,8 +103,10 @@ class RawClient {
     }
     void shutdown_write() { ::shutdown(fd_, SHUT_WR); }
 
-    // The next whole response; nullopt when the connection closed or nothing came in time.
-    std::optional<Response> receive(std::chrono::milliseconds deadline = 3s) {
+    // The next whole response; nullopt when the connection closed or nothing came in time. The
+    // default deadline catches a hang, stretched like every upper bound (timing.hpp): a new
+    // connection may queue behind a crowd the daemon is still accepting.
+    std::optional<Response> receive(std::chrono::milliseconds deadline = 3s * slowdown) {
         const auto until = std::chrono::steady_clock::now() + deadline;
         for (;;) {
             if (buffer_.size() >= 7) {
