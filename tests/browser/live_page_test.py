@@ -3,7 +3,8 @@
 §3): an input changed in the simulator shows on the page without a reload, a faulted module
 shows as not online, the Modbus clients connected show with their transport and TLS role, a
 refused TLS handshake is counted, the Sparkplug node with its broker away shows the backlog its
-store keeps (gateway.md §6.2), the console has no errors. Saves the screenshots to OUTDIR.
+store keeps (gateway.md §6.2), the plain MQTT output connected to a real Mosquitto shows what it
+published (§6.3), the console has no errors. Saves the screenshots to OUTDIR.
 
 Usage: live_page_test.py IOPORTD IOPORT_SIM OUTDIR
 """
@@ -20,6 +21,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
 import status_page_test  # noqa: E402  (beside this file)
+from broker import Broker  # noqa: E402
 from certificates import Certificates  # noqa: E402
 from rig import Rig  # noqa: E402
 
@@ -40,9 +42,10 @@ TAGS = {"acm3p:0": ', name: "boiler 1", channels: { 0: { name: "supply temperatu
         "dim16:0": ', inputs: { 0: "door open", 3: "pump running" }'}
 
 
-def config(rig, certs, directory):
+def config(rig, certs, directory, broker):
     """ioportd on a simulated hub with every module type but acm3c and a simulated ID-2, plain
-    Modbus TCP and Modbus/TCP Security, and a Sparkplug node with a store whose broker is away."""
+    Modbus TCP and Modbus/TCP Security, a Sparkplug node with a store whose broker is away, and
+    the plain MQTT output on a broker that is there."""
     return f"""modbus:
   listen: "127.0.0.1:0"
   tls:
@@ -74,6 +77,9 @@ mqtt:
   edge_node_id: box7
   store:
     path: {os.path.join(directory, "store")}
+mqtt_json:
+  broker: "mqtt://127.0.0.1:{broker.port}"
+  topic_prefix: ioportd/box7
 """
 
 
@@ -102,12 +108,14 @@ def main():
     directory = tempfile.mkdtemp(prefix="ioportd-page-")
     rig = Rig(directory, IOPORTD, IOPORT_SIM)
     clients = []
+    broker = Broker(directory)
     try:
+        broker.start()
         certs = Certificates(directory)
         certs.client("operator", "operator")
         rig.start_hub(HUB)
         rig.start_id2()
-        rig.write_config(config(rig, certs, directory))
+        rig.write_config(config(rig, certs, directory, broker))
         rig.start_daemon()
         url = f"http://127.0.0.1:{rig.listening_port('HTTP')}/"
         modbus_port = rig.listening_port("Modbus TCP")
@@ -138,7 +146,10 @@ def main():
                    ("warn-list", "bypasses the roles of Modbus/TCP Security"),
                    # The broker is away: what changes is kept, and the page says how much.
                    ("sp-conn", "not connected"), ("sp-backlog", " records, "),
-                   ("sp-oldest", " ago"), ("sp-fwd", "0")],
+                   ("sp-oldest", " ago"), ("sp-fwd", "0"),
+                   # Plain MQTT: connected, its states and discovery configs published.
+                   ("mj-where", "ioportd/box7/# on mqtt://127.0.0.1:"), ("mj-conn", "connected"),
+                   ("mj-disc", "under homeassistant/"), ("mj-drop", "0")],
             # 13208 is 20.15 %: -20 + 20.15 × 1.7 = 14.26 °C, one decimal for a 170 °C range.
             tile_shows=[("hub0", "acm3p 0", "boiler 1"), ("hub0", "acm3p 0", "supply temperature"),
                         ("hub0", "acm3p 0", "14.3°C"), ("hub0", "acm3p 0", "62.9%"),
@@ -155,6 +166,7 @@ def main():
         for client in clients:
             client.close()
         rig.close()
+        broker.stop()
         shutil.rmtree(directory, ignore_errors=True)
 
 
