@@ -236,17 +236,28 @@ void modbus_families(Exposition& out, const ModbusServer& server) {
     out.sample("ioportd_comm_loss", {}, server.comm_lost() ? 1 : 0);
 }
 
+// The three families of an MQTT connection, `prefix`_connected, …_messages_published_total and
+// …_messages_dropped_total; `what` names the connection in their help.
+template <typename Stats>
+void mqtt_connection_families(Exposition& out, std::string_view prefix, std::string_view what,
+                              const Stats& stats) {
+    const std::string connected = fmt::format("{}_connected", prefix);
+    const std::string published = fmt::format("{}_messages_published_total", prefix);
+    const std::string dropped = fmt::format("{}_messages_dropped_total", prefix);
+    out.family(connected, "gauge", fmt::format("1 while {} is connected to its broker", what));
+    out.sample(connected, {}, stats.connected ? 1 : 0);
+    out.family(published, "counter",
+               fmt::format("{} messages handed to the broker connection", what));
+    out.sample(published, {}, stats.published);
+    out.family(dropped, "counter",
+               fmt::format("{} messages dropped: not connected, or the send queue full", what));
+    out.sample(dropped, {}, stats.dropped);
+}
+
 void sparkplug_families(Exposition& out, const SparkplugNode* node) {
     if (node == nullptr) return;  // MQTT off: no such families
     const auto stats = node->stats();
-    out.family("ioportd_mqtt_connected", "gauge", "1 while connected to the MQTT broker");
-    out.sample("ioportd_mqtt_connected", {}, stats.connected ? 1 : 0);
-    out.family("ioportd_mqtt_messages_published_total", "counter",
-               "MQTT messages handed to the broker connection");
-    out.sample("ioportd_mqtt_messages_published_total", {}, stats.published);
-    out.family("ioportd_mqtt_messages_dropped_total", "counter",
-               "MQTT messages dropped: not connected, or the send queue full");
-    out.sample("ioportd_mqtt_messages_dropped_total", {}, stats.dropped);
+    mqtt_connection_families(out, "ioportd_mqtt", "Sparkplug B's MQTT", stats);
     out.family("ioportd_sparkplug_online", "gauge",
                "1 while the edge node's births are out in the current session");
     out.sample("ioportd_sparkplug_online", {}, stats.online ? 1 : 0);
@@ -275,15 +286,7 @@ void sparkplug_families(Exposition& out, const SparkplugNode* node) {
 void mqtt_json_families(Exposition& out, const MqttJsonOutput* output) {
     if (output == nullptr) return;  // MQTT JSON off: no such families
     const auto stats = output->stats();
-    out.family("ioportd_mqtt_json_connected", "gauge",
-               "1 while the MQTT JSON output is connected to its broker");
-    out.sample("ioportd_mqtt_json_connected", {}, stats.connected ? 1 : 0);
-    out.family("ioportd_mqtt_json_messages_published_total", "counter",
-               "MQTT JSON messages handed to the broker connection");
-    out.sample("ioportd_mqtt_json_messages_published_total", {}, stats.published);
-    out.family("ioportd_mqtt_json_messages_dropped_total", "counter",
-               "MQTT JSON messages dropped: not connected, or the send queue full");
-    out.sample("ioportd_mqtt_json_messages_dropped_total", {}, stats.dropped);
+    mqtt_connection_families(out, "ioportd_mqtt_json", "the MQTT JSON output", stats);
     out.family("ioportd_mqtt_json_sets_total", "counter", "set messages received, by result");
     out.sample("ioportd_mqtt_json_sets_total", {{"result", "accepted"}},
                stats.sets - stats.sets_refused);

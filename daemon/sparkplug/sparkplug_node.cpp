@@ -159,15 +159,7 @@ void SparkplugNode::watch_links() {
     subscriptions_.clear();
     for (const auto& link : links_)
         subscriptions_.push_back(link->subscribe([weak, raw = link.get()](const Change& change) {
-            switch (change.kind) {
-                case Change::Kind::write:  // its values come as their own change
-                case Change::Kind::tags:   // set_links() rebirths with the new properties
-                    return;
-                case Change::Kind::values:
-                case Change::Kind::status:
-                case Change::Kind::port:
-                    break;
-            }
+            if (!changes_module_data(change.kind)) return;
             if (auto self = weak.lock()) self->changed(raw, change.slot);
         }));
 }

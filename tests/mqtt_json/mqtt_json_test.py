@@ -18,7 +18,6 @@ import tempfile
 import threading
 import time
 import unittest
-import urllib.request
 
 IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
 NODE_RED_DIR = sys.argv[3] if len(sys.argv) > 3 else ""
@@ -156,19 +155,6 @@ mqtt_json:
   keepalive: 5s
 {json_extra}""")
 
-    def start_daemon(self):
-        super().start_daemon()
-        self.http_port = self.listening_port("HTTP")
-
-    def state(self):
-        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/api/v1/state",
-                                    timeout=5) as reply:
-            return json.load(reply)
-
-    def metrics(self):
-        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/metrics",
-                                    timeout=5) as reply:
-            return reply.read().decode()
 
 
 def topic(module, leaf):

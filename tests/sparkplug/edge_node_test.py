@@ -19,7 +19,6 @@ import sys
 import tempfile
 import time
 import unittest
-import urllib.request
 
 IOPORTD, IOPORT_SIM, PYTHON_DIR = sys.argv[1], sys.argv[2], sys.argv[3]
 sys.path.insert(0, PYTHON_DIR)
@@ -110,13 +109,6 @@ mqtt:
     def start_daemon(self):
         super().start_daemon()
         self.port = self.listening_port("Modbus TCP")
-        self.http_port = self.listening_port("HTTP")
-
-    def state(self):
-        """/api/v1/state, decoded."""
-        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/api/v1/state",
-                                    timeout=5) as reply:
-            return json.load(reply)
 
     def id2(self, command):
         return self.ctl(command, self.id2_ctl)
@@ -657,8 +649,7 @@ class HostileCommands(OwnDaemon):
         self.barrier(self.rig)
         text = self.rig.log_text()[log:]
         written = re.findall(r"DCMD hub0\.dom16\.0/(\S+) = \S+: confirmed", text)
-        metrics_text = urllib.request.urlopen(
-            f"http://127.0.0.1:{self.rig.http_port}/metrics", timeout=5).read().decode()
+        metrics_text = self.rig.metrics()
         busy = int(re.search(r'ioportd_sparkplug_commands_total\{result="refused"\} (\d+)',
                              metrics_text).group(1))
         print(f"\n  DCMD of 17 metrics, max_pending_writes 1: {len(written)} written "
@@ -1102,9 +1093,7 @@ class StoreAndForward(OwnDaemon):
         self.assertIsNone(state["oldest"])
         self.rig.wait_log(r"Sparkplug: forwarding \d+ stored record\(s\)", 1)
         self.rig.wait_log(r"Sparkplug: forwarded \d+ stored record\(s\) in", 10)
-        with urllib.request.urlopen(f"http://127.0.0.1:{self.rig.http_port}/metrics",
-                                    timeout=5) as reply:
-            metrics = reply.read().decode()
+        metrics = self.rig.metrics()
         self.assertIn("ioportd_sparkplug_store_records 0\n", metrics)
         forwarded = re.search(r"^ioportd_sparkplug_forwarded_total (\d+)$", metrics, re.M)
         self.assertGreaterEqual(int(forwarded.group(1)), len(self.WORDS))

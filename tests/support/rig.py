@@ -7,6 +7,7 @@ on a configuration of the test's, its log, and polling with a deadline (never a 
     rig.write_config(yaml)        # may name rig.hub_link and rig.id2_link
     rig.start_daemon()            # waits for "ioportd ... started"
     rig.wait_log(r"...")
+    rig.state(), rig.metrics()    # /api/v1/state decoded, /metrics (with http.listen set)
     rig.stop_daemon()             # SIGTERM: (seconds to the exit, exit status)
     rig.close()
 
@@ -15,12 +16,14 @@ process dies, even by SIGKILL (a CTest timeout); a process of the test's own can
 """
 
 import ctypes
+import json
 import os
 import re
 import signal
 import socket
 import subprocess
 import time
+import urllib.request
 
 
 def free_port():
@@ -96,6 +99,20 @@ class Rig:
         "HTTP on http:/"."""
         return int(self.wait_log(re.escape(what) + r" on (?:http://)?127\.0\.0\.1:(\d+)", 5,
                                  since).group(1))
+
+    def http_get(self, path):
+        """GET `path` of the running daemon's HTTP side (its port from this start's log)."""
+        port = self.listening_port("HTTP")
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=5) as reply:
+            return reply.read().decode()
+
+    def state(self):
+        """/api/v1/state, decoded."""
+        return json.loads(self.http_get("/api/v1/state"))
+
+    def metrics(self):
+        """/metrics, the exposition's text."""
+        return self.http_get("/metrics")
 
     def log_text(self):
         with open(self.log) as f:

@@ -12,7 +12,6 @@ Usage: modbus_tls_test.py IOPORTD IOPORT_SIM [unittest arguments]
 """
 
 import asyncio
-import json
 import os
 import re
 import select
@@ -26,7 +25,6 @@ import tempfile
 import threading
 import time
 import unittest
-import urllib.request
 
 IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
@@ -205,7 +203,6 @@ class ModbusTls(unittest.TestCase):
             cls.rig.start_daemon()
             cls.port = cls.rig.listening_port("Modbus TCP")
             cls.tls_port = cls.rig.listening_port("Modbus/TCP Security (TLS)")
-            cls.http_port = cls.rig.listening_port("HTTP")
         except BaseException:
             cls.rig.close()
             raise
@@ -219,14 +216,10 @@ class ModbusTls(unittest.TestCase):
         return TlsClient(self.tls_port, self.certs.context(name, **versions))
 
     def state(self):
-        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/api/v1/state",
-                                    timeout=5) as reply:
-            return json.load(reply)
+        return self.rig.state()
 
     def metric(self, line):
-        with urllib.request.urlopen(f"http://127.0.0.1:{self.http_port}/metrics",
-                                    timeout=5) as reply:
-            text = reply.read().decode()
+        text = self.rig.metrics()
         found = re.search("^" + re.escape(line) + r" (\d+)$", text, re.M)
         assert found, line
         return int(found.group(1))
@@ -777,10 +770,7 @@ class Reload(unittest.TestCase):
         client = self.client("operator")
         self.assertIsNone(client.exception(1, read_pdu(0x02, 0, 1)))
         client.close()
-        http_port = self.rig.listening_port("HTTP")
-        with urllib.request.urlopen(f"http://127.0.0.1:{http_port}/api/v1/state",
-                                    timeout=5) as reply:
-            state = json.load(reply)
+        state = self.rig.state()
         self.assertEqual(state["warnings"], [])
         self.assertEqual(state["modbus"]["listen"], "")
 
