@@ -1,6 +1,6 @@
 // The benchmarks of issue 6, of issue 16's HTTP side, of issue 17's Sparkplug edge node and of
-// issue 18's Modbus/TCP Security (bench/README.md). Each prints its tables and one
-// machine-readable line per figure, and returns its figures against their targets.
+// issue 18's Modbus/TCP Security and of issue 28's plain MQTT (bench/README.md). Each prints its
+// tables and one machine-readable line per figure, and returns its figures against their targets.
 #pragma once
 
 #include <vector>
@@ -30,6 +30,9 @@ std::vector<Verdict> sparkplug_fleet(const Environment& env);
 std::vector<Verdict> sparkplug_outage(const Environment& env);
 std::vector<Verdict> sparkplug_outage_kill(const Environment& env);
 std::vector<Verdict> sparkplug_backlog(const Environment& env);
+// 9. Plain MQTT with Home Assistant discovery (issue 28) beside the Sparkplug edge node: CPU and
+// messages with every analog value of the demo's bus changing, and Modbus p99 beside it.
+std::vector<Verdict> mqtt_json_cost(const Environment& env);
 // 8. Modbus/TCP Security (issue 18): ioportd's CPU per request over TLS against plain TCP,
 // full and resumed handshakes per second, the memory of 256 TLS clients.
 std::vector<Verdict> tls_cost(const Environment& env);

@@ -264,6 +264,17 @@ std::size_t transaction_bytes(ModuleAddress module) {
     return request + reply_length(module.type) + 1;
 }
 
+bool is_analog(ModuleType type) {
+    return reply_words(type) > 0 && full_scale(type) > 0;
+}
+
+std::vector<ModuleAddress> analog_of(const std::vector<ModuleAddress>& modules) {
+    std::vector<ModuleAddress> analog;
+    for (const auto module : modules)
+        if (is_analog(module.type)) analog.push_back(module);
+    return analog;
+}
+
 std::chrono::nanoseconds wire_time(std::size_t bytes, int baud) {
     return std::chrono::nanoseconds(static_cast<std::int64_t>(bytes) * 10 * 1'000'000'000LL / baud);
 }
@@ -433,6 +444,14 @@ SimProcess::SimProcess(const Environment& env, const std::string& link,
     ready_ = wait_for([&] { return std::filesystem::exists(link_) || !process_.running(); }, 10s) &&
              process_.running();
     if (!ready_) fmt::print(stderr, "ioport-sim did not start: {}\n", process_.output());
+}
+
+sim::SimulatorSettings timed_line(int baud) {
+    sim::SimulatorSettings settings;
+    settings.baud = baud;
+    settings.line_timing = true;
+    settings.turnaround = 0us;
+    return settings;
 }
 
 InProcessSim::InProcessSim(const std::string& link, const std::vector<ModuleAddress>& modules,
@@ -665,6 +684,12 @@ std::vector<TimedWrite> raw_writes(const std::string& link,
     stop = true;
     poller.join();
     return done;
+}
+
+double median(std::vector<double> values) {
+    if (values.empty()) return 0;
+    std::sort(values.begin(), values.end());
+    return values[(values.size() - 1) / 2];
 }
 
 Summary summarize(std::vector<double> values) {

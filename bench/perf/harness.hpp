@@ -168,6 +168,11 @@ std::size_t transaction_bytes(ModuleAddress module);
 // 10 bits a byte (8N1).
 std::chrono::nanoseconds wire_time(std::size_t bytes, int baud);
 
+// Modules with analog channels, as the daemon decides which modules keep a trend.
+bool is_analog(ModuleType type);
+// Those of `modules`.
+std::vector<ModuleAddress> analog_of(const std::vector<ModuleAddress>& modules);
+
 struct LinkSpec {
     std::string device;
     int baud = 115200;
@@ -268,6 +273,10 @@ class SimProcess {
     bool ready_ = false;
 };
 
+// The simulator's settings with modelled line timing at `baud` and no turnaround: the time it
+// models is then exactly bytes × 10 / baud.
+sim::SimulatorSettings timed_line(int baud);
+
 // The simulator's own code (sim/simulator.hpp, as ioport-sim runs it) on a thread of this
 // process: its request log then tells on the benchmark's clock when the device received each
 // request.
@@ -356,6 +365,8 @@ struct Summary {
 };
 // Nearest-rank percentiles.
 Summary summarize(std::vector<double> values);
+// The lower median (of an even count, the smaller middle value); 0 of none.
+double median(std::vector<double> values);
 
 double microseconds(std::chrono::nanoseconds d);
 double seconds(Clock::duration d);

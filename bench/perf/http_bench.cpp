@@ -359,10 +359,6 @@ std::vector<Verdict> beside_modbus(const Environment& env) {
 
 // --- b and c. Eight links of 72 modules -----------------------------------------------------
 
-bool is_analog(ModuleType type) {  // as the daemon decides which modules keep a trend
-    return reply_words(type) > 0 && full_scale(type) > 0;
-}
-
 // Sets every analog module of every simulator to new values once a second, so that the trends
 // and values the pages carry change as a plant's would.
 class ValueChanger {

@@ -20,7 +20,7 @@ constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK.
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
 write, modbus, footprint, http, sparkplug (7a-f), fleet (7c alone), outage (7d alone), crash
-(7e alone), backlog (7f alone), tls, or all (the default).
+(7e alone), backlog (7f alone), tls, mqtt_json (9), or all (the default).
 Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
 its target. Asserts nothing: exit status 0 unless a program could not be started.
 
@@ -146,7 +146,7 @@ int main(int argc, char** argv) {
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
                    arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "fleet" ||
                    arg == "outage" || arg == "crash" || arg == "backlog" || arg == "tls" ||
-                   arg == "all") {
+                   arg == "mqtt_json" || arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -170,7 +170,7 @@ int main(int argc, char** argv) {
     {
         std::optional<WakeupLatencyHold> latency;
         if (hold && !env.quick) latency.emplace();
-        fmt::print("\nBenchmarks 1-4, 6, 7a-b and 8 {}.\n",
+        fmt::print("\nBenchmarks 1-4, 6, 7a-b, 8 and 9 {}.\n",
                    !latency ? "with idle CPUs free to halt"
                    : latency->failure().empty()
                        ? "with idle CPUs polling (/dev/cpu_dma_latency held at 0)"
@@ -186,6 +186,8 @@ int main(int argc, char** argv) {
         if (wanted("sparkplug")) add(sparkplug_cost(env));
         // Benchmark 4's load again, over TLS and plain.
         if (wanted("tls")) add(tls_cost(env));
+        // Benchmark 7b's measure, with plain MQTT beside the edge node.
+        if (wanted("mqtt_json")) add(mqtt_json_cost(env));
     }
     if (wanted("footprint")) add(footprint(env));
     // The fleet's CPU is the CPU of nodes that mostly wait, as benchmark 5's idle figure.

@@ -15,14 +15,6 @@
 namespace ioport::bench {
 namespace {
 
-sim::SimulatorSettings timed(int baud) {
-    sim::SimulatorSettings settings;
-    settings.baud = baud;
-    settings.line_timing = true;
-    settings.turnaround = 0us;  // modelled time is then exactly bytes × 10 / baud
-    return settings;
-}
-
 std::chrono::nanoseconds cycle_wire_time(const std::vector<ModuleAddress>& modules, int baud) {
     std::size_t bytes = 0;
     for (const auto module : modules)
@@ -79,7 +71,7 @@ Scan scan(const Environment& env, int baud) {
     const auto modules = full_bus();
     result.modelled_us = microseconds(cycle_wire_time(modules, baud));
     TempDir dir;
-    InProcessSim sim(dir / "tty", modules, timed(baud), env.placement.client_cpu);
+    InProcessSim sim(dir / "tty", modules, timed_line(baud), env.placement.client_cpu);
     if (!sim.ready()) return result;
     Gateway gateway(env, dir, gateway_yaml({{dir / "tty", baud, modules}}));
     if (!gateway.started() || !gateway.wait_until_polling()) return result;
@@ -217,7 +209,7 @@ WriteFigures writes(const Environment& env, int baud) {
             std::max(result.longest_us, microseconds(wire_time(transaction_bytes(module), baud)));
     const int count = env.quick ? 10 : 400;
     TempDir dir;
-    InProcessSim sim(dir / "tty", modules, timed(baud), env.placement.client_cpu);
+    InProcessSim sim(dir / "tty", modules, timed_line(baud), env.placement.client_cpu);
     if (!sim.ready()) return result;
     Gateway gateway(env, dir, gateway_yaml({{dir / "tty", baud, modules}}));
     if (!gateway.started() || !gateway.wait_until_polling()) return result;

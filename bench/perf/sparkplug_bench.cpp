@@ -11,11 +11,9 @@
 //    latency while the backlog is forwarded;
 // e. the same with ioportd killed (SIGKILL) in the middle of the outage and started again;
 // f. the fleet of c, each node forwarding the backlog of one outage, all at once.
-#include <arpa/inet.h>
-#include <mosquitto.h>
-#include <netinet/in.h>
-#include <sys/socket.h>
 #include <unistd.h>
+
+#include <csignal>
 
 #include <algorithm>
 #include <array>
@@ -32,6 +30,7 @@
 
 #include "bench/perf/benchmarks.hpp"
 #include "bench/perf/load.hpp"
+#include "bench/perf/mqtt_broker.hpp"
 #include "bench/process_io.hpp"
 #include "protocol/sparkplug.hpp"
 #include "protocol/store_segment.hpp"
@@ -55,186 +54,9 @@ std::string mqtt_yaml(std::uint16_t broker_port, std::string_view node,
 // --baseline's edge node publishes in a group of its own, which the tally does not count.
 constexpr std::string_view baseline_group = "bench-baseline";
 
-sim::SimulatorSettings timed(int baud) {
-    sim::SimulatorSettings settings;
-    settings.baud = baud;
-    settings.line_timing = true;
-    settings.turnaround = 0us;
-    return settings;
-}
-
-bool is_analog(ModuleType type) {  // as the daemon decides which modules keep a trend
-    return reply_words(type) > 0 && full_scale(type) > 0;
-}
-
-std::vector<ModuleAddress> analog_of(const std::vector<ModuleAddress>& modules) {
-    std::vector<ModuleAddress> analog;
-    for (const auto module : modules)
-        if (is_analog(module.type)) analog.push_back(module);
-    return analog;
-}
-
-double median(std::vector<double> values) {
-    if (values.empty()) return 0;
-    std::sort(values.begin(), values.end());
-    return values[(values.size() - 1) / 2];
-}
-
 double ms(double us) {
     return us / 1000.0;
 }
-
-// --- The broker and the subscriber -----------------------------------------------------------
-
-std::uint16_t free_port() {
-    const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-    if (fd < 0) return 0;
-    sockaddr_in address{};
-    address.sin_family = AF_INET;
-    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    socklen_t length = sizeof address;
-    std::uint16_t port = 0;
-    if (::bind(fd, reinterpret_cast<const sockaddr*>(&address), sizeof address) == 0 &&
-        ::getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length) == 0)
-        port = ntohs(address.sin_port);
-    ::close(fd);
-    return port;
-}
-
-bool accepts(std::uint16_t port) {
-    const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-    if (fd < 0) return false;
-    sockaddr_in address{};
-    address.sin_family = AF_INET;
-    address.sin_port = htons(port);
-    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    const bool ok = ::connect(fd, reinterpret_cast<const sockaddr*>(&address), sizeof address) == 0;
-    ::close(fd);
-    return ok;
-}
-
-// mosquitto on a free loopback port, with $SYS every second and room for every QoS 0 message a
-// slow subscriber has not taken yet (so that what the broker drops is not what is measured).
-class Broker {
-  public:
-    Broker(const Environment& env, const TempDir& dir, std::optional<int> cpu)
-        : mosquitto_(env.binaries.mosquitto), dir_(dir.path()), cpu_(cpu) {
-        if (::access(mosquitto_.c_str(), X_OK) != 0) {
-            why_ = fmt::format("no broker at {} (--mosquitto PATH)", mosquitto_);
-            return;
-        }
-        const auto port = free_port();
-        std::ofstream(dir / "mosquitto.conf") << fmt::format(
-            "listener {} 127.0.0.1\nallow_anonymous true\npersistence false\nsys_interval 1\n"
-            "max_queued_messages 100000\nmax_queued_bytes 0\nmax_inflight_messages 0\n"
-            "log_type error\nlog_type warning\n",
-            port);
-        launch(port);
-    }
-    // An outage: the broker goes away, and comes back on the same port.
-    void stop() { process_.reset(); }
-    bool restart() {
-        const auto port = std::exchange(port_, 0);
-        launch(port);
-        return started();
-    }
-    bool started() const { return port_ != 0; }
-    const std::string& why() const { return why_; }
-    std::uint16_t port() const { return port_; }
-    pid_t pid() const { return process_ ? process_->pid() : -1; }
-
-  private:
-    void launch(std::uint16_t port) {
-        process_ = std::make_unique<Process>(
-            std::vector<std::string>{mosquitto_, "-c", dir_ / "mosquitto.conf"}, cpu_,
-            dir_ / "mosquitto.log");
-        const auto until = Clock::now() + 5s;
-        while (Clock::now() < until && process_->running()) {
-            if (accepts(port)) {
-                port_ = port;
-                return;
-            }
-            std::this_thread::sleep_for(10ms);
-        }
-        why_ = fmt::format("mosquitto did not start: {}", process_->output());
-    }
-
-    std::string mosquitto_;
-    std::filesystem::path dir_;
-    std::optional<int> cpu_;
-    std::unique_ptr<Process> process_;
-    std::uint16_t port_ = 0;
-    std::string why_;
-};
-
-struct Received {
-    Clock::time_point at;
-    std::string_view topic;
-    std::span<const std::uint8_t> payload;
-};
-
-// A subscriber on libmosquitto's own thread (mosquitto_loop_start): `handler` runs there, for
-// every message, with the time it arrived.
-class Subscriber {
-  public:
-    using Handler = std::function<void(const Received&)>;
-
-    Subscriber(std::uint16_t port, std::vector<std::string> patterns, Handler handler)
-        : patterns_(std::move(patterns)), handler_(std::move(handler)) {
-        static const int initialised = mosquitto_lib_init();
-        (void)initialised;
-        client_ = mosquitto_new(nullptr, true, this);
-        if (client_ == nullptr) return;
-        mosquitto_connect_callback_set(client_, &Subscriber::on_connect);
-        mosquitto_subscribe_callback_set(client_, &Subscriber::on_subscribe);
-        mosquitto_message_callback_set(client_, &Subscriber::on_message);
-        if (mosquitto_connect(client_, "127.0.0.1", port, 60) != MOSQ_ERR_SUCCESS) return;
-        if (mosquitto_loop_start(client_) != MOSQ_ERR_SUCCESS) return;
-        started_ = true;
-        const auto until = Clock::now() + 5s;
-        while (Clock::now() < until && !ready())
-            std::this_thread::sleep_for(5ms);
-    }
-    ~Subscriber() {
-        if (client_ == nullptr) return;
-        if (started_) {
-            mosquitto_disconnect(client_);
-            mosquitto_loop_stop(client_, false);
-        }
-        mosquitto_destroy(client_);
-    }
-    Subscriber(const Subscriber&) = delete;
-    Subscriber& operator=(const Subscriber&) = delete;
-
-    bool ready() const {
-        return started_ && subscribed_.load() == static_cast<int>(patterns_.size());
-    }
-
-  private:
-    static void on_connect(mosquitto* client, void* self, int rc) {
-        if (rc != 0) return;
-        for (const auto& pattern : static_cast<Subscriber*>(self)->patterns_)
-            mosquitto_subscribe(client, nullptr, pattern.c_str(), 0);
-    }
-    static void on_subscribe(mosquitto* /*client*/, void* self, int /*mid*/, int /*count*/,
-                             const int* /*granted*/) {
-        ++static_cast<Subscriber*>(self)->subscribed_;
-    }
-    static void on_message(mosquitto* /*client*/, void* self, const mosquitto_message* message) {
-        const auto at = Clock::now();
-        static_cast<Subscriber*>(self)->handler_(
-            {at,
-             message->topic,
-             {static_cast<const std::uint8_t*>(message->payload),
-              static_cast<std::size_t>(message->payloadlen)}});
-    }
-
-    std::vector<std::string> patterns_;
-    Handler handler_;
-    mosquitto* client_ = nullptr;
-    bool started_ = false;
-    std::atomic<int> subscribed_{0};
-};
 
 // What a subscriber to spBv1.0/bench/# counted: messages and bytes (topic and payload) by
 // message type and node, births, and gaps in each node's seq (a message lost on the way).
@@ -325,7 +147,7 @@ std::vector<Verdict> latency(const Environment& env) {
         fmt::print("\n{}: benchmark 7 skipped.\n", broker.why());
         return {};
     }
-    InProcessSim sim(dir / "tty", bus, timed(115200), env.placement.client_cpu);
+    InProcessSim sim(dir / "tty", bus, timed_line(115200), env.placement.client_cpu);
     const auto device = sparkplug::device_id("hub0", target);
     std::mutex mutex;
     std::optional<std::uint64_t> word_alias;
@@ -491,8 +313,8 @@ std::vector<Verdict> publication_cost(const Environment& env) {
     Tally tally;
     Subscriber subscriber(broker.port(), {fmt::format("spBv1.0/{}/#", group)},
                           [&](const Received& message) { tally.add(message); });
-    InProcessSim sim_on(dir / "tty-on", bus, timed(115200), env.placement.client_cpu);
-    InProcessSim sim_off(dir / "tty-off", bus, timed(115200), env.placement.client_cpu);
+    InProcessSim sim_on(dir / "tty-on", bus, timed_line(115200), env.placement.client_cpu);
+    InProcessSim sim_off(dir / "tty-off", bus, timed_line(115200), env.placement.client_cpu);
     TempDir dir_off;
     Gateway on(env, dir,
                gateway_yaml({{dir / "tty-on", 115200, bus}}, 300, false,
@@ -505,7 +327,7 @@ std::vector<Verdict> publication_cost(const Environment& env) {
     std::optional<Gateway> base;
     if (!env.binaries.baseline.empty()) {
         dir_base.emplace();
-        sim_base.emplace(*dir_base / "tty", bus, timed(115200), env.placement.client_cpu);
+        sim_base.emplace(*dir_base / "tty", bus, timed_line(115200), env.placement.client_cpu);
         base.emplace(env.baseline(), *dir_base,
                      gateway_yaml({{*dir_base / "tty", 115200, bus}}, 300, false,
                                   mqtt_yaml(broker.port(), node_id(0), baseline_group)));
@@ -784,7 +606,7 @@ std::vector<Verdict> fleet(const Environment& env) {
     std::vector<std::unique_ptr<InProcessSim>> sims;
     for (int i = 0; i < nodes; ++i) {
         dirs.push_back(std::make_unique<TempDir>());
-        sims.push_back(std::make_unique<InProcessSim>(*dirs.back() / "tty", bus, timed(115200),
+        sims.push_back(std::make_unique<InProcessSim>(*dirs.back() / "tty", bus, timed_line(115200),
                                                       env.placement.client_cpu));
         if (!sims.back()->ready()) return {{"7c. fleet", "a simulator did not start", "", false}};
         sims.back()->wander(bus, period);
@@ -1045,7 +867,7 @@ std::vector<Verdict> outage(const Environment& env, bool crash) {
         fmt::print("\n{}: benchmark 7d skipped.\n", broker.why());
         return {};
     }
-    InProcessSim sim(dir / "tty", bus, timed(115200), env.placement.client_cpu);
+    InProcessSim sim(dir / "tty", bus, timed_line(115200), env.placement.client_cpu);
     const auto store = dir.path() / "store";
     // Watching the births of the first session: subscribed before ioportd starts.
     Tally before;
@@ -1286,7 +1108,7 @@ std::vector<Verdict> backlog(const Environment& env) {
     std::vector<std::unique_ptr<InProcessSim>> sims;
     for (int i = 0; i < nodes; ++i) {
         dirs.push_back(std::make_unique<TempDir>());
-        sims.push_back(std::make_unique<InProcessSim>(*dirs.back() / "tty", bus, timed(115200),
+        sims.push_back(std::make_unique<InProcessSim>(*dirs.back() / "tty", bus, timed_line(115200),
                                                       env.placement.client_cpu));
         if (!sims.back()->ready()) return {{"7f. backlog", "a simulator did not start", "", false}};
     }
