@@ -836,6 +836,16 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
     }
     if (inside) {
         auto& window = target.windows.front();
+        // The owner's failed write before this one had the same value: what the device took
+        // inside this window can have been that write's late transmissions, which the desired
+        // (old) value may follow before this write is sent.
+        if (allowed && target.late && target.late->value == window.value && window.seen > 0 &&
+            window.seen <= target.late->remaining && window.last_seen <= target.late->until) {
+            report_.failed_writes_applied_late += static_cast<std::uint64_t>(window.seen);
+            window.seen = 0;
+            target.late.reset();  // the desired value again: no late one after it
+            return;
+        }
         // An acknowledged write that reached the device keeps it until its owner's next write
         // or a safe state after it: a refresh of the old value now undid it.
         if (allowed && window.outcome == Window::Outcome::acknowledged && window.seen > 0 &&
