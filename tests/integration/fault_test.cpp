@@ -766,7 +766,7 @@ TEST_F(ManyConnections, MoreThan1024AreServedLikeTheRest) {
         clients.push_back(std::make_unique<RawClient>(gateway->port()));
         ASSERT_TRUE(clients.back()->connected()) << "connection " << i;
     }
-    EXPECT_TRUE(eventually([&] { return open_descriptors(gateway->pid()) > 1100; }));
+    EXPECT_TRUE(eventually([&] { return open_descriptors(gateway->pid()) > 1100; }, 5s * slowdown));
     // Every connection, the newest (highest descriptors) first: a read, and every fifth one a
     // write that goes to the device.
     int served = 0;

@@ -650,9 +650,15 @@ TEST_F(WriteStormTest, InputsAreReadWithinTheStatedBoundWhileThreeClientsWriteTo
 // full answers 06 at once and is never applied later.
 class PendingWritesTest : public Contract {
   protected:
+    // The device's delay gives the daemon the time to read the whole burst before the first
+    // write is confirmed: stretched under the sanitizers, with the timeout above it.
+    static constexpr auto device_delay = 60ms * slowdown;
+    static constexpr auto timeout = 100ms * slowdown;
     PendingWritesTest()
-        : gateway(config(hub_link(hub.link(), modules,
-                                  "timeout: 100ms\n    retries: 0\n    max_pending_writes: 4"))) {}
+        : gateway(config(
+              hub_link(hub.link(), modules,
+                       fmt::format("timeout: {}ms\n    retries: 0\n    max_pending_writes: 4",
+                                   timeout.count())))) {}
     const std::vector<Module> modules{{"dim16", 0}, {"dom16", 0, ", refresh: 1m"}};
     SimProcess hub{"--hub", sim_modules(modules), {"--no-line-timing"}};
     GatewayProcess gateway;
@@ -663,7 +669,7 @@ TEST_F(PendingWritesTest, AWriteThatFindsTheQueueFullAnswers06AtOnceAndIsNeverAp
         ModbusClient client(gateway.port());
         ASSERT_TRUE(all_online(client));
     }
-    hub.ctl("fault dom16:0 delay 60ms");  // answers, slowly: the writes queue
+    hub.ctl(fmt::format("fault dom16:0 delay {}ms", device_delay.count()));  // the writes queue
     hub.ctl("log clear");
     constexpr std::uint16_t writers = 12;
     WriteBurst burst(gateway.port(), writers, 0x1000);
@@ -689,8 +695,8 @@ TEST_F(PendingWritesTest, AWriteThatFindsTheQueueFullAnswers06AtOnceAndIsNeverAp
     figure("confirmed / refused with 06", fmt::format("{} / {}", confirmed.size(), refused.size()));
     EXPECT_LE(confirmed.size(), 5U);
     EXPECT_GE(refused.size(), writers - 5U);
-    // The device takes 60 ms a write: a refusal that waited for the line would come after the
-    // queue drained.
+    // The device takes 60 ms a write (180 under the sanitizers): a refusal that waited for the
+    // line would come after the queue drained.
     figure("slowest refusal / last confirmation",
            fmt::format("{} / {} ms", slowest_refusal.count(), last_confirmation.count()));
     EXPECT_LT(slowest_refusal, last_confirmation) << "a refusal waited for the line";
