@@ -7,6 +7,7 @@
 #include <cerrno>
 #include <latch>
 #include <memory>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -234,6 +235,43 @@ LoadResult run_load(const LoadSpec& spec) {
                                  mine.latency_us.end());
     }
     return result;
+}
+
+AlternatingRounds alternating_rounds(std::array<const Gateway*, 2> sides, int connections,
+                                     int rounds, std::chrono::milliseconds warmup,
+                                     std::chrono::milliseconds window, const RoundHooks& hooks) {
+    AlternatingRounds out;
+    std::array<bool, 2> started{};
+    std::array<int, 2> order{1, 0};
+    for (int round = 0; round < rounds; ++round) {
+        std::array<double, 2> p99{}, cpu{};
+        for (const int side : order) {
+            const auto& gateway = *sides[static_cast<std::size_t>(side)];
+            hooks.before(side);
+            LoadSpec spec{gateway.port(), gateway.pid(), connections, Mix::reads, 1,
+                          warmup,         window,        {},          {}};
+            auto result = run_load(spec);
+            const auto latency =
+                summarize(std::vector<double>(result.latency_us.begin(), result.latency_us.end()));
+            hooks.after(round, side, result, latency, result.seconds + seconds(warmup));
+            const auto s = static_cast<std::size_t>(side);
+            p99[s] = latency.p99;
+            cpu[s] = result.cpu_us_per_request();
+            if (std::exchange(started[s], true))
+                out.total[s].add(std::move(result));
+            else
+                out.total[s] = std::move(result);
+        }
+        out.p99_ratios.push_back(p99[1] / p99[0]);
+        out.cpu_ratios.push_back(cpu[1] / cpu[0]);
+        std::swap(order[0], order[1]);
+    }
+    for (std::size_t s = 0; s < 2; ++s) {
+        auto& values = out.total[s].latency_us;
+        out.latency[s] = summarize(std::vector<double>(values.begin(), values.end()));
+        values.clear();
+    }
+    return out;
 }
 
 }  // namespace ioport::bench

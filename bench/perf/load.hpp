@@ -6,8 +6,11 @@
 
 #include <sys/types.h>
 
+#include <array>
 #include <chrono>
 #include <cstdint>
+#include <functional>
+#include <vector>
 
 #include "bench/perf/harness.hpp"
 #include "bench/perf/tls_client.hpp"
@@ -72,5 +75,25 @@ struct LoadResult {
 };
 
 LoadResult run_load(const LoadSpec& spec);
+
+// Benchmark 4's reads (`connections`, warm-up, `window`) to each of two servers in turn, in
+// `rounds` pairs, the order swapped every round so that the machine's drift falls on both
+// alike (7b and 9). Around each round: before(side), then after(round, side, its result, its
+// latency, its seconds with the warm-up).
+struct AlternatingRounds {
+    std::array<LoadResult, 2> total;  // each side's rounds together, latency_us emptied
+    std::array<Summary, 2> latency;   // of each side's rounds together
+    std::vector<double> p99_ratios;   // side 1 ÷ side 0, per pair
+    std::vector<double> cpu_ratios;   // CPU per request, side 1 ÷ side 0, per pair
+};
+struct RoundHooks {
+    std::function<void(int side)> before = [](int) {};
+    std::function<void(int round, int side, const LoadResult& result, const Summary& latency,
+                       double round_seconds)>
+        after;
+};
+AlternatingRounds alternating_rounds(std::array<const Gateway*, 2> sides, int connections,
+                                     int rounds, std::chrono::milliseconds warmup,
+                                     std::chrono::milliseconds window, const RoundHooks& hooks);
 
 }  // namespace ioport::bench

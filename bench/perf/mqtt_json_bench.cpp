@@ -6,9 +6,7 @@
 // messages each output delivers to a subscriber in this process, and Modbus at 64 connections on
 // the one against the other.
 #include <algorithm>
-#include <array>
 #include <atomic>
-#include <optional>
 #include <thread>
 
 #include <fmt/format.h>
@@ -190,52 +188,28 @@ std::vector<Verdict> mqtt_json_cost(const Environment& env) {
         connections, rounds, load_window.count());
     const Table rounds_table(
         {"round", "ioportd", "req/s", "p99 µs", "server CPU µs/req", "errors", "JSON states/s"});
-    std::array<std::optional<LoadResult>, 2> sides;  // [with JSON?]
-    std::vector<double> p99_ratios;
-    std::vector<bool> order{true, false};
-    for (int round = 0; round < rounds; ++round) {
-        std::array<double, 2> p99{};
-        for (const bool json : order) {
-            const auto& gateway = json ? beside : alone;
-            const auto counts_before = tally.counts();
-            LoadSpec spec{gateway.port(),
-                          gateway.pid(),
-                          connections,
-                          Mix::reads,
-                          1,
-                          env.quick ? 100ms : 500ms,
-                          load_window,
-                          {},
-                          {}};
-            auto result = run_load(spec);
-            const auto counts = tally.counts() - counts_before;
-            const auto latency =
-                summarize(std::vector<double>(result.latency_us.begin(), result.latency_us.end()));
-            const double total_s = result.seconds + seconds(spec.warmup);
-            rounds_table.row(
-                {fmt::format("{}", round + 1), json ? "Sparkplug + JSON" : "Sparkplug",
-                 fmt::format("{:.0f}", result.per_second()), fmt::format("{:.0f}", latency.p99),
-                 fmt::format("{:.2f}", result.cpu_us_per_request()),
-                 fmt::format("{}", result.errors),
-                 json ? fmt::format("{:.0f}", static_cast<double>(counts.json_states) / total_s)
-                      : std::string()});
-            p99[json] = latency.p99;
-            if (sides[json])
-                sides[json]->add(std::move(result));
-            else
-                sides[json] = std::move(result);
-        }
-        p99_ratios.push_back(p99[1] / p99[0]);
-        std::rotate(order.begin(), order.begin() + 1, order.end());
-    }
-    std::array<Summary, 2> latency;
-    for (const std::size_t json : {0U, 1U}) {
-        auto& values = sides[json]->latency_us;
-        latency[json] = summarize(std::vector<double>(values.begin(), values.end()));
-        values.clear();
-    }
-    const auto& with_json = *sides[1];
-    const auto& without = *sides[0];
+    OutputCounts counts_before;
+    const auto rounds_run = alternating_rounds(
+        {&alone, &beside}, connections, rounds, env.quick ? 100ms : 500ms, load_window,
+        {.before = [&](int) { counts_before = tally.counts(); },
+         .after =
+             [&](int round, int json, const LoadResult& result, const Summary& latency,
+                 double round_seconds) {
+                 const auto counts = tally.counts() - counts_before;
+                 rounds_table.row(
+                     {fmt::format("{}", round + 1), json ? "Sparkplug + JSON" : "Sparkplug",
+                      fmt::format("{:.0f}", result.per_second()),
+                      fmt::format("{:.0f}", latency.p99),
+                      fmt::format("{:.2f}", result.cpu_us_per_request()),
+                      fmt::format("{}", result.errors),
+                      json ? fmt::format("{:.0f}",
+                                         static_cast<double>(counts.json_states) / round_seconds)
+                           : std::string()});
+             }});
+    const auto& latency = rounds_run.latency;
+    const auto& p99_ratios = rounds_run.p99_ratios;
+    const auto& with_json = rounds_run.total[1];
+    const auto& without = rounds_run.total[0];
     const double p99_median = median(p99_ratios);
     fmt::print(
         "\nAll rounds together: p99 {:.0f} µs with JSON, {:.0f} µs without ({:.3f}×; median of "

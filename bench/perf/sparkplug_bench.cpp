@@ -440,76 +440,57 @@ std::vector<Verdict> publication_cost(const Environment& env) {
     // The poll cycle of the loaded ioportd over its round, from its own counters: what the load
     // leaves of polling, and so of what there is to publish.
     ModbusConnection diagnostics_on(on.port()), diagnostics_off(off.port());
-    std::vector<double> p99_ratios, cpu_ratios;
-    std::array<std::optional<LoadResult>, 2> sides;  // [on?]
-    std::vector<bool> order{true, false};
     Tally::Counts loaded;
     double loaded_seconds = 0;
-    for (int round = 0; round < rounds; ++round) {
-        std::array<double, 2> p99{}, cpu{};
-        for (const bool mqtt : order) {
-            const auto& gateway = mqtt ? on : off;
-            const auto counts_before = tally.counts();
-            auto& diagnostics = mqtt ? diagnostics_on : diagnostics_off;
-            const auto cycles_before = read_diagnostics(diagnostics);
-            LoadSpec spec{gateway.port(),
-                          gateway.pid(),
-                          connections,
-                          Mix::reads,
-                          1,
-                          env.quick ? 100ms : 500ms,
-                          load_window,
-                          {},
-                          {}};
-            const auto round_start = Clock::now();
-            auto result = run_load(spec);
-            const auto counts = tally.counts() - counts_before;
-            const auto cycles_after = read_diagnostics(diagnostics);
-            const double cycle_ms =
-                cycles_before && cycles_after && cycles_after->cycles > cycles_before->cycles
-                    ? seconds(Clock::now() - round_start) * 1000 /
-                          static_cast<double>(cycles_after->cycles - cycles_before->cycles)
-                    : 0.0;
-            const auto latency =
-                summarize(std::vector<double>(result.latency_us.begin(), result.latency_us.end()));
-            const double total_s = result.seconds + seconds(spec.warmup);
-            rounds_table.row(
-                {fmt::format("{}", round + 1), mqtt ? "on" : "off",
-                 fmt::format("{:.0f}", result.per_second()), fmt::format("{:.0f}", latency.p99),
-                 fmt::format("{:.2f}", result.cpu_us_per_request()),
-                 fmt::format("{}", result.errors), fmt::format("{:.1f}", cycle_ms),
-                 mqtt ? fmt::format("{:.0f}", static_cast<double>(counts.ddata) / total_s)
-                      : std::string()});
-            if (mqtt) {
-                loaded.ddata += counts.ddata;
-                loaded.lost += counts.lost;
-                loaded_seconds += total_s;
-            }
-            p99[mqtt] = latency.p99;
-            cpu[mqtt] = result.cpu_us_per_request();
-            if (sides[mqtt])
-                sides[mqtt]->add(std::move(result));
-            else
-                sides[mqtt] = std::move(result);
-        }
-        p99_ratios.push_back(p99[1] / p99[0]);
-        cpu_ratios.push_back(cpu[1] / cpu[0]);
-        std::rotate(order.begin(), order.begin() + 1, order.end());
-    }
-    std::array<Summary, 2> latency;
-    for (int mqtt = 0; mqtt < 2; ++mqtt) {
-        auto& values = sides[static_cast<std::size_t>(mqtt)]->latency_us;
-        latency[static_cast<std::size_t>(mqtt)] =
-            summarize(std::vector<double>(values.begin(), values.end()));
-        values.clear();
-    }
-    const auto& load_on = *sides[1];
-    const auto& load_off = *sides[0];
+    Tally::Counts counts_before;
+    std::optional<Diagnostics> cycles_before;
+    Clock::time_point round_start;
+    const auto diagnostics = [&](int mqtt) -> ModbusConnection& {
+        return mqtt ? diagnostics_on : diagnostics_off;
+    };
+    const auto rounds_run = alternating_rounds(
+        {&off, &on}, connections, rounds, env.quick ? 100ms : 500ms, load_window,
+        {.before =
+             [&](int mqtt) {
+                 counts_before = tally.counts();
+                 cycles_before = read_diagnostics(diagnostics(mqtt));
+                 round_start = Clock::now();
+             },
+         .after =
+             [&](int round, int mqtt, const LoadResult& result, const Summary& latency,
+                 double round_seconds) {
+                 const auto counts = tally.counts() - counts_before;
+                 const auto cycles_after = read_diagnostics(diagnostics(mqtt));
+                 const double cycle_ms =
+                     cycles_before && cycles_after && cycles_after->cycles > cycles_before->cycles
+                         ? seconds(Clock::now() - round_start) * 1000 /
+                               static_cast<double>(cycles_after->cycles - cycles_before->cycles)
+                         : 0.0;
+                 rounds_table.row(
+                     {fmt::format("{}", round + 1), mqtt ? "on" : "off",
+                      fmt::format("{:.0f}", result.per_second()),
+                      fmt::format("{:.0f}", latency.p99),
+                      fmt::format("{:.2f}", result.cpu_us_per_request()),
+                      fmt::format("{}", result.errors), fmt::format("{:.1f}", cycle_ms),
+                      mqtt
+                          ? fmt::format("{:.0f}", static_cast<double>(counts.ddata) / round_seconds)
+                          : std::string()});
+                 if (mqtt) {
+                     loaded.ddata += counts.ddata;
+                     loaded.lost += counts.lost;
+                     loaded_seconds += round_seconds;
+                 }
+             }});
+    const auto& latency = rounds_run.latency;
+    const auto& p99_ratios = rounds_run.p99_ratios;
+    const auto& cpu_ratios = rounds_run.cpu_ratios;
+    const auto& load_on = rounds_run.total[1];
+    const auto& load_off = rounds_run.total[0];
     fmt::print("\nAll rounds together:\n");
     const Table table(
         {"ioportd", "req/s", "p50 µs", "p99 µs", "p99.9 µs", "server CPU µs/req", "errors"});
     for (const int mqtt : {0, 1}) {
-        const auto& side = *sides[static_cast<std::size_t>(mqtt)];
+        const auto& side = rounds_run.total[static_cast<std::size_t>(mqtt)];
         const auto& l = latency[static_cast<std::size_t>(mqtt)];
         table.row({mqtt ? "MQTT on" : "MQTT off", fmt::format("{:.0f}", side.per_second()),
                    fmt::format("{:.0f}", l.p50), fmt::format("{:.0f}", l.p99),
