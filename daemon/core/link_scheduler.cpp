@@ -541,6 +541,25 @@ LinkScheduler::Subscription LinkScheduler::subscribe(Observer observer) {
     return subscription;
 }
 
+std::vector<LinkScheduler::Subscription> watch_module_data(
+    const Links& links, const std::function<void(const LinkScheduler* link, int slot)>& changed) {
+    std::vector<LinkScheduler::Subscription> subscriptions;
+    for (const auto& link : links)
+        subscriptions.push_back(link->subscribe([changed, raw = link.get()](const Change& change) {
+            switch (change.kind) {
+                case Change::Kind::values:
+                case Change::Kind::status:
+                case Change::Kind::port:
+                    changed(raw, change.slot);
+                    return;
+                case Change::Kind::write:
+                case Change::Kind::tags:
+                    return;
+            }
+        }));
+    return subscriptions;
+}
+
 void LinkScheduler::notify(const Change& change) {
     std::erase_if(observers_, [](const auto& observer) { return observer.expired(); });
     // By index: an observer may subscribe while called; the call holds its own observer alive.

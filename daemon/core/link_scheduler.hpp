@@ -164,6 +164,13 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
 // The running links, in configuration order.
 using Links = std::vector<std::shared_ptr<LinkScheduler>>;
 
+// For the outputs that publish modules as they change (Sparkplug, plain MQTT): a subscription to
+// each of `links` that calls changed(link, slot) when a module's values or status change (slot
+// -1: every module of the link). A write's values come as a change of their own; new names and
+// units reach the output through its set_links() at the reload.
+std::vector<LinkScheduler::Subscription> watch_module_data(
+    const Links& links, const std::function<void(const LinkScheduler* link, int slot)>& changed);
+
 // /healthz (gateway.md §5.4): every link's port open and every module online.
 struct Health {
     bool ok = true;

@@ -73,20 +73,4 @@ struct Change {
     const Event* event = nullptr;
 };
 
-// Does the change alter what a module publishes (its values, or its status)? For the outputs
-// that publish modules as they change: a write's values come as a `values` change of their own,
-// and new names and units come through their set_links() at the reload.
-constexpr bool changes_module_data(Change::Kind kind) {
-    switch (kind) {
-        case Change::Kind::values:
-        case Change::Kind::status:
-        case Change::Kind::port:
-            return true;
-        case Change::Kind::write:
-        case Change::Kind::tags:
-            return false;
-    }
-    return false;
-}
-
 }  // namespace ioport::daemon

@@ -105,12 +105,9 @@ void MqttJsonOutput::build(const Links& links) {
 
 void MqttJsonOutput::watch_links() {
     const std::weak_ptr<MqttJsonOutput> weak = shared_from_this();
-    subscriptions_.clear();
-    for (const auto& link : links_)
-        subscriptions_.push_back(link->subscribe([weak, raw = link.get()](const Change& change) {
-            if (!changes_module_data(change.kind)) return;
-            if (auto self = weak.lock()) self->changed(raw, change.slot);
-        }));
+    subscriptions_ = watch_module_data(links_, [weak](const LinkScheduler* link, int slot) {
+        if (auto self = weak.lock()) self->changed(link, slot);
+    });
 }
 
 void MqttJsonOutput::set_links(const Links& links) {
