@@ -115,15 +115,19 @@ mqtt:
 
 
 class SparkplugCase(unittest.TestCase):
-    """A broker and a host app for the class; checks the host app's rules after every test."""
+    """A broker and a host app for the class; checks the host app's rules after every test.
+
+    The broker keeps the host app's session over a restart: the node, reconnecting on its own
+    timer, may come back before the host app does, and what it sends then (births, forwarded
+    history) waits at the broker for the host app instead of being lost to it."""
     mqtt_extra = ""
 
     @classmethod
     def setUpClass(cls):
         cls.dir = tempfile.mkdtemp(prefix="ioportd-spb-")
-        cls.broker = Broker(cls.dir)
+        cls.broker = Broker(cls.dir, keep_sessions=True)
         cls.broker.start()
-        cls.host = HostApp(cls.broker.port)
+        cls.host = HostApp(cls.broker.port, keep_session=True)
         cls.broker_log = BrokerLog(cls.broker.log, CLIENT_ID, GROUP, NODE)
         cls.rig = None
 
@@ -792,8 +796,8 @@ class Lifecycle(OwnDaemon):
                       file=sys.stderr)
             finally:
                 client.close()
-            # The first attempt failed; the next is 1 s later: the host app (back within
-            # 0.2 s of the broker) is there before it.
+            # The first attempt failed; the next is 1 s later (and what it sends waits at the
+            # broker for the host app, should that come back after the node).
             self.rig.wait_log(r"mqtt: cannot connect.*reconnecting within 1 s|"
                               r"mqtt: .*reconnecting within 1 s")
             connects, mark = self.host.connects, self.host.mark()
@@ -1031,8 +1035,8 @@ class StoreAndForward(OwnDaemon):
         return self.rig.state()["sparkplug"]["store"]
 
     def broker_back(self):
-        """The broker started again, and the host app subscribed to it again: the node's births
-        cannot go out before the host listens."""
+        """The broker started again, and the host app connected to it again (what the node sent
+        in between waited at the broker in the host app's session)."""
         connects = self.host.connects
         self.broker.start()
         self.host.wait(lambda: self.host.connects > connects, 10, "the host app back")

@@ -277,17 +277,19 @@ class NodeState:
 
 
 class HostApp:
-    def __init__(self, port, host="127.0.0.1", client_id="ioportd-test-host"):
+    def __init__(self, port, host="127.0.0.1", client_id="ioportd-test-host", keep_session=False):
+        """keep_session: a persistent session (Clean Session 0), for a broker that keeps it over
+        a restart (Broker(keep_sessions=True))."""
         self.violations = []
         self.messages = []
         self.nodes = {}
         self.connects = 0
         self._cond = threading.Condition()
-        self._client = mqtt.Client(client_id=client_id, clean_session=True,
+        self._client = mqtt.Client(client_id=client_id, clean_session=not keep_session,
                                    protocol=mqtt.MQTTv311)
         self._client.on_connect = self._on_connect
         self._client.on_message = self._on_message
-        # A broker restart is followed by the node's reconnect 1 s later: be back well before.
+        # Back soon after a broker restart; what comes before waits only if keep_session.
         self._client.reconnect_delay_set(0.05, 0.2)
         self._client.connect_async(host, port, keepalive=10)
         self._client.loop_start()

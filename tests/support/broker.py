@@ -1,11 +1,16 @@
-"""A real Mosquitto broker for the system tests: on a free loopback port, anonymous, no
-persistence, logging everything (tests/sparkplug/host_app.py's BrokerLog reads the log).
+"""A real Mosquitto broker for the system tests: on a free loopback port, anonymous, logging
+everything (tests/sparkplug/host_app.py's BrokerLog reads the log).
 
     broker = Broker(directory)
     broker.start()                # waits until it listens
     broker.stop(); broker.start() # the same port again
+
+keep_sessions=True: the broker saves its clients' persistent sessions (Clean Session 0) when
+stopped and keeps queueing for them, QoS 0 included, while they are away, so a subscriber that
+reconnects after a restart misses nothing published after the broker came back, however soon.
 """
 
+import getpass
 import os
 import socket
 import subprocess
@@ -14,16 +19,22 @@ from rig import eventually, free_port
 
 
 class Broker:
-    """mosquitto on 127.0.0.1:port, anonymous, no persistence, logging everything (BrokerLog);
-    stop() and start() again on the same port."""
+    """mosquitto on 127.0.0.1:port, anonymous, logging everything (BrokerLog); stop() and
+    start() again on the same port."""
 
-    def __init__(self, directory, port=None):
+    def __init__(self, directory, port=None, keep_sessions=False):
         self.port = port or free_port()
         self.config = os.path.join(directory, "mosquitto.conf")
         self.log = os.path.join(directory, "mosquitto.log")
         with open(self.config, "w") as f:
-            f.write(f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
-                    f"log_type all\n")
+            f.write(f"listener {self.port} 127.0.0.1\nallow_anonymous true\nlog_type all\n")
+            if keep_sessions:
+                # Run as root, mosquitto would otherwise become user mosquitto, who cannot
+                # write its database into this directory.
+                f.write(f"persistence true\npersistence_location {directory}/\n"
+                        f"queue_qos0_messages true\nuser {getpass.getuser()}\n")
+            else:
+                f.write("persistence false\n")
         self.process = None
 
     def start(self):
