@@ -36,7 +36,7 @@ Idle idle(const Gateway& gateway, int units, std::chrono::milliseconds window) {
         const auto after = read_diagnostics(*connections[static_cast<std::size_t>(unit)]);
         if (after) transactions += after->ok - before[static_cast<std::size_t>(unit)].ok;
     }
-    return {microseconds(cpu) / 1e4 / elapsed,
+    return {core_percent(cpu, elapsed),
             microseconds(cpu) / static_cast<double>(std::max<std::uint64_t>(transactions, 1)),
             static_cast<double>(transactions) / elapsed};
 }

@@ -206,6 +206,37 @@ std::chrono::nanoseconds stat_cpu_time(pid_t pid) {
     return std::chrono::nanoseconds(ticks * 1'000'000'000LL / ::sysconf(_SC_CLK_TCK));
 }
 
+double core_percent(std::chrono::nanoseconds cpu, double seconds) {
+    return microseconds(cpu) / 1e4 / seconds;
+}
+
+double CpuWindows::percent(std::size_t process) const {
+    return core_percent(total.at(process), seconds);
+}
+
+CpuWindows cpu_windows(
+    const std::vector<pid_t>& pids, int windows, std::chrono::milliseconds window,
+    const std::function<void(int)>& before,
+    const std::function<void(int, const std::vector<std::chrono::nanoseconds>&, double)>& after) {
+    CpuWindows result{std::vector<std::chrono::nanoseconds>(pids.size()), 0};
+    std::vector<std::chrono::nanoseconds> cpu(pids.size());
+    for (int i = 0; i < windows; ++i) {
+        before(i);
+        for (std::size_t p = 0; p < pids.size(); ++p)
+            cpu[p] = cpu_time(pids[p]);
+        const auto start = Clock::now();
+        std::this_thread::sleep_for(window);
+        for (std::size_t p = 0; p < pids.size(); ++p)
+            cpu[p] = cpu_time(pids[p]) - cpu[p];
+        const double s = seconds(Clock::now() - start);
+        for (std::size_t p = 0; p < pids.size(); ++p)
+            result.total[p] += cpu[p];
+        result.seconds += s;
+        after(i, cpu, s);
+    }
+    return result;
+}
+
 Memory memory(pid_t pid) {
     std::ifstream in(fmt::format("/proc/{}/status", pid));
     Memory m;

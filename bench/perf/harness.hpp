@@ -137,6 +137,22 @@ std::uint64_t sleeps(pid_t pid);
 // figure `top` and process_cpu_seconds_total use, as a check on the schedstat figures.
 std::chrono::nanoseconds stat_cpu_time(pid_t pid);
 
+// `cpu` used in `seconds`, in percent of one core.
+double core_percent(std::chrono::nanoseconds cpu, double seconds);
+
+// The CPU time of several processes over the same `windows` windows of `window` each, for
+// ratios between them that the machine's drift cannot skew: before(i) ahead of window i, then
+// after(i, each process's CPU in it, its seconds).
+struct CpuWindows {
+    std::vector<std::chrono::nanoseconds> total;  // per process, every window together
+    double seconds = 0;
+    double percent(std::size_t process) const;  // of a core
+};
+CpuWindows cpu_windows(
+    const std::vector<pid_t>& pids, int windows, std::chrono::milliseconds window,
+    const std::function<void(int)>& before,
+    const std::function<void(int, const std::vector<std::chrono::nanoseconds>&, double)>& after);
+
 // Polls `condition` every 5 ms until it holds (true) or `deadline` has passed (false).
 template <class Condition>
 bool wait_for(Condition condition, std::chrono::milliseconds deadline) {

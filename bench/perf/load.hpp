@@ -65,7 +65,7 @@ struct LoadResult {
     double cpu_us_per_request() const {
         return microseconds(server_cpu) / static_cast<double>(std::max<std::uint64_t>(requests, 1));
     }
-    double cpu_percent() const { return microseconds(server_cpu) / 1e4 / seconds; }
+    double cpu_percent() const { return core_percent(server_cpu, seconds); }
     double sleeps_per_request() const {
         return static_cast<double>(server_sleeps) /
                static_cast<double>(std::max<std::uint64_t>(requests, 1));

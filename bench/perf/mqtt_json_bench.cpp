@@ -47,6 +47,14 @@ struct OutputCounts {
         return {ddata_alone - o.ddata_alone, ddata_beside - o.ddata_beside,
                 json_states - o.json_states, json - o.json, json_bytes - o.json_bytes};
     }
+    OutputCounts& operator+=(const OutputCounts& o) {
+        ddata_alone += o.ddata_alone;
+        ddata_beside += o.ddata_beside;
+        json_states += o.json_states;
+        json += o.json;
+        json_bytes += o.json_bytes;
+        return *this;
+    }
 };
 
 class OutputTally {
@@ -123,41 +131,28 @@ std::vector<Verdict> mqtt_json_cost(const Environment& env) {
     const Table cpu_table({"window", "Sparkplug, CPU", "Sparkplug + JSON, CPU", "ratio",
                            "DDATA/s alone", "DDATA/s beside", "JSON states/s", "JSON KiB/s"});
     std::vector<double> ratios;
-    std::chrono::nanoseconds total_alone{}, total_beside{};
-    OutputCounts total;
-    double total_seconds = 0;
-    for (int i = 0; i < windows; ++i) {
-        const auto counts_before = tally.counts();
-        const auto alone_before = cpu_time(alone.pid());
-        const auto beside_before = cpu_time(beside.pid());
-        const auto start = Clock::now();
-        std::this_thread::sleep_for(window);
-        const auto cpu_alone = cpu_time(alone.pid()) - alone_before;
-        const auto cpu_beside = cpu_time(beside.pid()) - beside_before;
-        const double s = seconds(Clock::now() - start);
-        const auto counts = tally.counts() - counts_before;
-        const double alone_pct = microseconds(cpu_alone) / 1e4 / s;
-        const double beside_pct = microseconds(cpu_beside) / 1e4 / s;
-        ratios.push_back(beside_pct / alone_pct);
-        cpu_table.row({fmt::format("{}", i + 1), fmt::format("{:.2f} %", alone_pct),
-                       fmt::format("{:.2f} %", beside_pct), fmt::format("{:.2f}", ratios.back()),
-                       fmt::format("{:.0f}", static_cast<double>(counts.ddata_alone) / s),
-                       fmt::format("{:.0f}", static_cast<double>(counts.ddata_beside) / s),
-                       fmt::format("{:.0f}", static_cast<double>(counts.json_states) / s),
-                       fmt::format("{:.1f}", static_cast<double>(counts.json_bytes) / 1024 / s)});
-        total_alone += cpu_alone;
-        total_beside += cpu_beside;
-        total_seconds += s;
-        total.ddata_alone += counts.ddata_alone;
-        total.ddata_beside += counts.ddata_beside;
-        total.json_states += counts.json_states;
-        total.json += counts.json;
-        total.json_bytes += counts.json_bytes;
-    }
-    const double alone_pct = microseconds(total_alone) / 1e4 / total_seconds;
-    const double beside_pct = microseconds(total_beside) / 1e4 / total_seconds;
+    OutputCounts total, counts_before;
+    const auto cpu = cpu_windows(
+        {alone.pid(), beside.pid()}, windows, window, [&](int) { counts_before = tally.counts(); },
+        [&](int i, const std::vector<std::chrono::nanoseconds>& used, double s) {
+            const auto counts = tally.counts() - counts_before;
+            const double alone_pct = core_percent(used[0], s);
+            const double beside_pct = core_percent(used[1], s);
+            ratios.push_back(beside_pct / alone_pct);
+            cpu_table.row(
+                {fmt::format("{}", i + 1), fmt::format("{:.2f} %", alone_pct),
+                 fmt::format("{:.2f} %", beside_pct), fmt::format("{:.2f}", ratios.back()),
+                 fmt::format("{:.0f}", static_cast<double>(counts.ddata_alone) / s),
+                 fmt::format("{:.0f}", static_cast<double>(counts.ddata_beside) / s),
+                 fmt::format("{:.0f}", static_cast<double>(counts.json_states) / s),
+                 fmt::format("{:.1f}", static_cast<double>(counts.json_bytes) / 1024 / s)});
+            total += counts;
+        });
+    const double total_seconds = cpu.seconds;
+    const double alone_pct = cpu.percent(0);
+    const double beside_pct = cpu.percent(1);
     const double states_per_s = static_cast<double>(total.json_states) / total_seconds;
-    const double us_per_state = microseconds(total_beside - total_alone) /
+    const double us_per_state = microseconds(cpu.total[1] - cpu.total[0]) /
                                 static_cast<double>(std::max<std::uint64_t>(total.json_states, 1));
     const double cpu_ratio = median(ratios);
     fmt::print(
@@ -188,7 +183,6 @@ std::vector<Verdict> mqtt_json_cost(const Environment& env) {
         connections, rounds, load_window.count());
     const Table rounds_table(
         {"round", "ioportd", "req/s", "p99 µs", "server CPU µs/req", "errors", "JSON states/s"});
-    OutputCounts counts_before;
     const auto rounds_run = alternating_rounds(
         {&alone, &beside}, connections, rounds, env.quick ? 100ms : 500ms, load_window,
         {.before = [&](int) { counts_before = tally.counts(); },

@@ -355,51 +355,36 @@ std::vector<Verdict> publication_cost(const Environment& env) {
                            "KiB/s at the subscriber", "broker CPU"});
     std::vector<double> ratios;
     std::vector<double> baseline_ratios;
-    std::chrono::nanoseconds total_on{}, total_off{}, total_broker{}, total_base{};
-    Tally::Counts total_counts;
-    double total_seconds = 0;
-    for (int i = 0; i < windows; ++i) {
-        const auto counts_before = tally.counts();
-        const auto on_before = cpu_time(on.pid());
-        const auto off_before = cpu_time(off.pid());
-        const auto broker_before = cpu_time(broker.pid());
-        const auto base_before = base ? cpu_time(base->pid()) : std::chrono::nanoseconds{};
-        const auto start = Clock::now();
-        std::this_thread::sleep_for(window);
-        if (base) {
-            const auto cpu_base = cpu_time(base->pid()) - base_before;
-            total_base += cpu_base;
-            baseline_ratios.push_back(microseconds(cpu_time(on.pid()) - on_before) /
-                                      std::max(microseconds(cpu_base), 1.0));
-        }
-        const auto cpu_on = cpu_time(on.pid()) - on_before;
-        const auto cpu_off = cpu_time(off.pid()) - off_before;
-        const auto cpu_broker = cpu_time(broker.pid()) - broker_before;
-        const double s = seconds(Clock::now() - start);
-        const auto counts = tally.counts() - counts_before;
-        const double on_pct = microseconds(cpu_on) / 1e4 / s;
-        const double off_pct = microseconds(cpu_off) / 1e4 / s;
-        ratios.push_back(on_pct / off_pct);
-        cpu_table.row({fmt::format("{}", i + 1), fmt::format("{:.2f} %", on_pct),
-                       fmt::format("{:.2f} %", off_pct), fmt::format("{:.2f}", ratios.back()),
-                       fmt::format("{:.0f}", static_cast<double>(counts.ddata) / s),
-                       fmt::format("{:.1f}", static_cast<double>(counts.bytes) / 1024 / s),
-                       fmt::format("{:.2f} %", microseconds(cpu_broker) / 1e4 / s)});
-        total_on += cpu_on;
-        total_off += cpu_off;
-        total_broker += cpu_broker;
-        total_seconds += s;
-        total_counts.messages += counts.messages;
-        total_counts.bytes += counts.bytes;
-        total_counts.ddata += counts.ddata;
-        total_counts.ddata_bytes += counts.ddata_bytes;
-        total_counts.lost += counts.lost;
-    }
-    const double on_pct = microseconds(total_on) / 1e4 / total_seconds;
-    const double off_pct = microseconds(total_off) / 1e4 / total_seconds;
-    const double broker_pct = microseconds(total_broker) / 1e4 / total_seconds;
+    Tally::Counts total_counts, counts_before;
+    std::vector<pid_t> pids{on.pid(), off.pid(), broker.pid()};
+    if (base) pids.push_back(base->pid());
+    const auto cpu = cpu_windows(
+        pids, windows, window, [&](int) { counts_before = tally.counts(); },
+        [&](int i, const std::vector<std::chrono::nanoseconds>& used, double s) {
+            const auto counts = tally.counts() - counts_before;
+            const double on_pct = core_percent(used[0], s);
+            const double off_pct = core_percent(used[1], s);
+            ratios.push_back(on_pct / off_pct);
+            if (base)
+                baseline_ratios.push_back(microseconds(used[0]) /
+                                          std::max(microseconds(used[3]), 1.0));
+            cpu_table.row({fmt::format("{}", i + 1), fmt::format("{:.2f} %", on_pct),
+                           fmt::format("{:.2f} %", off_pct), fmt::format("{:.2f}", ratios.back()),
+                           fmt::format("{:.0f}", static_cast<double>(counts.ddata) / s),
+                           fmt::format("{:.1f}", static_cast<double>(counts.bytes) / 1024 / s),
+                           fmt::format("{:.2f} %", core_percent(used[2], s))});
+            total_counts.messages += counts.messages;
+            total_counts.bytes += counts.bytes;
+            total_counts.ddata += counts.ddata;
+            total_counts.ddata_bytes += counts.ddata_bytes;
+            total_counts.lost += counts.lost;
+        });
+    const double total_seconds = cpu.seconds;
+    const double on_pct = cpu.percent(0);
+    const double off_pct = cpu.percent(1);
+    const double broker_pct = cpu.percent(2);
     const double ddata_per_s = static_cast<double>(total_counts.ddata) / total_seconds;
-    const double us_per_ddata = microseconds(total_on - total_off) /
+    const double us_per_ddata = microseconds(cpu.total[0] - cpu.total[1]) /
                                 static_cast<double>(std::max<std::uint64_t>(total_counts.ddata, 1));
     const double cpu_ratio = median(ratios);
     fmt::print(
@@ -417,7 +402,7 @@ std::vector<Verdict> publication_cost(const Environment& env) {
         ddata_per_s, static_cast<double>(total_counts.bytes) / total_seconds, us_per_ddata,
         broker_pct, total_counts.lost));
     if (base) {
-        const double base_pct = microseconds(total_base) / 1e4 / total_seconds;
+        const double base_pct = cpu.percent(3);
         fmt::print(
             "\nAgainst the baseline {} (MQTT on, the same input, the same windows): {:.2f} % ÷ "
             "{:.2f} % of a core = {:.3f}× (median of the windows {:.3f}×).\n",
@@ -442,7 +427,6 @@ std::vector<Verdict> publication_cost(const Environment& env) {
     ModbusConnection diagnostics_on(on.port()), diagnostics_off(off.port());
     Tally::Counts loaded;
     double loaded_seconds = 0;
-    Tally::Counts counts_before;
     std::optional<Diagnostics> cycles_before;
     Clock::time_point round_start;
     const auto diagnostics = [&](int mqtt) -> ModbusConnection& {
@@ -705,8 +689,8 @@ std::vector<Verdict> fleet(const Environment& env) {
     };
     const double messages_per_s = static_cast<double>(counts.messages) / s;
     const double per_node = messages_per_s / nodes;
-    const double broker_pct = microseconds(broker_cpu) / 1e4 / s;
-    const double nodes_pct = microseconds(nodes_cpu) / 1e4 / s;
+    const double broker_pct = core_percent(broker_cpu, s);
+    const double nodes_pct = core_percent(nodes_cpu, s);
     const Table steady({"figure", "over the window", "per node"});
     steady.row(
         {"messages/s at the subscriber (DDATA)",
@@ -987,8 +971,8 @@ std::vector<Verdict> outage(const Environment& env, bool crash) {
     const double to_disk = static_cast<double>(io_after.write_bytes - io_before.write_bytes) / n;
     const double away_s = static_cast<double>(away.count());
     const double connected_pct =
-        microseconds(cpu_connected) / 1e4 / static_cast<double>(connected_window.count());
-    const double away_pct = microseconds(cpu_away) / 1e4 / away_s;
+        core_percent(cpu_connected, static_cast<double>(connected_window.count()));
+    const double away_pct = core_percent(cpu_away, away_s);
     Table table({"", "value"});
     if (crash) {
         table.row({"records in the store's files just before the kill / just after it",
@@ -1187,8 +1171,8 @@ std::vector<Verdict> backlog(const Environment& env) {
         }
     }
     const auto counts = tally.counts();
-    const double broker_pct = microseconds(broker_cpu) / 1e4 / std::max(drain_s, 1e-3);
-    const double nodes_pct = microseconds(nodes_cpu) / 1e4 / std::max(drain_s, 1e-3);
+    const double broker_pct = core_percent(broker_cpu, std::max(drain_s, 1e-3));
+    const double nodes_pct = core_percent(nodes_cpu, std::max(drain_s, 1e-3));
     Table table({"", "value"});
     table.row({"records the stores took (their delivered marks once drained)",
                fmt::format("{} ({} a node)", recorded, recorded / static_cast<unsigned>(nodes))});
