@@ -156,7 +156,6 @@ mqtt_json:
 {json_extra}""")
 
 
-
 def topic(module, leaf):
     return f"{PREFIX}/{module}/{leaf}"
 

@@ -215,9 +215,6 @@ class ModbusTls(unittest.TestCase):
     def client(self, name, **versions):
         return TlsClient(self.tls_port, self.certs.context(name, **versions))
 
-    def state(self):
-        return self.rig.state()
-
     def metric(self, line):
         text = self.rig.metrics()
         found = re.search("^" + re.escape(line) + r" (\d+)$", text, re.M)
@@ -303,7 +300,7 @@ class ModbusTls(unittest.TestCase):
         client = self.client("viewer")
         try:
             client.request(1, read_pdu(0x03, 0, 1))
-            modbus = self.state()["modbus"]
+            modbus = self.rig.state()["modbus"]
             self.assertEqual(modbus["tls_listen"], f"127.0.0.1:{self.tls_port}")
             mine = [c for c in modbus["clients"] if c["transport"] == "tls"]
             self.assertEqual([c["role"] for c in mine], ["viewer"])
@@ -490,7 +487,7 @@ class ModbusTls(unittest.TestCase):
                 t = time.monotonic()
                 self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
                 worst = max(worst, time.monotonic() - t)
-                state = [c for c in self.state()["modbus"]["clients"]
+                state = [c for c in self.rig.state()["modbus"]["clients"]
                          if c["address"].endswith(f":{port}")]
                 if not state:
                     closed_after = time.monotonic() - answered_last
@@ -554,7 +551,7 @@ class ModbusTls(unittest.TestCase):
                     self.fail(f"{into:.1f} s into the attack an operator's TLS client was not "
                               f"served: {error!r}")
                 worst_tls = max(worst_tls, time.monotonic() - t)
-                most_handshakes = max(most_handshakes, self.state()["modbus"]["handshakes"])
+                most_handshakes = max(most_handshakes, self.rig.state()["modbus"]["handshakes"])
                 rounds += 1
                 stop.wait(0.2)
         finally:
@@ -588,8 +585,8 @@ class ModbusTls(unittest.TestCase):
                     s = silent(self.tls_port, f"127.0.1.{host + 1}")
                     if s:
                         held.append(s)
-            eventually(lambda: self.state()["modbus"]["handshakes"] == 16, 5,
-                       lambda: f"16 handshakes held: {self.state()['modbus']}")
+            eventually(lambda: self.rig.state()["modbus"]["handshakes"] == 16, 5,
+                       lambda: f"16 handshakes held: {self.rig.state()['modbus']}")
             self.rig.wait_log(r"refused Modbus client 127\.0\.1\.\d: tls\.max_handshakes \(16\) "
                               r"TLS handshakes in progress")
             self.assertLess(plain_request(self.port, 1, read_pdu(0x02, 0, 16))[0], 0x80)
@@ -597,7 +594,7 @@ class ModbusTls(unittest.TestCase):
         finally:
             for s in held:
                 s.close()
-        eventually(lambda: self.state()["modbus"]["handshakes"] == 0, 5, "the handshakes gone")
+        eventually(lambda: self.rig.state()["modbus"]["handshakes"] == 0, 5, "the handshakes gone")
         fresh = self.client("viewer")
         self.assertIsNone(fresh.exception(1, read_pdu(0x02, 0, 1)))
         fresh.close()
@@ -607,8 +604,8 @@ class ModbusTls(unittest.TestCase):
         warning = (r'plain Modbus TCP \(modbus\.listen "127\.0\.0\.1:0"\) bypasses the roles of '
                    r"Modbus/TCP Security: any client that reaches it may read and write every unit")
         self.rig.wait_log(r" warning " + warning)
-        self.assertTrue(any(re.match(warning, w) for w in self.state()["warnings"]),
-                        self.state()["warnings"])
+        self.assertTrue(any(re.match(warning, w) for w in self.rig.state()["warnings"]),
+                        self.rig.state()["warnings"])
 
     def test_a_thousand_half_open_tls_connections_cost_the_others_nothing(self):
         keeper = self.client("operator")
@@ -628,7 +625,7 @@ class ModbusTls(unittest.TestCase):
             # 4 handshakes at once from one address; the rest are closed at accept.
             self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: 4 TLS handshakes of this "
                               r"address in progress")
-            self.assertLessEqual(self.state()["modbus"]["handshakes"], 4)
+            self.assertLessEqual(self.rig.state()["modbus"]["handshakes"], 4)
             # Another address is served at once; this one once the 4 handshake deadlines passed.
             other = TlsClient(self.tls_port, self.certs.context("viewer"), source="127.0.0.3")
             try:
