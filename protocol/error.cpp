@@ -18,6 +18,7 @@ Failure failure_of(Errc code) {
         case Errc::port_lost:
         case Errc::port_closed:
         case Errc::io_error:
+        case Errc::no_space:
             return Failure::port;
         case Errc::cancelled:
             break;

@@ -21,6 +21,7 @@ enum class Errc {
     port_lost,          // the port vanished while open (USB unplugged, pty closed)
     port_closed,        // an operation needed an open port and there is none
     io_error,           // any other operating-system error
+    no_space,           // the file system is full (ENOSPC, EDQUOT)
     cancelled,          // the operation was abandoned because the owner shut down
 };
 

@@ -198,6 +198,7 @@ int exit_code(Errc code) {
         case Errc::port_lost:
         case Errc::port_closed:
         case Errc::io_error:
+        case Errc::no_space:
         case Errc::cancelled:
             break;
     }
@@ -373,6 +374,7 @@ int run_scan(BlockingLink& link, const Invocation& invocation, std::ostream& out
             case Errc::port_lost:
             case Errc::port_closed:
             case Errc::io_error:
+            case Errc::no_space:
             case Errc::cancelled:
                 return report(reading.error(), err);
         }

@@ -6,13 +6,18 @@
 //   <dir>/delivered                  the number of the last record the broker has (8 bytes LE,
 //                                    then their CRC-32), written by rename at each sync
 //
-// Every call blocks on the disk (an SD card can take seconds to sync): SparkplugStore calls them
-// on its own thread, never on the loop. Tested on real files without any thread.
+// Every file operation goes through StoreDirectory (store_directory.hpp): by name, within the
+// directory, never following a link. Every call blocks on the disk (an SD card can take seconds
+// to sync): SparkplugStore calls them on its disk thread, never on the loop. Tested on real files
+// without any thread, and on directories of the tests' own (a full disk).
 //
 // Durability: append() writes each record with write(2) at once, so a crash of the process loses
 // nothing; sync() (once a second) makes them durable against a power cut (fdatasync), which so
 // loses at most the last second. On open, every segment is scanned: a torn or corrupted stretch
-// is skipped (and the newest segment truncated before it), never replayed.
+// is skipped (and the newest segment truncated before it), never replayed. Whatever else the
+// directory holds, a record that was appended is forwarded or counted dropped: records are
+// numbered from one more than any found, and only a segment that ends right before that number
+// is appended to. A full disk drops the oldest segments first, as max_size does.
 #pragma once
 
 #include <cstdint>
@@ -23,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "daemon/sparkplug/store_directory.hpp"
 #include "protocol/error.hpp"
 #include "protocol/store_segment.hpp"
 
@@ -34,9 +40,10 @@ struct StoredRecord {
 };
 
 struct StoreCounts {
-    std::uint64_t bytes = 0;    // of every segment on disk
-    std::uint64_t records = 0;  // not yet delivered
-    std::uint64_t dropped = 0;  // the oldest, beyond max_size, since opening
+    std::uint64_t bytes = 0;         // of every segment on disk
+    std::uint64_t records = 0;       // not yet delivered
+    std::uint64_t dropped = 0;       // the oldest, since opening: beyond max_size or the disk full
+    std::uint64_t dropped_full = 0;  // of those, for the disk full
     friend bool operator==(const StoreCounts&, const StoreCounts&) = default;
 };
 
@@ -52,10 +59,18 @@ struct StoreRecovery {
 inline constexpr std::uint64_t min_segment_bytes = std::uint64_t{64} << 10;
 inline constexpr std::uint64_t max_segment_bytes = std::uint64_t{4} << 20;
 std::uint64_t segment_bytes_for(std::uint64_t max_size);
+// "00000000000000004097.seg" for 4097; nullopt for a name that is not a segment's. Numbers go no
+// higher than max_record_number: a name or a mark beyond it is not the store's.
+inline constexpr std::uint64_t max_record_number = std::uint64_t{1} << 62;
+std::string segment_name(std::uint64_t first);
+std::optional<std::uint64_t> segment_number(std::string_view name);
 
 class StoreFiles {
   public:
-    // Creates the directory when missing (mode 0750), reads the mark and scans every segment.
+    // Reads the mark and scans every segment of `dir`.
+    static Result<StoreFiles> open(std::unique_ptr<StoreDirectory> dir, std::uint64_t max_size);
+    // The same on disk: DiskDirectory::open(dir) first (created when missing, refused when others
+    // could write into it).
     static Result<StoreFiles> open(const std::filesystem::path& dir, std::uint64_t max_size);
     StoreFiles(StoreFiles&& other) noexcept;
     StoreFiles& operator=(StoreFiles&&) = delete;
@@ -63,8 +78,8 @@ class StoreFiles {
     StoreFiles& operator=(const StoreFiles&) = delete;
     ~StoreFiles();
 
-    // Appends one record as the next number; beyond max_size the oldest segments go first.
-    // Fails (nothing appended) when the disk does not take it.
+    // Appends one record as the next number; beyond max_size, or when the disk is full, the
+    // oldest segments go first. Fails (nothing appended) when the disk does not take it.
     Result<std::uint64_t> append(std::span<const std::uint8_t> body);
     // Writes the mark, and makes what was appended durable (fdatasync, and the directory when
     // files came or went).
@@ -89,26 +104,27 @@ class StoreFiles {
         std::uint64_t bytes = 0;
         std::uint64_t records = 0;
     };
-    StoreFiles(std::filesystem::path dir, std::uint64_t max_size);
+    StoreFiles(std::unique_ptr<StoreDirectory> dir, std::uint64_t max_size);
     Result<> load();
-    Result<> load_segment(const std::filesystem::path& file, std::uint64_t first, bool newest);
+    Result<> load_segment(std::uint64_t first);
+    Result<> resume_newest();
+    Result<std::uint64_t> append_once(std::span<const std::uint8_t> body);
     Result<> start_segment();
     Result<> drop_oldest();
     Result<> remove_segment(std::map<std::uint64_t, Segment>::iterator segment);
     Result<> write_mark();
-    std::filesystem::path path_of(std::uint64_t first) const;
     std::uint64_t pending_in(const Segment& segment) const;
     void close_writer();
 
-    std::filesystem::path dir_;
+    std::unique_ptr<StoreDirectory> dir_;
     std::uint64_t max_size_ = 0;
     std::uint64_t segment_bytes_ = 0;
     std::map<std::uint64_t, Segment> segments_;  // by first number
-    int writer_ = -1;                            // the newest segment, O_APPEND
-    int dir_fd_ = -1;
+    StoreDirectory::File writer_ = -1;           // the newest segment, appended to
     std::uint64_t next_ = 1;
     std::uint64_t delivered_ = 0;
     std::uint64_t dropped_ = 0;
+    std::uint64_t dropped_full_ = 0;
     bool data_dirty_ = false;
     bool dir_dirty_ = false;
     bool mark_dirty_ = false;  // delivered_ moved since the mark was written
