@@ -12,7 +12,11 @@
 // record (/proc/self/io wchar, write_bytes), CPU per record appended and forwarded, and the time
 // to open the store after the process that filled it was killed with SIGKILL.
 //
-// Usage: ioportd-store-bench [--dir DIR] [--records N] [--rate R]
+// With --open-full SIZE instead: a store filled to SIZE (its max_size) with such records, and the
+// time to open it, with the page cache warm and, where this process may drop it, cold: the
+// figure behind the largest max_size the configuration allows (docs/store.md).
+//
+// Usage: ioportd-store-bench [--dir DIR] [--records N] [--rate R] [--open-full SIZE_MIB]
 //   DIR: where the stores are made (default /var/tmp: a disk, not tmpfs, for write_bytes).
 #include <signal.h>
 #include <sqlite3.h>
@@ -225,15 +229,50 @@ std::pair<double, std::uint64_t> recovery(const std::function<void()>& fill,
     return {std::chrono::duration<double, std::milli>(Clock::now() - started).count(), count};
 }
 
+// Fills a store to `max_size` and opens it again, warm and cold.
+void open_full(const fs::path& dir, std::uint64_t max_size) {
+    {
+        auto files = ioport::daemon::StoreFiles::open(dir / "full", max_size);
+        check(files.has_value(), "open the store to fill");
+        for (std::uint64_t n = 0; files->counts().dropped == 0; ++n)
+            check(files->append(record(n)).has_value(), "append");
+        check(files->sync().has_value(), "sync");
+    }
+    const auto open = [&](const char* how) {
+        const auto cpu = cpu_seconds();
+        const auto started = Clock::now();
+        auto files = ioport::daemon::StoreFiles::open(dir / "full", max_size);
+        const auto took = std::chrono::duration<double>(Clock::now() - started).count();
+        check(files.has_value(), "reopen the full store");
+        const auto counts = files->counts();
+        std::printf(
+            "open a full store of %llu MiB (%llu records), %s: %.2f s, %.2f s of CPU, "
+            "%.0f MiB/s\n",
+            static_cast<unsigned long long>(max_size >> 20),
+            static_cast<unsigned long long>(counts.records), how, took, cpu_seconds() - cpu,
+            static_cast<double>(counts.bytes) / 1048576.0 / took);
+    };
+    open("page cache warm");
+    ::sync();
+    if (std::FILE* drop = std::fopen("/proc/sys/vm/drop_caches", "w")) {
+        std::fputs("3\n", drop);
+        std::fclose(drop);
+        open("page cache dropped");
+    }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
     fs::path base = "/var/tmp";
     std::uint64_t records = 50000;
     std::uint64_t rate = 200;
+    std::uint64_t full_mib = 0;
     for (int i = 1; i + 1 < argc; i += 2) {
         const std::string option = argv[i];
-        if (option == "--dir")
+        if (option == "--open-full")
+            full_mib = std::stoull(argv[i + 1]);
+        else if (option == "--dir")
             base = argv[i + 1];
         else if (option == "--records")
             records = std::stoull(argv[i + 1]);
@@ -242,6 +281,11 @@ int main(int argc, char** argv) {
     }
     const auto dir = base / fmt::format("ioportd-store-bench-{}", getpid());
     fs::create_directories(dir);
+    if (full_mib > 0) {
+        open_full(dir, full_mib << 20);
+        fs::remove_all(dir);
+        return 0;
+    }
     const std::uint64_t max_size = std::uint64_t{1} << 30;
     const auto record_bytes = record(0).size();
     std::printf(

@@ -981,13 +981,12 @@ void Loader::read_store(const Entry& entry, std::optional<StoreSettings>& store)
                      printable(text)));
              return text;
          });
-    constexpr std::uint64_t max_store_size = std::uint64_t{1} << 40;
     read(f, "max_size", "a size such as 64MiB", st.max_size,
          [](const YAML::Node& value) -> Parsed<std::uint64_t> {
              const auto bytes = parse_bytes(value.Scalar(), max_store_size);
              if (!bytes || *bytes < min_store_size)
                  return Unexpected(fmt::format(
-                     "'{}' is not a store size: write 1MiB..1024GiB, e.g. 64MiB (KiB, MiB, GiB "
+                     "'{}' is not a store size: write 1MiB..1GiB, e.g. 64MiB (KiB, MiB, GiB "
                      "are powers of 1024)",
                      printable(value.Scalar())));
              return *bytes;

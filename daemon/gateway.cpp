@@ -10,8 +10,9 @@
 
 namespace ioport::daemon {
 
-Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log)
-    : executor_(executor), config_(std::move(config)), log_(log) {}
+Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log,
+                 DiskThread& disk)
+    : executor_(executor), config_(std::move(config)), log_(log), disk_(disk) {}
 
 std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) {
     auto made = std::make_shared<LinkScheduler>(executor_, link, log_);
@@ -60,7 +61,7 @@ void Gateway::log_warnings() {
 
 Result<> Gateway::start_sparkplug(std::uint64_t next_bdseq) {
     if (!config_.mqtt) return {};
-    auto node = SparkplugNode::create(executor_, *config_.mqtt, log_, events_, next_bdseq);
+    auto node = SparkplugNode::create(executor_, *config_.mqtt, log_, events_, disk_, next_bdseq);
     if (!node) return Unexpected(node.error());
     sparkplug_ = std::move(*node);
     sparkplug_->set_read_only(config_.modbus.read_only);
@@ -104,6 +105,9 @@ void Gateway::stop() {
 }
 
 Result<std::string> Gateway::reload(config::GatewayConfig next) {
+    if (next.mqtt && next.mqtt->store && next.mqtt != config_.mqtt)
+        if (auto checked = check_store_directory(next.mqtt->store->path); !checked)
+            return Unexpected(checked.error());
     if (auto bound = server_->prepare(next.modbus); !bound) return Unexpected(bound.error());
     if (auto bound = prepare_http(next.http); !bound) return Unexpected(bound.error());
     const bool same_word_order = next.modbus.word_order == config_.modbus.word_order;

@@ -14,6 +14,7 @@
 #include "config/gateway_config.hpp"
 #include "daemon/core/events.hpp"
 #include "daemon/core/link_scheduler.hpp"
+#include "daemon/disk_thread.hpp"
 #include "daemon/http/http_server.hpp"
 #include "daemon/http/render.hpp"
 #include "daemon/modbus/modbus_server.hpp"
@@ -24,7 +25,9 @@ namespace ioport::daemon {
 
 class Gateway {
   public:
-    Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log);
+    // `disk`: the daemon's disk thread (the Sparkplug store's), which outlives the gateway.
+    Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log,
+            DiskThread& disk);
 
     Result<> start();
     // The orderly end: no new requests; writes in flight finish; the outputs are set as
@@ -66,6 +69,7 @@ class Gateway {
     asio::any_io_executor executor_;
     config::GatewayConfig config_;
     Log& log_;
+    DiskThread& disk_;
     const std::string host_name_ = machine_host_name();  // read once: HTTP's Host check
     EventLog events_;
     // The event log's own: one per link still alive (a removed link may finish a write).

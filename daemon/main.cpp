@@ -73,7 +73,7 @@ class Daemon {
     Daemon(const Options& options, ioport::config::GatewayConfig config, Log& log)
         : options_(options),
           log_(log),
-          gateway_(io_.get_executor(), std::move(config), log),
+          gateway_(io_.get_executor(), std::move(config), log, disk_),
           service_(
               io_.get_executor(), [this] { return gateway_.summary(); },
               [this] { return gateway_.healthy(); }, log),
@@ -160,6 +160,9 @@ class Daemon {
     // answers. (Without it, such a post raced the loop: a lost handler left forwarding
     // unfinished and the loop's work count wrong, so that ioportd never exited; benchmark 7f.)
     asio::io_context io_{BOOST_ASIO_CONCURRENCY_HINT_UNSAFE_IO};
+    // Destroyed after the gateway, before the loop: it finishes the stores' last syncs
+    // (disk_thread.hpp).
+    ioport::daemon::DiskThread disk_;
     ioport::daemon::Gateway gateway_;
     ioport::daemon::ServiceNotifier service_;
     asio::signal_set signals_;

@@ -10,7 +10,9 @@
 // d. a broker outage with the store (issue 26): recorded against forwarded, bytes, CPU, and live
 //    latency while the backlog is forwarded;
 // e. the same with ioportd killed (SIGKILL) in the middle of the outage and started again;
-// f. the fleet of c, each node forwarding the backlog of one outage, all at once.
+// f. the fleet of c, each node forwarding the backlog of one outage, all at once;
+// g. a store full at the largest max_size allowed: the start-up, and Modbus while a reload opens
+//    it again (issue 37: its scan once ran on the loop).
 #include <unistd.h>
 
 #include <csignal>
@@ -32,6 +34,8 @@
 #include "bench/perf/load.hpp"
 #include "bench/perf/mqtt_broker.hpp"
 #include "bench/process_io.hpp"
+#include "config/gateway_config.hpp"
+#include "daemon/sparkplug/store_files.hpp"
 #include "protocol/sparkplug.hpp"
 #include "protocol/store_segment.hpp"
 
@@ -1196,6 +1200,172 @@ std::vector<Verdict> backlog(const Environment& env) {
              drained && recorded > 0 && short_nodes == 0 && counts.lost == 0}};
 }
 
+// --- g. A full store at start-up and at a reload ------------------------------------------------
+
+// Fills a store to `size` with stored DDATA of one acm3p channel, as the node keeps them, until
+// its oldest records start to go: a store as full as max_size lets it be. The records it holds.
+std::uint64_t fill_store(const std::filesystem::path& dir, std::uint64_t size) {
+    auto files = daemon::StoreFiles::open(dir, size);
+    if (!files) return 0;
+    for (std::uint64_t n = 0; files->counts().dropped == 0; ++n) {
+        const std::uint64_t now = 1796183655123 + n * 50;
+        const auto raw = static_cast<std::uint64_t>(n * 37 % 65536);
+        const auto body = sparkplug::encode_stored(
+            {"hub0.acm3p.0",
+             sparkplug::Payload{now,
+                                std::nullopt,
+                                {sparkplug::Metric{"raw/0", std::nullopt, now, 6, raw},
+                                 sparkplug::Metric{"value/0", std::nullopt, now, 9,
+                                                   static_cast<float>(raw) / 655.35F}}}});
+        if (!files->append(body)) return 0;
+    }
+    (void)files->sync();
+    return files->counts().records;
+}
+
+// Modbus answers on one connection, back to back, while it runs: when each was asked, and how
+// long it took.
+class ModbusProbe {
+  public:
+    explicit ModbusProbe(std::uint16_t port, std::optional<int> cpu)
+        : thread_([this, port, cpu] {
+              pin_this_thread(cpu);
+              ModbusConnection connection(port);
+              while (!stop_) {
+                  const auto asked = Clock::now();
+                  const bool ok = connection.input_registers(0, 1).has_value();
+                  const auto took = Clock::now() - asked;
+                  const std::scoped_lock lock(mutex_);
+                  answers_.push_back({asked, took, ok});
+                  std::this_thread::sleep_for(5ms);
+              }
+          }) {}
+    ~ModbusProbe() {
+        stop_ = true;
+        thread_.join();
+    }
+    // The latencies of the requests asked in [from, until), in µs, and how many failed.
+    std::pair<Summary, std::size_t> between(Clock::time_point from, Clock::time_point until) {
+        std::vector<double> latencies;
+        std::size_t failed = 0;
+        const std::scoped_lock lock(mutex_);
+        for (const auto& answer : answers_)
+            if (answer.asked >= from && answer.asked < until) {
+                latencies.push_back(microseconds(answer.took));
+                failed += answer.ok ? 0 : 1;
+            }
+        return {summarize(std::move(latencies)), failed};
+    }
+
+  private:
+    struct Answer {
+        Clock::time_point asked;
+        Clock::duration took;
+        bool ok = false;
+    };
+    std::mutex mutex_;
+    std::vector<Answer> answers_;
+    std::atomic<bool> stop_{false};
+    std::thread thread_;
+};
+
+std::vector<Verdict> full_store(const Environment& env) {
+    const std::uint64_t size = env.quick ? std::uint64_t{4} << 20 : config::max_store_size;
+    fmt::print(
+        "\n### 7g. A store full at the largest max_size, at start-up and at a reload\n\nA store "
+        "filled to max_size = {} MiB (the largest the configuration allows) with stored DDATA of "
+        "an acm3p channel, ioportd an edge node on it and on a full bus at 115200 baud. "
+        "Start-up: from the process's start to its \"started\" line (READY=1 follows it at "
+        "once) and to the store's line (its scan done, on the disk thread). Reload: a SIGHUP "
+        "that changes mqtt (a new node opens the same store and scans it again) while a Modbus "
+        "client reads every 5 ms; its latency from the SIGHUP to the scan's end, against the "
+        "3 s before.\n",
+        size >> 20);
+    TempDir dir;
+    Broker broker(env, dir, env.placement.client_cpu);
+    if (!broker.started()) {
+        fmt::print("\n{}: benchmark 7g skipped.\n", broker.why());
+        return {};
+    }
+    const auto bus = full_bus();
+    InProcessSim sim(dir / "tty", bus, timed_line(115200), env.placement.client_cpu);
+    const auto store = dir.path() / "store";
+    const auto filling = Clock::now();
+    const auto records = fill_store(store, size);
+    const auto fill_s = seconds(Clock::now() - filling);
+    const auto yaml = [&](std::string_view more) {
+        return gateway_yaml({{dir / "tty", 115200, bus}}, 32, false,
+                            mqtt_yaml(broker.port(), node_id(0)) +
+                                fmt::format("  store:\n    path: {}\n    max_size: {}MiB\n{}",
+                                            store.string(), size >> 20, more));
+    };
+    const std::string name = "7g. a full store";
+    const auto found = [](const std::string& log, std::string_view what) {
+        return log.find(what) != std::string::npos;
+    };
+    const auto launched = Clock::now();
+    Gateway gateway(env, dir, yaml(""));
+    std::optional<Clock::time_point> started, scanned;
+    wait_for(
+        [&] {
+            const auto log = gateway.log();
+            if (!started && found(log, " started: ")) started = Clock::now();
+            if (!scanned && found(log, " record(s) to forward")) scanned = Clock::now();
+            return started && scanned;
+        },
+        120s);
+    if (!gateway.started() || !started || !scanned || !sim.ready() || !gateway.wait_until_polling())
+        return {{name, "ioportd did not start", "", false}};
+    ModbusConnection diagnostics(gateway.port());
+    const auto cycle_ms =
+        read_diagnostics(diagnostics).value_or(Diagnostics{}).last_cycle_100us / 10.0;
+
+    ModbusProbe probe(gateway.port(), env.placement.client_cpu);
+    std::this_thread::sleep_for(env.quick ? 300ms : 3s);
+    std::ofstream(dir / "ioportd.yaml") << yaml("  deadband: 0.5\n");
+    const auto hup = Clock::now();
+    ::kill(gateway.pid(), SIGHUP);
+    const auto scans = [&] {
+        const auto log = gateway.log();
+        std::size_t n = 0;
+        for (auto at = log.find(" record(s) to forward"); at != std::string::npos;
+             at = log.find(" record(s) to forward", at + 1))
+            ++n;
+        return n;
+    };
+    const bool rescanned = wait_for([&] { return scans() >= 2; }, 120s);
+    const auto end = Clock::now();
+    const auto [quiet, quiet_failed] = probe.between(hup - (env.quick ? 300ms : 3s), hup);
+    const auto [reload, reload_failed] = probe.between(hup, end);
+    const auto startup_s = seconds(*started - launched);
+    const auto scan_s = seconds(*scanned - launched);
+    const auto rescan_s = seconds(end - hup);
+
+    Table table({"", "value"});
+    table.row({"the store",
+               fmt::format("{} MiB, {} records, filled in {:.1f} s", size >> 20, records, fill_s)});
+    table.row({"start-up: to \"started\" (READY=1) / to the scan's end",
+               fmt::format("{:.2f} s / {:.2f} s", startup_s, scan_s)});
+    table.row({"reload: SIGHUP to the new scan's end", fmt::format("{:.2f} s", rescan_s)});
+    const auto latency_text = [](const Summary& l, std::size_t failed) {
+        return fmt::format("p50 {:.2f} ms, p99 {:.2f} ms, max {:.2f} ms ({} requests, {} failed)",
+                           ms(l.p50), ms(l.p99), ms(l.max), l.count, failed);
+    };
+    table.row({"Modbus, the 3 s before the reload", latency_text(quiet, quiet_failed)});
+    table.row({"Modbus, from the SIGHUP to the scan's end", latency_text(reload, reload_failed)});
+    table.row({"the bus's poll cycle", fmt::format("{:.1f} ms", cycle_ms)});
+    machine_line(fmt::format(
+        R"({{"bench":"sparkplug_full_store","mib":{},"records":{},"startup_s":{:.3f},"scan_s":{:.3f},"rescan_s":{:.3f},"quiet_p99_ms":{:.3f},"reload_p99_ms":{:.3f},"reload_max_ms":{:.3f},"cycle_ms":{:.1f}}})",
+        size >> 20, records, startup_s, scan_s, rescan_s, ms(quiet.p99), ms(reload.p99),
+        ms(reload.max), cycle_ms));
+    return {{fmt::format("{}: start-up to READY=1", name), fmt::format("{:.2f} s", startup_s),
+             "well inside WatchdogSec=20s and the start timeout", startup_s < 5},
+            {fmt::format("{}: Modbus p99 while a reload scans it", name),
+             fmt::format("{:.2f} ms ({:.2f} ms before)", ms(reload.p99), ms(quiet.p99)),
+             "within a poll cycle",
+             rescanned && reload_failed == 0 && ms(reload.p99) <= std::max(cycle_ms, 1.0)}};
+}
+
 }  // namespace
 
 std::vector<Verdict> sparkplug_outage(const Environment& env) {
@@ -1217,6 +1387,10 @@ std::vector<Verdict> sparkplug_cost(const Environment& env) {
     const auto more = publication_cost(env);
     verdicts.insert(verdicts.end(), more.begin(), more.end());
     return verdicts;
+}
+
+std::vector<Verdict> sparkplug_full_store(const Environment& env) {
+    return full_store(env);
 }
 
 std::vector<Verdict> sparkplug_backlog(const Environment& env) {

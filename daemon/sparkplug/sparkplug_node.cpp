@@ -67,6 +67,7 @@ std::string value_text(const std::optional<Value>& value) {
 Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_executor& executor,
                                                              const config::MqttSettings& settings,
                                                              Log& log, EventLog& events,
+                                                             DiskThread& disk,
                                                              std::uint64_t next_bdseq) {
     std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, events));
     node->next_bdseq_ = next_bdseq % 256;
@@ -96,14 +97,14 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
     if (!client) return Unexpected(client.error());
     node->client_ = std::move(*client);
     if (const auto& store = settings.store) {
-        // A store that cannot be opened costs the history, never the live data.
-        if (auto opened = SparkplugStore::open(executor, *store, log))
-            node->store_ = std::move(*opened);
-        else
-            log.error({},
-                      "{}: what changes while no broker takes it is lost until this is fixed "
-                      "and the configuration reloaded",
-                      opened.error().message);
+        // A directory others could write into is refused here, at start-up or before a reload
+        // changes anything (gateway.md §6.2); one whose files then cannot be read costs the
+        // history, never the live data (SparkplugStore logs it).
+        auto opened = SparkplugStore::open(executor, disk, *store, log, [weak] {
+            if (auto self = weak.lock()) self->store_ready();
+        });
+        if (!opened) return Unexpected(opened.error());
+        node->store_ = std::move(*opened);
     }
     return node;
 }
@@ -206,8 +207,8 @@ void SparkplugNode::stop(std::chrono::milliseconds deadline, std::function<void(
     // The will is for an unexpected end; a clean one says so itself (Sparkplug 3.0 §7.3).
     if (client_->connected()) publish_death();
     born_ = false;
-    // Closed now (what is queued for the disk written and synced): a reload's new node opens the
-    // same directory next.
+    // Closed on the disk thread after what it was given there, synced: a reload's new node scans
+    // the same directory only after that.
     store_.reset();
     client_->stop(deadline, std::move(done));
 }
@@ -447,8 +448,16 @@ void SparkplugNode::keep(Device& device) {
         published(device, data);
 }
 
+// The store's scan is done: forwarding starts after the last record the broker is known to have,
+// if a session is up already.
+void SparkplugNode::store_ready() {
+    if (forward_started_) return;
+    forward_sent_ = store_->delivered();
+    start_forwarding();
+}
+
 void SparkplugNode::start_forwarding() {
-    if (!store_ || !born_ || forward_started_ || !store_->pending()) return;
+    if (!store_ || !store_->ready() || !born_ || forward_started_ || !store_->pending()) return;
     forward_started_ = std::chrono::steady_clock::now();
     forwarded_in_run_ = 0;
     const auto stats = store_->stats();

@@ -81,9 +81,12 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
   public:
     // `next_bdseq`: of the first CONNECT; a node that replaces another (a reload that changed
     // the MQTT settings) goes on from the old one's, as bdSeq counts every CONNECT of the process.
+    // Fails when the store's directory is refused (store.hpp). `disk`: the daemon's disk thread,
+    // for the store.
     static Result<std::shared_ptr<SparkplugNode>> create(const asio::any_io_executor& executor,
                                                          const config::MqttSettings& settings,
                                                          Log& log, EventLog& events,
+                                                         DiskThread& disk,
                                                          std::uint64_t next_bdseq = 0);
     ~SparkplugNode() = default;
     SparkplugNode(const SparkplugNode&) = delete;
@@ -155,6 +158,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     static void published(Device& device, const Changes& data);
     void update(Device& device);
     void keep(Device& device);
+    void store_ready();
     void start_forwarding();
     void forward_tick();
     void forward(std::uint64_t session, std::vector<StoredRecord> records);

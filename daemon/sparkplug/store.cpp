@@ -1,5 +1,6 @@
 #include "daemon/sparkplug/store.hpp"
 
+#include <type_traits>
 #include <utility>
 
 #include <fmt/format.h>
@@ -7,43 +8,76 @@
 namespace ioport::daemon {
 
 Result<std::shared_ptr<SparkplugStore>> SparkplugStore::open(const asio::any_io_executor& loop,
+                                                             DiskThread& disk,
                                                              const config::StoreSettings& settings,
-                                                             Log& log) {
-    auto files = StoreFiles::open(settings.path, settings.max_size);
-    if (!files) return Unexpected(files.error());
-    const auto& found = files->recovery();
-    log.info({}, "Sparkplug store {}: {} record(s) to forward in {} segment(s){}", settings.path,
-             found.records, found.segments,
-             found.skipped_bytes == 0
-                 ? std::string()
-                 : fmt::format("; {} torn or corrupted byte(s) skipped, not replayed",
-                               found.skipped_bytes));
-    std::shared_ptr<SparkplugStore> store(
-        new SparkplugStore(loop, settings, log, *std::move(files)));
+                                                             Log& log,
+                                                             std::function<void()> ready) {
+    auto directory = DiskDirectory::open(settings.path);
+    if (!directory) return Unexpected(directory.error());
+    std::shared_ptr<SparkplugStore> store(new SparkplugStore(loop, disk, settings, log));
+    store->scan(*std::move(directory), std::move(ready));
     store->start_syncing();
     return store;
 }
 
-SparkplugStore::SparkplugStore(const asio::any_io_executor& loop, config::StoreSettings settings,
-                               Log& log, StoreFiles files)
-    : loop_(loop),
-      settings_(std::move(settings)),
-      log_(log),
-      files_(std::move(files)),
-      sync_timer_(loop) {
-    const auto counts = files_.counts();
-    stats_.bytes = counts.bytes;
-    stats_.records = counts.records;
-    delivered_ = files_.delivered();
-}
+SparkplugStore::SparkplugStore(const asio::any_io_executor& loop, DiskThread& disk,
+                               config::StoreSettings settings, Log& log)
+    : loop_(loop), disk_(disk), settings_(std::move(settings)), log_(log), sync_timer_(loop) {}
 
 SparkplugStore::~SparkplugStore() {
     sync_timer_.cancel();
-    // The last sync's outcome is logged here, after the join: the log is the loop thread's.
-    Result<> synced;
-    asio::post(disk_, [this, &synced] { synced = files_.sync(); });
-    disk_.join();
-    if (!synced) log_.error({}, "{}", synced.error().message);
+    {
+        const std::lock_guard lock(shared_->mutex);
+        shared_->closed = true;
+    }
+    // After every job given before: a reload's next store scans the same directory only then.
+    disk_.post([shared = shared_] {
+        if (shared->files) (void)shared->files->sync();  // its outcome: the next scan's line
+        shared->files.reset();
+    });
+}
+
+void SparkplugStore::scan(std::unique_ptr<StoreDirectory> directory, std::function<void()> ready) {
+    disk_.post([shared = shared_, directory = std::move(directory), max_size = settings_.max_size,
+                weak = weak_from_this(), loop = loop_, ready = std::move(ready)]() mutable {
+        auto files = StoreFiles::open(std::move(directory), max_size);
+        Result<StoreRecovery> found = files ? Result<StoreRecovery>(files->recovery())
+                                            : Result<StoreRecovery>(Unexpected(files.error()));
+        StoreCounts counts;
+        std::uint64_t delivered = 0;
+        if (files) {
+            counts = files->counts();
+            delivered = files->delivered();
+            shared->files.emplace(*std::move(files));
+        }
+        const std::lock_guard lock(shared->mutex);
+        if (shared->closed) return;
+        asio::post(loop,
+                   [weak, found = std::move(found), counts, delivered, ready = std::move(ready)] {
+                       const auto self = weak.lock();
+                       if (!self) return;
+                       self->take(counts, delivered);
+                       self->opened(found);
+                       if (found) ready();
+                   });
+    });
+}
+
+void SparkplugStore::opened(const Result<StoreRecovery>& found) {
+    if (!found) {
+        log_.error({},
+                   "{}: what changes while no broker takes it is lost until this is fixed and "
+                   "the configuration reloaded",
+                   found.error().message);
+        return;
+    }
+    ready_ = true;
+    log_.info({}, "Sparkplug store {}: {} record(s) to forward in {} segment(s){}", settings_.path,
+              found->records, found->segments,
+              found->skipped_bytes == 0
+                  ? std::string()
+                  : fmt::format("; {} torn or corrupted byte(s) skipped, not replayed",
+                                found->skipped_bytes));
 }
 
 void SparkplugStore::failed(std::string_view key, const Error& error) {
@@ -52,31 +86,44 @@ void SparkplugStore::failed(std::string_view key, const Error& error) {
                    held_back(*held));
 }
 
-void SparkplugStore::full(std::uint64_t dropped) {
-    const auto now_dropped = dropped - dropped_oldest_;
-    dropped_oldest_ = dropped;
-    held_full_ += now_dropped;
-    if (!errors_.admit("full", LogLimiter::Clock::now())) return;
-    log_.warn({}, "Sparkplug store {} is full ({} MiB): its {} oldest record(s) dropped",
-              settings_.path, settings_.max_size >> 20, std::exchange(held_full_, 0));
+// The counts of the files, as the disk thread last saw them; what StoreFiles dropped is said
+// once a minute, max_size and a full disk each in their own words.
+void SparkplugStore::take(const StoreCounts& counts, std::uint64_t delivered) {
+    stats_.bytes = counts.bytes;
+    stats_.records = counts.records;
+    stats_.dropped = counts.dropped + lost_;
+    delivered_ = delivered;
+    const auto size = counts.dropped - counts.dropped_full;
+    held_size_ += size - std::exchange(dropped_size_, size);
+    held_full_ += counts.dropped_full - std::exchange(dropped_full_, counts.dropped_full);
+    const auto now = LogLimiter::Clock::now();
+    if (held_size_ > 0 && errors_.admit("full", now))
+        log_.warn({}, "Sparkplug store {} is full ({} MiB): its {} oldest record(s) dropped",
+                  settings_.path, settings_.max_size >> 20, std::exchange(held_size_, 0));
+    if (held_full_ > 0 && errors_.admit("disk full", now))
+        log_.warn({},
+                  "Sparkplug store {}: the disk is full: its {} oldest record(s) dropped to "
+                  "keep the newest",
+                  settings_.path, std::exchange(held_full_, 0));
 }
 
 template <class Job, class Then>
 void SparkplugStore::on_disk(Job job, Then then) {
-    asio::post(disk_, [this, weak = weak_from_this(), job = std::move(job),
-                       then = std::move(then)]() mutable {
-        auto result = job(files_);
-        const auto counts = files_.counts();
-        const auto delivered = files_.delivered();
-        asio::post(loop_, [weak, then = std::move(then), result = std::move(result), counts,
-                           delivered]() mutable {
+    disk_.post([shared = shared_, weak = weak_from_this(), loop = loop_, job = std::move(job),
+                then = std::move(then)]() mutable {
+        using Outcome = std::invoke_result_t<Job&, StoreFiles&>;
+        // A store whose scan failed takes nothing: each call fails, counted by its completion.
+        auto result =
+            shared->files ? job(*shared->files) : Outcome(fail(Errc::io_error, "store: not open"));
+        const auto counts = shared->files ? shared->files->counts() : StoreCounts{};
+        const auto delivered = shared->files ? shared->files->delivered() : 0;
+        const std::lock_guard lock(shared->mutex);
+        if (shared->closed) return;
+        asio::post(loop, [weak, then = std::move(then), result = std::move(result), counts,
+                          delivered]() mutable {
             const auto self = weak.lock();
             if (!self) return;
-            self->stats_.bytes = counts.bytes;
-            self->stats_.records = counts.records;
-            if (counts.dropped > self->dropped_oldest_) self->full(counts.dropped);
-            self->stats_.dropped = counts.dropped + self->lost_;
-            self->delivered_ = delivered;
+            if (self->ready_) self->take(counts, delivered);
             then(*self, std::move(result));
         });
     });

@@ -1063,8 +1063,9 @@ TEST(GatewayConfigErrors, BrokersAndTheStore) {
     store("{ max_size: 8MiB }", "mqtt.store.path", "missing");
     store("{ path: relative/dir }", "mqtt.store.path", "not an absolute path");
     store("{ path: /s, max_size: 64MB }", "mqtt.store.max_size", "not a store size");
-    store("{ path: /s, max_size: 512KiB }", "mqtt.store.max_size", "1MiB..1024GiB");
+    store("{ path: /s, max_size: 512KiB }", "mqtt.store.max_size", "1MiB..1GiB");
     store("{ path: /s, max_size: 2048GiB }", "mqtt.store.max_size", "not a store size");
+    store("{ path: /s, max_size: 1025MiB }", "mqtt.store.max_size", "1MiB..1GiB");
     store("{ path: /s, forward_rate: 0 }", "mqtt.store.forward_rate", "out of range");
     store("{ path: /s, retention: 1d }", "mqtt.store.retention", "unknown key");
     store("/var/lib/ioportd", "mqtt.store", "expected a mapping");
