@@ -6,7 +6,8 @@
 #include <cmath>
 
 #include <fmt/format.h>
-#include <yaml-cpp/yaml.h>
+
+#include "protocol/json_reader.hpp"
 
 namespace ioport::sparkplug {
 namespace {
@@ -129,33 +130,23 @@ std::string_view to_string(DataType type) {
     return "Unknown";
 }
 
-std::optional<HostState> parse_state(std::string_view json) {
-    // JSON is YAML's flow style, and yaml-cpp, the configuration's reader, bounds the nesting
-    // a hostile payload may try (DeepRecursion). Only the object's own members count: `online` a
-    // JSON boolean (an unquoted true or false, not "true", not YAML's yes), `timestamp` an
-    // unquoted whole number.
-    try {
-        const auto state = YAML::Load(std::string(json));
-        if (!state.IsMap()) return std::nullopt;
-        const auto online = state["online"];
-        if (!online.IsScalar() || online.Tag() != "?") return std::nullopt;
-        HostState host;
-        if (online.Scalar() == "true")
-            host.online = true;
-        else if (online.Scalar() != "false")
-            return std::nullopt;
-        if (const auto timestamp = state["timestamp"]) {
-            const auto& text = timestamp.Scalar();
-            const auto [end, ec] =
-                std::from_chars(text.data(), text.data() + text.size(), host.timestamp);
-            if (!timestamp.IsScalar() || timestamp.Tag() != "?" || text.empty() ||
-                ec != std::errc{} || end != text.data() + text.size())
-                return std::nullopt;
-        }
-        return host;
-    } catch (const YAML::Exception&) {
+Result<HostState> parse_state(std::string_view json) {
+    if (json.size() > max_state_bytes)
+        return fail(Errc::invalid_argument,
+                    fmt::format("{} bytes, more than the {} a STATE may have", json.size(),
+                                max_state_bytes));
+    auto object = JsonObject::parse(json);
+    if (!object) return Unexpected(object.error());
+    const auto online = object->boolean("online");
+    if (!online) return fail(Errc::malformed, R"("online" is not true or false)");
+    HostState host{*online, 0};
+    if (object->has("timestamp")) {
+        const auto timestamp = object->unsigned_integer("timestamp");
+        if (!timestamp)
+            return fail(Errc::malformed, R"("timestamp" is not a whole number of milliseconds)");
+        host.timestamp = *timestamp;
     }
-    return std::nullopt;
+    return host;
 }
 
 std::string state_json(bool online, std::uint64_t timestamp) {

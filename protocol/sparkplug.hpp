@@ -112,14 +112,17 @@ std::vector<std::uint8_t> encode_stored(const StoredData& data);
 // Fails with malformed for bytes that are not such a body.
 Result<StoredData> decode_stored(std::span<const std::uint8_t> bytes);
 
-// STATE (Sparkplug 3.0 §7.2): {"online": true|false, "timestamp": <ms>}. nullopt when `json` is
-// not such an object; a missing timestamp is 0 (older than any other).
+// STATE (Sparkplug 3.0 §7.2): {"online": true|false, "timestamp": <ms>}, read as JSON (other
+// members are ignored). Fails, saying why, for anything else: invalid_argument, unread, beyond
+// max_state_bytes (a STATE is a few dozen bytes; more is an attack on the reader), malformed
+// when it is not such an object. A missing timestamp is 0 (older than any other).
+inline constexpr std::size_t max_state_bytes = 1024;
 struct HostState {
     bool online = false;
     std::uint64_t timestamp = 0;
     friend bool operator==(const HostState&, const HostState&) = default;
 };
-std::optional<HostState> parse_state(std::string_view json);
+Result<HostState> parse_state(std::string_view json);
 std::string state_json(bool online, std::uint64_t timestamp);
 
 // --- The metrics of a module (gateway.md §5.5) ------------------------------------------------

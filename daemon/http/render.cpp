@@ -267,6 +267,14 @@ void sparkplug_families(Exposition& out, const SparkplugNode* node) {
     out.sample("ioportd_sparkplug_commands_total", {{"result", "accepted"}},
                stats.commands - stats.commands_refused);
     out.sample("ioportd_sparkplug_commands_total", {{"result", "refused"}}, stats.commands_refused);
+    out.family("ioportd_sparkplug_host_states_total", "counter",
+               "STATE messages of the primary host, by result (ahead: taken, its timestamp too "
+               "far ahead of this clock to order later ones)");
+    out.sample("ioportd_sparkplug_host_states_total", {{"result", "taken"}}, stats.states.taken);
+    out.sample("ioportd_sparkplug_host_states_total", {{"result", "ahead"}}, stats.states.ahead);
+    out.sample("ioportd_sparkplug_host_states_total", {{"result", "stale"}}, stats.states.stale);
+    out.sample("ioportd_sparkplug_host_states_total", {{"result", "refused"}},
+               stats.states.refused);
     if (!stats.store) return;  // no store: no such families
     const auto& store = *stats.store;
     out.family("ioportd_sparkplug_store_bytes", "gauge", "Bytes of the store's files on disk");

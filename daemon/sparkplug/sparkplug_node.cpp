@@ -675,46 +675,71 @@ void SparkplugNode::message(std::string_view topic_text, std::span<const std::ui
     const auto topic = sparkplug::parse_topic(topic_text);
     if (!topic) return;
     if (topic->type == MessageType::state) {
-        if (topic->node != settings_.primary_host_id) return;
-        const std::string_view json(reinterpret_cast<const char*>(payload.data()), payload.size());
-        const auto state = sparkplug::parse_state(json);
-        if (!state) {
-            log_.warn({}, "Sparkplug: STATE of {} is not {{\"online\": …, \"timestamp\": …}}: {}",
-                      settings_.primary_host_id, shown(json));
-            return;
-        }
-        // Sparkplug 3.0 §5.4, §5.5: a STATE older than the last one is stale (a retained message
-        // from before, a host that came and went): it changes nothing.
-        if (state->timestamp < host_state_timestamp_) {
-            refuse("STATE stale", {},
-                   fmt::format("Sparkplug: STATE of {} ignored: its timestamp {} is older than "
-                               "the last one, {}",
-                               settings_.primary_host_id, state->timestamp, host_state_timestamp_));
-            return;
-        }
-        host_state_timestamp_ = state->timestamp;
-        const auto online = state->online;
-        const bool was = host_online_;
-        host_online_ = online;
-        host_timer_.cancel();
-        if (online && !was) {
-            log_.info({}, "Sparkplug: primary host {} online", settings_.primary_host_id);
-            birth();
-        } else if (!online && (born_ || settings_.brokers.size() > 1)) {
-            // Sparkplug 3.0 §5.5: a session whose primary host goes offline ends (NDEATH,
-            // DISCONNECT) and the node connects to the next server, the same one when it has one;
-            // with several, a broker the host is offline on is left at once (gateway.md §6.2).
-            walk(fmt::format("the primary host {} is offline on this broker",
-                             settings_.primary_host_id));
-        } else if (!online && was) {
-            log_.warn({}, "Sparkplug: primary host {} offline; births when it is back",
-                      settings_.primary_host_id);
-        }
+        if (topic->node == settings_.primary_host_id) host_state(payload);
         return;
     }
     if (topic->group != settings_.group_id || topic->node != settings_.edge_node_id) return;
     if (topic->type == MessageType::ncmd || topic->type == MessageType::dcmd)
         command(*topic, payload);
+}
+
+// The primary host's STATE (Sparkplug 3.0 §7.2). Anyone who may publish on the broker can send one,
+// so it is bounded before it is read, and its timestamp, which only orders this host's STATEs,
+// is not believed beyond the node's own clock (gateway.md §6.2, docs/sparkplug.md).
+void SparkplugNode::host_state(std::span<const std::uint8_t> payload) {
+    const auto& host = settings_.primary_host_id;
+    const std::string_view json(reinterpret_cast<const char*>(payload.data()), payload.size());
+    const auto state = sparkplug::parse_state(json);
+    if (!state) {
+        ++stats_.states.refused;
+        refuse("STATE refused", {},
+               fmt::format("Sparkplug: STATE of {} refused: {}{}", host,
+                           printable(state.error().message, 4 * shown_bytes),
+                           json.size() > sparkplug::max_state_bytes
+                               ? std::string()
+                               : fmt::format(" (it was {})", shown(json))));
+        return;
+    }
+    const auto now = now_ms();
+    const auto tolerance = static_cast<std::uint64_t>(
+        std::chrono::duration_cast<std::chrono::milliseconds>(state_clock_tolerance).count());
+    if (state->timestamp > now + tolerance) {
+        // A clock far ahead of ours, or a forged timestamp: taken for what it says, but it does not
+        // become the mark, or every genuine STATE after it would look stale.
+        ++stats_.states.ahead;
+        refuse("STATE ahead", {},
+               fmt::format("Sparkplug: STATE of {} is {} s ahead of this node's clock (more than "
+                           "{} s): taken as {}, but not used to judge later STATEs; set both "
+                           "clocks by NTP",
+                           host, (state->timestamp - now) / 1000, state_clock_tolerance.count(),
+                           state->online ? "online" : "offline"));
+    } else if (state->timestamp < host_state_timestamp_) {
+        // Sparkplug 3.0 §5.4, §5.5: a STATE older than the last one is stale (a retained message
+        // from before, a host that came and went): it changes nothing.
+        ++stats_.states.stale;
+        refuse("STATE stale", {},
+               fmt::format("Sparkplug: STATE of {} ignored: its timestamp {} is older than "
+                           "the last one, {}",
+                           host, state->timestamp, host_state_timestamp_));
+        return;
+    } else {
+        ++stats_.states.taken;
+        host_state_timestamp_ = state->timestamp;
+    }
+    const bool was = host_online_;
+    host_online_ = state->online;
+    host_timer_.cancel();
+    if (state->online && !was) {
+        log_.info({}, "Sparkplug: primary host {} online", host);
+        birth();
+    } else if (!state->online && (born_ || settings_.brokers.size() > 1)) {
+        // Sparkplug 3.0 §5.5: a session whose primary host goes offline ends (NDEATH,
+        // DISCONNECT) and the node connects to the next server, the same one when it has one;
+        // with several, a broker the host is offline on is left at once (gateway.md §6.2).
+        walk(fmt::format("the primary host {} is offline on this broker", host));
+    } else if (!state->online && was) {
+        log_.warn({}, "Sparkplug: primary host {} offline; births when it is back", host);
+    }
 }
 
 void SparkplugNode::refuse(std::string_view key, const LogFields& fields, std::string text) {

@@ -62,6 +62,10 @@ inline constexpr std::chrono::seconds min_rebirth_interval{1};
 // An NCMD may name the Node Control metrics of Sparkplug 3.0 (Rebirth, Reboot, Next Server, Scan
 // rate) together; only Rebirth acts. More is refused whole, like an oversized DCMD.
 inline constexpr std::size_t node_command_metrics = 4;
+// A STATE whose timestamp is further ahead of this node's clock than this does not order the
+// STATEs after it (docs/sparkplug.md: clocks set by NTP agree to milliseconds; a forged
+// timestamp must not make the host's real offline look stale).
+inline constexpr std::chrono::seconds state_clock_tolerance{10};
 
 struct SparkplugStats {
     bool connected = false;                          // to the broker
@@ -75,6 +79,12 @@ struct SparkplugStats {
     std::uint64_t births = 0;    // NBIRTHs, rebirths included
     std::uint64_t commands = 0;  // DCMD metrics; a DCMD refused whole counts as one
     std::uint64_t commands_refused = 0;
+    struct {
+        std::uint64_t taken = 0;    // acted on, its timestamp the new mark
+        std::uint64_t ahead = 0;    // beyond state_clock_tolerance: acted on, not the mark
+        std::uint64_t stale = 0;    // older than the mark: ignored
+        std::uint64_t refused = 0;  // too large, or not a STATE
+    } states;                       // of the primary host
 };
 
 class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
@@ -137,6 +147,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void subscribe(const std::string& topic, std::string_view what);
     void disconnected();
     void message(std::string_view topic, std::span<const std::uint8_t> payload);
+    void host_state(std::span<const std::uint8_t> payload);
     void node_command(std::span<const std::uint8_t> payload);
     void rebirth_asked();
     void command(const sparkplug::Topic& topic, std::span<const std::uint8_t> payload);

@@ -31,6 +31,7 @@ import sparkplug_b_pb2 as pb  # noqa: E402
 from host_app import BrokerLog, HostApp, encode_value  # noqa: E402
 from tck import covers  # noqa: E402
 from broker import Broker  # noqa: E402
+from process_memory import MemoryLimit, cpu_seconds, peak_rss  # noqa: E402
 from rig import Rig, eventually, free_port  # noqa: E402
 
 GROUP, NODE = "plant1", "box7"
@@ -860,7 +861,7 @@ class Lifecycle(OwnDaemon):
                           5, log)
         # the barrier: a STATE it cannot read, which it says it got
         self.host.publish_raw("spBv1.0/STATE/scada", b"not json")
-        self.rig.wait_log(r"STATE of scada is not")
+        self.rig.wait_log(r"STATE of scada refused: not JSON")
         self.assertEqual(self.host.since(mark, node=NODE), [], "nothing before STATE online")
         self.host.state("scada", True)
         first = self.wait_births(mark)
@@ -1122,6 +1123,123 @@ class StoreAndForward(OwnDaemon):
         self.wait_births(mark)
         eventually(lambda: [v for v, _ in self.history(mark)] == self.WORDS[:3], 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
+
+
+class FromOutside(OwnDaemon):
+    """Issue 37: what a neighbour on the broker or on the box can send or plant, each as it was
+    reproduced against the tree before the fix (which failed these tests). The daemon runs in a
+    memory cgroup of the unit's MemoryMax=256M where this machine gives one."""
+
+    def setUp(self):
+        self.store = os.path.join(tempfile.mkdtemp(dir=self.dir), "sparkplug")
+        self.store_line = f"  store: {{ path: {self.store} }}\n"
+        self.rig = self.new_rig(mqtt_extra="  primary_host_id: scada\n" + self.store_line)
+        self.limit = MemoryLimit(256 << 20)
+
+    def tearDown(self):
+        self.host.publish_raw("spBv1.0/STATE/scada", b"", retain=True)  # no STATE for the next
+        super().tearDown()
+        self.limit.close()
+
+    def start_online(self):
+        mark = self.host.mark()
+        self.rig.start_daemon()
+        self.limit.add(self.rig.daemon.pid)
+        self.host.state("scada", True)
+        return self.wait_births(mark)
+
+    def host_states(self):
+        metrics = self.rig.metrics()
+        return {result: int(re.search(
+            rf'^ioportd_sparkplug_host_states_total{{result="{result}"}} (\d+)$', metrics,
+            re.M).group(1)) for result in ("taken", "ahead", "stale", "refused")}
+
+    def test_states_larger_than_a_state_are_refused_unread(self):
+        # Before: each went whole to YAML::Load on the loop (these 300: 6.1 s of CPU; one of 2 MB:
+        # OOM-killed under MemoryMax=256M, at every start if it was retained).
+        self.start_online()
+        pid = self.rig.daemon.pid
+        rss, cpu = peak_rss(pid), cpu_seconds(pid)
+        pad = [1] * (20 << 10)  # 60 KiB of JSON, a node each to a YAML reader
+        for _ in range(300):
+            self.host.publish_raw("spBv1.0/STATE/scada", json.dumps(
+                {"online": True, "timestamp": int(time.time() * 1000), "pad": pad}))
+        self.host.state("scada", True, retain=False)  # after them: the broker keeps the order
+        eventually(lambda: self.host_states()["taken"] == 2, 20, lambda: self.host_states())
+        self.assertEqual(self.host_states()["refused"], 300)
+        cpu, grown = cpu_seconds(pid) - cpu, peak_rss(pid) - rss
+        print(f"\n300 STATEs of 60 KiB: {cpu:.2f} s of ioportd's CPU, peak RSS "
+              f"{grown / 1048576:+.1f} MiB", file=sys.stderr)
+        self.assertLess(grown, 32 << 20)
+        self.rig.wait_log(r"STATE of scada refused: \d+ bytes, more than the 1024 a STATE "
+                          r"may have \(logged once a minute")
+        client = self.modbus(self.rig)
+        self.assertFalse(client.read_input_registers(0, 1, slave=1).isError())
+        client.close()
+
+    def test_a_forged_timestamp_does_not_hide_the_host_going_offline(self):
+        # Before: every genuine STATE after this one was "older", the host's real offline was
+        # ignored, and the node published live into a host that was down, storing nothing.
+        self.start_online()
+        self.host.state("scada", True, retain=False, timestamp=2**64 - 1)
+        self.rig.wait_log(r"STATE of scada is \d+ s ahead of this node's clock \(more than "
+                          r"10 s\): taken as online, but not used to judge later STATEs")
+        mark = self.host.mark()
+        self.host.state("scada", False)  # the host's real offline, by its own clock
+        self.host.wait_message("NDEATH", node=NODE, since=mark, timeout=10)
+        self.rig.wait_log(r"the primary host scada is offline on this broker; NDEATH")
+        eventually(lambda: not self.rig.state()["sparkplug"]["online"], 10, "the session over")
+        self.rig.ctl("set dim16:0 0x0F0F")
+        eventually(lambda: self.rig.state()["sparkplug"]["store"]["records"] >= 1, 10,
+                   lambda: f"the change in the store: {self.rig.state()['sparkplug']}")
+        self.assertEqual(self.host_states()["ahead"], 1)
+        # Back online, by its clock: the history arrives.
+        mark = self.host.mark()
+        self.host.state("scada", True)
+        self.wait_births(mark)
+        eventually(lambda: any(name == "word" and value == 0x0F0F
+                               for m in self.host.since(mark, "DDATA", "hub0.dim16.0")
+                               for name, value, _ in m.historical), 20, "the stored change")
+
+    def test_a_store_directory_others_can_write_is_refused(self):
+        # Before: any existing directory was used, and links planted in one under a 1777
+        # directory made a root-run ioportd truncate and overwrite the files they named.
+        shared = os.path.join(self.dir, "shared")
+        os.makedirs(shared, exist_ok=True)
+        os.chmod(shared, 0o1777)
+        self.rig.configure(HUB_MODULES, f"  store: {{ path: {shared} }}\n")
+        run = subprocess.run([IOPORTD, "--config", self.rig.config], capture_output=True,
+                             text=True, timeout=30)
+        self.assertEqual(run.returncode, 1, run.stderr)
+        self.assertIn(f"mqtt.store.path: {shared} is writable by others (mode 1777)", run.stderr)
+        # A reload to it changes nothing.
+        self.rig.configure(HUB_MODULES, self.store_line)
+        self.start()
+        self.rig.configure(HUB_MODULES, f"  store: {{ path: {shared} }}\n")
+        mark = self.rig.log_mark()
+        self.rig.daemon.send_signal(signal.SIGHUP)
+        self.rig.wait_log(r"SIGHUP: mqtt\.store\.path: \S+ is writable by others \(mode 1777\).*"
+                          r"the running configuration is kept", 10, mark)
+        self.assertTrue(self.rig.state()["sparkplug"]["online"])
+        self.assertEqual(os.listdir(shared), [])
+
+    def test_the_store_is_scanned_off_the_loop(self):
+        # Before: the scan ran before start-up finished and inside a reload (a 256 MiB store
+        # stalled Modbus for 1.18 s); now "started" and "reloaded" come first, the scan's line
+        # after them (benchmark 7g measures it at the largest max_size).
+        self.rig.configure(HUB_MODULES, self.store_line)
+        self.start()
+        log = self.rig.log_text()
+        started = re.search(r"ioportd \S+ started", log).start()
+        scanned = self.rig.wait_log(r"Sparkplug store \S+: 0 record\(s\) to forward")
+        self.assertLess(started, scanned.start())
+        mark = self.rig.log_mark()
+        self.rig.configure(HUB_MODULES, self.store_line + "  deadband: 0.5\n")
+        self.rig.daemon.send_signal(signal.SIGHUP)
+        reloaded = self.rig.wait_log(r"SIGHUP: reloaded", 10, mark)
+        scanned = self.rig.wait_log(r"Sparkplug store \S+: \d+ record\(s\) to forward", 10,
+                                    mark)
+        self.assertLess(reloaded.start(), scanned.start())
 
 
 class BrokerLogRules(unittest.TestCase):

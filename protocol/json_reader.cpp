@@ -1,0 +1,52 @@
+#include "protocol/json_reader.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <fmt/format.h>
+
+namespace ioport {
+
+struct JsonObject::Document {
+    nlohmann::json value;
+
+    const nlohmann::json* member(std::string_view key) const {
+        const auto found = value.find(key);
+        return found == value.end() ? nullptr : &*found;
+    }
+};
+
+JsonObject::JsonObject(std::shared_ptr<const Document> document) : document_(std::move(document)) {}
+
+Result<JsonObject> JsonObject::parse(std::string_view text) {
+    auto document = std::make_shared<Document>();
+    try {
+        document->value = nlohmann::json::parse(text);
+    } catch (const nlohmann::json::parse_error& error) {
+        // "[json.exception.parse_error.101] parse error at line 1, column 5: …": where reading
+        // stopped and what was expected there, without the library's tag.
+        std::string_view what = error.what();
+        if (const auto tag = what.find("] "); tag != std::string_view::npos)
+            what.remove_prefix(tag + 2);
+        return fail(Errc::malformed, fmt::format("not JSON: {}", what));
+    }
+    if (!document->value.is_object()) return fail(Errc::malformed, "not a JSON object");
+    return JsonObject(std::move(document));
+}
+
+bool JsonObject::has(std::string_view key) const {
+    return document_->member(key) != nullptr;
+}
+
+std::optional<bool> JsonObject::boolean(std::string_view key) const {
+    const auto* member = document_->member(key);
+    if (member == nullptr || !member->is_boolean()) return std::nullopt;
+    return member->get<bool>();
+}
+
+std::optional<std::uint64_t> JsonObject::unsigned_integer(std::string_view key) const {
+    const auto* member = document_->member(key);
+    if (member == nullptr || !member->is_number_unsigned()) return std::nullopt;
+    return member->get<std::uint64_t>();
+}
+
+}  // namespace ioport
