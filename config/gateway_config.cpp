@@ -20,6 +20,7 @@
 #include "config/duration.hpp"
 #include "config/number.hpp"
 #include "config/tls_files.hpp"
+#include "protocol/mqtt_id.hpp"
 #include "protocol/mqtt_json.hpp"
 #include "protocol/sparkplug.hpp"
 
@@ -535,6 +536,7 @@ class Loader {
     void read_store(const Entry& entry, std::optional<StoreSettings>& store);
     void check_sparkplug_ids(const GatewayConfig& config);
     void check_topic_levels(const GatewayConfig& config);
+    void check_client_ids(const GatewayConfig& config);
     void read_links(const Entry& entry, std::vector<LinkConfig>& links);
     void read_link(const YAML::Node& node, std::size_t index, std::vector<LinkConfig>& links);
     struct LinkOutcome {
@@ -564,6 +566,7 @@ class Loader {
     std::map<std::string, FirstUse> names_;
     std::map<int, FirstUse> unit_ids_;
     std::map<std::string, FirstUse> devices_;  // by resolved path
+    int json_client_id_line_ = 0;              // mqtt_json's, for check_client_ids()
     struct RoleUnit {
         int unit_id = 0;
         int line = 0;
@@ -642,6 +645,7 @@ void Loader::read_root(const YAML::Node& root, GatewayConfig& config) {
     if (config.mqtt) check_sparkplug_ids(config);
     if (const Entry* json = top.find("mqtt_json")) read_mqtt_json(*json, config.mqtt_json);
     if (config.mqtt_json) check_topic_levels(config);
+    check_client_ids(config);
     check_role_units(config);
     read(top, "on_shutdown", "keep or initial", config.on_shutdown,
          choice<OnShutdown>(on_shutdown_choices));
@@ -871,7 +875,10 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
     read(f, "group_id", "a Sparkplug group id", m.group_id, sparkplug_id);
     require(f, "edge_node_id", "this box's Sparkplug edge node id, e.g. edge_node_id: box7");
     read(f, "edge_node_id", "a Sparkplug edge node id", m.edge_node_id, sparkplug_id);
-    if (m.client_id.empty()) m.client_id = fmt::format("ioportd-{}-{}", m.group_id, m.edge_node_id);
+    // Escaped, so that no two nodes share one ("a-b"/"c" and "a"/"b-c" once did).
+    if (m.client_id.empty())
+        m.client_id =
+            fmt::format("ioportd-{}-{}", escaped_id(m.group_id), escaped_id(m.edge_node_id));
     read(f, "primary_host_id", "a Sparkplug host id", m.primary_host_id,
          [&](const YAML::Node& value) -> Parsed<std::string> {
              if (value.Scalar().empty()) return std::string();
@@ -915,6 +922,7 @@ void Loader::read_mqtt_json(const Entry& entry, std::optional<MqttJsonSettings>&
     if (f.find("broker") == nullptr && f.find("brokers") == nullptr) return;
     MqttJsonSettings j;
     read_connection(f, j.connection);
+    json_client_id_line_ = f.find("client_id") != nullptr ? f.line_of("client_id") : entry.line;
     const auto prefix = [](const YAML::Node& value) -> Parsed<std::string> {
         if (auto checked = mqtt_json::check_topic_prefix(value.Scalar()); !checked)
             return Unexpected(
@@ -925,9 +933,11 @@ void Loader::read_mqtt_json(const Entry& entry, std::optional<MqttJsonSettings>&
     read(f, "discovery", "true or false", j.discovery, boolean);
     read(f, "discovery_prefix", "a topic prefix such as homeassistant", j.discovery_prefix, prefix);
     read(f, "deadband", "a number of engineering units, e.g. 0.5", j.deadband, non_negative);
-    // Distinct from the Sparkplug node's, so that the two sessions never take each other's place.
+    // Escaped, so that no two prefixes share one ("plant/line1" and "plant_line1" once did), and
+    // with one '-' where the Sparkplug node's has two, so that the sessions of the two sections,
+    // of this gateway or another, never take each other's place.
     if (j.connection.client_id.empty())
-        j.connection.client_id = fmt::format("ioportd-json-{}", mqtt_json::node_id(j.topic_prefix));
+        j.connection.client_id = fmt::format("ioportd-json_{}", escaped_id(j.topic_prefix));
     mqtt_json = std::move(j);
 }
 
@@ -1007,8 +1017,10 @@ void Loader::check_sparkplug_ids(const GatewayConfig& config) {
     }
 }
 
-// Link names are a level of every plain MQTT topic ("ioportd/box7/hub0/dim16_0/state").
+// Link names are a level of every plain MQTT topic ("ioportd/box7/hub0/dim16_0/state"), and,
+// made safe (mqtt_json::safe_id), part of the Home Assistant ids of their modules' entities.
 void Loader::check_topic_levels(const GatewayConfig& config) {
+    std::map<std::string, std::size_t> ids;  // a safe id -> the first link that gives it
     for (std::size_t i = 0; i < config.links.size(); ++i) {
         const auto& link = config.links[i];
         if (link.name.empty()) continue;  // reported already
@@ -1016,7 +1028,30 @@ void Loader::check_topic_levels(const GatewayConfig& config) {
             add(link.line, fmt::format("links[{}].name", i),
                 fmt::format("with mqtt_json on, a link name is a topic level: {}",
                             checked.error().message));
+        const auto [first, inserted] = ids.emplace(mqtt_json::safe_id(link.name), i);
+        if (!inserted)
+            add(link.line, fmt::format("links[{}].name", i),
+                fmt::format("'{}' and links[{}].name '{}' are the same id '{}' in Home Assistant "
+                            "(each character other than a letter, digit, _ or - becomes _): "
+                            "rename one",
+                            printable(link.name), first->second,
+                            printable(config.links[first->second].name), first->first));
     }
+}
+
+// Two sessions of one client id take each other's place at a broker they share, each in turn.
+void Loader::check_client_ids(const GatewayConfig& config) {
+    if (!config.mqtt || !config.mqtt_json) return;
+    const auto& spb = *config.mqtt;
+    const auto& json = config.mqtt_json->connection;
+    const auto shared = std::ranges::find_if(spb.brokers, [&](const BrokerAddress& broker) {
+        return std::ranges::find(json.brokers, broker) != json.brokers.end();
+    });
+    if (spb.client_id == json.client_id && shared != spb.brokers.end())
+        add(json_client_id_line_, "mqtt_json.client_id",
+            fmt::format("'{}' is mqtt.client_id too, on the same broker {}: the two sessions "
+                        "would take each other's place; give each its own",
+                        printable(json.client_id), to_string(*shared)));
 }
 
 void Loader::read_allow(const Fields& f, std::vector<Network>& allow) {

@@ -30,7 +30,9 @@ std::string metric_of(std::string_view point) {
     return fmt::format("{}/{}", point.substr(0, digit), point.substr(digit));
 }
 
-std::string sanitized(std::string_view text) {
+}  // namespace
+
+std::string safe_id(std::string_view text) {
     std::string out(text);
     for (auto& c : out) {
         const bool kept = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') ||
@@ -39,6 +41,8 @@ std::string sanitized(std::string_view text) {
     }
     return out;
 }
+
+namespace {
 
 void json_value(Json& json, const std::optional<Value>& value, std::string_view key) {
     if (!value) {
@@ -236,7 +240,7 @@ Result<gateway::WritePlan> plan_set(std::optional<ModuleAddress> module, std::st
 // --- Home Assistant discovery -------------------------------------------------------------
 
 std::string node_id(std::string_view topic_prefix) {
-    return sanitized(topic_prefix);
+    return safe_id(topic_prefix);
 }
 
 std::string_view device_class(std::string_view unit) {
@@ -434,7 +438,7 @@ std::vector<Discovery> module_discovery(const Node& node, std::string_view link,
                                         std::optional<ModuleAddress> module,
                                         const gateway::ModuleTags& tags) {
     const auto id = node_id(node.topic_prefix);
-    const auto device_id = fmt::format("{}_{}", sanitized(link), module_id(module));
+    const auto device_id = fmt::format("{}_{}", safe_id(link), module_id(module));
     const auto state = module_topic(node.topic_prefix, link, module, "state");
     const auto availability = module_topic(node.topic_prefix, link, module, "availability");
     std::vector<Discovery> out;

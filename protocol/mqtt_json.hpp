@@ -69,8 +69,11 @@ struct Node {
     std::string version;           // ioportd's, for the device and origin blocks
 };
 
-// The topic prefix as an id Home Assistant takes in topics and unique ids: letters, digits, _
-// and - as they are, anything else as _ ("ioportd/box7" → "ioportd_box7").
+// An id Home Assistant takes in topics and unique ids: letters, digits, _ and - as they are,
+// anything else as _ ("ioportd/box7" → "ioportd_box7", the link "hub.0" → "hub_0"). Two texts
+// can give the same: the configuration refuses two links that do.
+std::string safe_id(std::string_view text);
+// The topic prefix as such an id.
 std::string node_id(std::string_view topic_prefix);
 
 // Home Assistant's sensor device class for a unit, where it spells the unit exactly so

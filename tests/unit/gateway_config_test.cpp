@@ -425,7 +425,7 @@ TEST(GatewayConfig, TheMqttJsonSection) {
     const auto& j = *spec->mqtt_json;
     EXPECT_EQ(j.connection.brokers,
               (std::vector<config::BrokerAddress>{{false, "127.0.0.1", 1883}}));
-    EXPECT_EQ(j.connection.client_id, "ioportd-json-ioportd_box7");
+    EXPECT_EQ(j.connection.client_id, "ioportd-json_ioportd_2Fbox7");
     EXPECT_EQ(j.connection.keepalive, 30s);
     EXPECT_EQ(j.topic_prefix, "ioportd/box7");
     EXPECT_TRUE(j.discovery);
@@ -1293,6 +1293,51 @@ TEST(GatewayConfig, TheSimulatorExampleIsWhatTheDemoExpects) {
     ASSERT_TRUE(config->mqtt);  // the demo starts a broker here
     EXPECT_EQ(config->mqtt->brokers,
               (std::vector<config::BrokerAddress>{{false, "127.0.0.1", 1883}}));
+}
+
+// Issue 37: ids made safe for MQTT once collided. Default client ids are escaped (unambiguous,
+// also between two gateways); two links whose Home Assistant ids would be one are an error, and
+// so is one client id for both sections on a broker they share.
+TEST(GatewayConfig, IdsThatLeaveTheBoxStayApart) {
+    const std::string links = R"(links:
+  - { name: hub0, protocol: ioport, device: /dev/ttyUSB0, modules: [{ type: dim16, number: 0 }] }
+)";
+    const auto client_id = [&](const std::string& section) {
+        const auto config = parse(section + links);
+        EXPECT_TRUE(config) << describe(config.error());
+        return config->mqtt ? config->mqtt->client_id : config->mqtt_json->connection.client_id;
+    };
+    const auto sparkplug = [&](const std::string& group, const std::string& node) {
+        return client_id("mqtt:\n  broker: mqtt://b\n  group_id: " + group +
+                         "\n  edge_node_id: " + node + "\n");
+    };
+    EXPECT_EQ(sparkplug("a-b", "c"), "ioportd-a_2Db-c");
+    EXPECT_EQ(sparkplug("a", "b-c"), "ioportd-a-b_2Dc");
+    const auto json = [&](const std::string& prefix) {
+        return client_id("mqtt_json:\n  broker: mqtt://b\n  topic_prefix: \"" + prefix + "\"\n");
+    };
+    EXPECT_EQ(json("plant/line1"), "ioportd-json_plant_2Fline1");
+    EXPECT_EQ(json("plant_line1"), "ioportd-json_plant_5Fline1");
+    // Never a Sparkplug node's: one '-' where those have two.
+    EXPECT_NE(json("x"), sparkplug("json", "x"));
+
+    expect_one_error(
+        {R"(mqtt_json: { broker: "mqtt://b" }
+links:
+  - { name: hub.0, protocol: ioport, device: /dev/ttyUSB0, modules: [{ type: dim16, number: 0 }] }
+  - { name: hub_0, protocol: ioport, device: /dev/ttyUSB1, modules: [{ type: dim16, number: 0 }] }
+)",
+         4, "links[1].name",
+         "'hub_0' and links[0].name 'hub.0' are the same id 'hub_0' in Home Assistant"});
+    expect_one_error(
+        {"mqtt: { broker: \"mqtt://b\", group_id: g, edge_node_id: n, client_id: x }\n"
+         "mqtt_json:\n  broker: \"mqtt://b\"\n  client_id: x\n" +
+             links,
+         4, "mqtt_json.client_id", "'x' is mqtt.client_id too, on the same broker mqtt://b:1883"});
+    EXPECT_TRUE(
+        parse("mqtt: { broker: \"mqtt://b\", group_id: g, edge_node_id: n, client_id: x }\n"
+              "mqtt_json:\n  broker: \"mqtt://c\"\n  client_id: x\n" +
+              links));
 }
 
 }  // namespace
