@@ -1,6 +1,7 @@
 #include "daemon/mqtt/mqtt_client.hpp"
 
 #include <mosquitto.h>
+#include <mqtt_protocol.h>
 
 #include <fmt/format.h>
 
@@ -12,22 +13,42 @@ std::string mosquitto_error(int rc) {
     return mosquitto_strerror(rc);
 }
 
+// CONNECT's Maximum Packet Size (MQTT 5, 3.1.2.11.4). libmosquitto 2.0 takes CONNECT properties
+// only in mosquitto_connect_bind_v5(), which connects blocking; it keeps them for every later
+// connect, the asynchronous ones too, and keeps them before it looks at the host. So they are
+// given by a call without a host, which connects nowhere (MOSQ_ERR_INVAL, as meant). The
+// huge-PUBLISH tests (tests/mqtt_json) fail if a libmosquitto stops sending them so.
+Result<> announce_maximum_packet_size(mosquitto* client, std::uint32_t bytes) {
+    mosquitto_property* properties = nullptr;
+    int rc = mosquitto_property_add_int32(&properties, MQTT_PROP_MAXIMUM_PACKET_SIZE, bytes);
+    if (rc == MOSQ_ERR_SUCCESS) {
+        rc = mosquitto_connect_bind_v5(client, nullptr, 0, 0, nullptr, properties);
+        if (rc == MOSQ_ERR_INVAL) rc = MOSQ_ERR_SUCCESS;
+    }
+    mosquitto_property_free_all(&properties);
+    if (rc != MOSQ_ERR_SUCCESS)
+        return fail(Errc::io_error,
+                    fmt::format("cannot set the Maximum Packet Size: {}", mosquitto_error(rc)));
+    return {};
+}
+
 }  // namespace
 
 Result<std::shared_ptr<MqttClient>> MqttClient::create(const asio::any_io_executor& executor,
                                                        const config::MqttSettings& settings,
-                                                       std::string section, Log& log,
-                                                       Handlers handlers) {
+                                                       Protocol protocol, std::string section,
+                                                       Log& log, Handlers handlers) {
     std::shared_ptr<MqttClient> client(
-        new MqttClient(executor, settings, std::move(section), log, std::move(handlers)));
+        new MqttClient(executor, settings, protocol, std::move(section), log, std::move(handlers)));
     if (auto configured = client->configure(); !configured) return Unexpected(configured.error());
     return client;
 }
 
 MqttClient::MqttClient(const asio::any_io_executor& executor, const config::MqttSettings& settings,
-                       std::string section, Log& log, Handlers handlers)
+                       Protocol protocol, std::string section, Log& log, Handlers handlers)
     : executor_(executor),
       settings_(settings),
+      protocol_(protocol),
       section_(std::move(section)),
       log_(log),
       handlers_(std::move(handlers)),
@@ -36,7 +57,8 @@ MqttClient::MqttClient(const asio::any_io_executor& executor, const config::Mqtt
       reconnect_(executor),
       stop_deadline_(executor),
       resolver_(executor),
-      last_errors_(settings_.brokers.size()) {
+      last_errors_(settings_.brokers.size()),
+      mqtt311_only_(settings_.brokers.size(), false) {
     mosquitto_lib_init();  // counted: each client pairs it with its cleanup
 }
 
@@ -72,7 +94,12 @@ Result<> MqttClient::configure_for(const config::BrokerAddress& broker) {
         rc != MOSQ_ERR_SUCCESS)
         return fail(Errc::io_error, fmt::format("{}: cannot make an MQTT client: {}", section_,
                                                 mosquitto_error(rc)));
-    mosquitto_int_option(client_, MOSQ_OPT_PROTOCOL_VERSION, MQTT_PROTOCOL_V311);
+    mosquitto_int_option(client_, MOSQ_OPT_PROTOCOL_VERSION,
+                         mqtt5() ? MQTT_PROTOCOL_V5 : MQTT_PROTOCOL_V311);
+    if (mqtt5())
+        if (auto announced = announce_maximum_packet_size(client_, protocol_.maximum_packet_size);
+            !announced)
+            return fail(Errc::io_error, fmt::format("{}: {}", section_, announced.error().message));
     mosquitto_int_option(client_, MOSQ_OPT_TCP_NODELAY, 1);
     mosquitto_connect_callback_set(client_, &MqttClient::on_connect);
     mosquitto_disconnect_callback_set(client_, &MqttClient::on_disconnect);
@@ -231,7 +258,7 @@ void MqttClient::tick() {
     });
 }
 
-void MqttClient::lost(const std::string& why) {
+void MqttClient::lost(const std::string& why, bool same_broker) {
     // Once per attempt: libmosquitto may report one end twice (a refused CONNACK, then the
     // close; a DISCONNECT written, then the socket's end), which would skip a broker.
     if (std::exchange(attempt_ended_, true) && !stopping_) return;
@@ -244,6 +271,14 @@ void MqttClient::lost(const std::string& why) {
         finish_stop();
         return;
     }
+    if (handlers_.disconnected) handlers_.disconnected(why);
+    if (same_broker) {
+        reconnect_.expires_after(std::chrono::seconds(0));
+        reconnect_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
+            if (!ec && !self->stopping_) self->resolve_then_connect();
+        });
+        return;
+    }
     // Once per distinct reason of each broker while it lasts: brokers away for hours must not
     // flood the log.
     auto& last_error = last_errors_[current_];
@@ -252,7 +287,6 @@ void MqttClient::lost(const std::string& why) {
     last_error = why;
     // Several brokers: the next one in the list is tried (gateway.md §6.2).
     current_ = (current_ + 1) % settings_.brokers.size();
-    if (handlers_.disconnected) handlers_.disconnected(why);
     schedule_reconnect();
 }
 
@@ -345,16 +379,28 @@ void MqttClient::finish_stop() {
 
 void MqttClient::on_connect(mosquitto* /*client*/, void* self, int rc) {
     auto& me = *static_cast<MqttClient*>(self);
+    if (rc == MQTT_RC_UNSUPPORTED_PROTOCOL_VERSION && me.mqtt5()) {
+        // A 3.1.1 broker's answer to MQTT 5: the same broker again at once, in 3.1.1.
+        me.mqtt311_only_[me.current_] = true;
+        me.log_.warn({},
+                     "{}: {} refused MQTT 5, so MQTT 3.1.1, which cannot ask it to send nothing "
+                     "larger than {} bytes: set its message_size_limit (docs/mqtt-json.md)",
+                     me.section_, me.broker(), me.protocol_.maximum_packet_size);
+        me.lost(fmt::format("{} refused MQTT 5", me.broker()), true);
+        return;
+    }
     if (rc != 0) {
         // CONNACK refused: libmosquitto keeps the socket open; the reconnect replaces it.
-        me.lost(fmt::format("{} refused the connection: {}", me.broker(),
-                            mosquitto_connack_string(rc)));
+        me.lost(
+            fmt::format("{} refused the connection: {}", me.broker(),
+                        me.mqtt5() ? mosquitto_reason_string(rc) : mosquitto_connack_string(rc)));
         return;
     }
     me.connected_ = true;
     me.reconnect_delay_ = first_reconnect_delay;
     me.last_errors_[me.current_].clear();
-    me.log_.info({}, "{}: connected to {} as {}", me.section_, me.broker(), me.settings_.client_id);
+    me.log_.info({}, "{}: connected to {} as {} (MQTT {})", me.section_, me.broker(),
+                 me.settings_.client_id, me.mqtt5() ? "5" : "3.1.1");
     if (me.handlers_.connected) me.handlers_.connected();
 }
 

@@ -8,6 +8,12 @@
 // socket; a publish beyond that, or while not connected, is dropped and counted, and the caller
 // decides what that means (the edge node rebirths when the connection is back).
 //
+// What a broker sends is read whole by libmosquitto before anyone sees it, whatever its size (a
+// 250 MB PUBLISH took the daemon past MemoryMax=). With MQTT 5 the client announces a Maximum
+// Packet Size in CONNECT and a broker (Mosquitto 2 does) sends it nothing larger; MQTT 3.1.1
+// cannot say so, and the broker's own limit (message_size_limit) is then the only bound. A
+// client made for MQTT 5 falls back to 3.1.1 for a broker that refuses version 5, and says so.
+//
 // Owned through a shared_ptr: its completions keep it alive.
 #pragma once
 
@@ -51,13 +57,20 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
         std::function<void(int mid)> subscribed;
     };
 
+    // 3.1.1, or 5 announcing the largest packet this client takes.
+    struct Protocol {
+        static Protocol mqtt311() { return {}; }
+        static Protocol mqtt5(std::uint32_t maximum_packet_size) { return {maximum_packet_size}; }
+        std::uint32_t maximum_packet_size = 0;  // 0: MQTT 3.1.1
+    };
+
     // Fails when libmosquitto cannot make the client or take the settings (a CA file it
     // cannot load, say). `section`: the configuration's ("mqtt", "mqtt_json"), which begins its
     // log lines and errors.
     static Result<std::shared_ptr<MqttClient>> create(const asio::any_io_executor& executor,
                                                       const config::MqttSettings& settings,
-                                                      std::string section, Log& log,
-                                                      Handlers handlers);
+                                                      Protocol protocol, std::string section,
+                                                      Log& log, Handlers handlers);
     ~MqttClient();
     MqttClient(const MqttClient&) = delete;
     MqttClient& operator=(const MqttClient&) = delete;
@@ -91,7 +104,9 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
 
   private:
     MqttClient(const asio::any_io_executor& executor, const config::MqttSettings& settings,
-               std::string section, Log& log, Handlers handlers);
+               Protocol protocol, std::string section, Log& log, Handlers handlers);
+    // MQTT 5 with the current broker: not made for 3.1.1, and the broker did not refuse 5.
+    bool mqtt5() const { return protocol_.maximum_packet_size > 0 && !mqtt311_only_[current_]; }
     Result<> configure();
     Result<> configure_for(const config::BrokerAddress& broker);
     const config::BrokerAddress& current() const { return settings_.brokers[current_]; }
@@ -100,7 +115,9 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     void watch();
     void forget_socket();
     void after_io(int rc, std::string_view during);
-    void lost(const std::string& why);
+    // The attempt or the connection ended; the next goes to the next broker, or, with
+    // `same_broker`, to this one again at once (a protocol fallback).
+    void lost(const std::string& why, bool same_broker = false);
     void schedule_reconnect();
     void tick();
     void finish_stop();
@@ -113,6 +130,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
 
     asio::any_io_executor executor_;
     config::MqttSettings settings_;
+    Protocol protocol_;
     std::string section_;
     Log& log_;
     Handlers handlers_;
@@ -137,6 +155,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     std::uint64_t dropped_ = 0;
     std::uint64_t published_ = 0;
     std::vector<std::string> last_errors_;  // by broker: the reason last logged
+    std::vector<bool> mqtt311_only_;        // by broker: it refused MQTT 5
 };
 
 }  // namespace ioport::daemon

@@ -36,7 +36,8 @@ Result<std::shared_ptr<MqttJsonOutput>> MqttJsonOutput::create(
     std::shared_ptr<MqttJsonOutput> output(new MqttJsonOutput(executor, settings, log, events));
     std::weak_ptr<MqttJsonOutput> weak = output;
     auto client = MqttClient::create(
-        executor, settings.connection, "mqtt_json", log,
+        executor, settings.connection, MqttClient::Protocol::mqtt5(mqtt_json_maximum_packet_size),
+        "mqtt_json", log,
         {.connecting =
              [weak] {
                  if (auto self = weak.lock()) self->connecting();

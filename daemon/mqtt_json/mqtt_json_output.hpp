@@ -45,6 +45,10 @@ namespace ioport::daemon {
 inline constexpr std::chrono::milliseconds mqtt_json_stop_deadline{500};
 // Home Assistant's birth messages closer than this are served by one republication.
 inline constexpr std::chrono::seconds min_discovery_interval{1};
+// The largest packet the broker may send this connection (MQTT 5's Maximum Packet Size): what
+// arrives is a set (a word), Home Assistant's birth, or a discovery config of this node's own (a
+// few KiB); a 250 MB set once took the daemon past MemoryMax=.
+inline constexpr std::uint32_t mqtt_json_maximum_packet_size = 64 << 10;
 
 struct MqttJsonStats {
     bool connected = false;

@@ -72,8 +72,10 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
     std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, events));
     node->next_bdseq_ = next_bdseq % 256;
     std::weak_ptr<SparkplugNode> weak = node;
+    // MQTT 3.1.1: the Sparkplug hosts and the TCK rules this node is held to (MQTT 5 would make
+    // every DISCONNECT carry the will as well); docs/sparkplug.md says what bounds the broker.
     auto client = MqttClient::create(
-        executor, settings, "mqtt", log,
+        executor, settings, MqttClient::Protocol::mqtt311(), "mqtt", log,
         {.connecting =
              [weak] {
                  if (auto self = weak.lock()) self->connecting();

@@ -5,7 +5,7 @@ daemon, and a subscriber (paho-mqtt) that records every message with its retain 
 when it has been installed (tests/mqtt_json/node_red.py), runs a flow of its own against the
 same broker: it reads a state topic and publishes a set.
 
-Usage: mqtt_json_test.py IOPORTD IOPORT_SIM [NODE_RED_DIR]
+Usage: mqtt_json_test.py IOPORTD IOPORT_SIM [NODE_RED_DIR [TEST ...]]
   NODE_RED_DIR: where Node-RED is (or is first installed, npm ci of tests/mqtt_json/node-red/);
   without it the Node-RED test is skipped.
 """
@@ -13,6 +13,8 @@ import json
 import os
 import shutil
 import signal
+import socket
+import struct
 import sys
 import tempfile
 import threading
@@ -28,7 +30,8 @@ import paho.mqtt.client as mqtt  # noqa: E402
 
 import node_red  # noqa: E402
 from broker import Broker  # noqa: E402
-from rig import Rig, eventually  # noqa: E402
+from process_memory import MemoryLimit, peak_rss  # noqa: E402
+from rig import Rig, eventually, free_port  # noqa: E402
 
 PREFIX = "ioportd/box7"
 NODE = "ioportd_box7"  # mqtt_json::node_id(PREFIX)
@@ -444,6 +447,140 @@ class OwnDaemon(JsonCase):
         eventually(republished, 10, "status online and the state changed meanwhile, retained")
 
 
+class Mqtt311Broker(threading.Thread):
+    """A broker that speaks MQTT 3.1.1 only, as brokers from before MQTT 5 do: a CONNECT of
+    another protocol level gets CONNACK 0x01 (unacceptable protocol level) and the connection
+    closed; a 3.1.1 one gets CONNACK 0, then SUBACKs, PUBACKs and PINGRESPs, and what is published
+    to it is dropped. `levels`: the protocol level of every CONNECT, in order."""
+
+    def __init__(self):
+        super().__init__(daemon=True)
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.port = self.server.getsockname()[1]
+        self.levels = []
+
+    def run(self):
+        while True:
+            try:
+                conn, _ = self.server.accept()
+            except OSError:
+                return
+            threading.Thread(target=self.serve, args=(conn,), daemon=True).start()
+
+    @staticmethod
+    def packet(conn):
+        header = conn.recv(1)
+        if not header:
+            return None, b""
+        length, shift = 0, 0
+        while True:
+            byte = conn.recv(1)[0]
+            length |= (byte & 0x7F) << shift
+            shift += 7
+            if not byte & 0x80:
+                break
+        body = b""
+        while len(body) < length:
+            chunk = conn.recv(length - len(body))
+            if not chunk:
+                return None, b""
+            body += chunk
+        return header[0], body
+
+    def serve(self, conn):
+        with conn:
+            try:
+                kind, body = self.packet(conn)
+                level = body[2 + struct.unpack(">H", body[:2])[0]]
+                self.levels.append(level)
+                if level != 4:
+                    conn.sendall(bytes([0x20, 2, 0, 1]))
+                    return
+                conn.sendall(bytes([0x20, 2, 0, 0]))
+                while (packet := self.packet(conn))[0] is not None:
+                    kind, body = packet
+                    if kind >> 4 == 8:  # SUBSCRIBE: granted QoS 1 for each filter
+                        conn.sendall(bytes([0x90, 3]) + body[:2] + b"\x01")
+                    elif kind >> 4 == 3 and (kind >> 1) & 3 == 1:  # PUBLISH at QoS 1
+                        at = 2 + struct.unpack(">H", body[:2])[0]
+                        conn.sendall(bytes([0x40, 2]) + body[at:at + 2])
+                    elif kind >> 4 == 12:  # PINGREQ
+                        conn.sendall(bytes([0xD0, 0]))
+            except (OSError, IndexError):
+                pass
+
+    def close(self):
+        self.server.close()
+
+
+class FromOutside(unittest.TestCase):
+    """Issue 37: what a neighbour on the broker can send. A broker of the class's own, without
+    the Subscriber of every topic the other classes have (it would take the huge message too)."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.dir = tempfile.mkdtemp(prefix="ioportd-json-hostile-")
+        cls.broker = Broker(cls.dir)
+        cls.broker.start()
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.broker.stop()
+        shutil.rmtree(cls.dir, ignore_errors=True)
+
+    def setUp(self):
+        self.rig = JsonRig(tempfile.mkdtemp(dir=self.dir), self.broker.port)
+        self.limit = MemoryLimit(256 << 20)  # the unit's MemoryMax=
+
+    def tearDown(self):
+        self.rig.close()
+        self.limit.close()
+
+    def test_a_huge_set_never_reaches_the_daemon(self):
+        # Before: libmosquitto read a 250 MB set whole, and the daemon was OOM-killed under the
+        # unit's MemoryMax=256M. Now the CONNECT says 64 KiB at most, and Mosquitto keeps it.
+        self.rig.start_daemon()
+        self.rig.wait_log(r"mqtt_json: connected to \S+ as ioportd-json_ioportd_2Fbox7 "
+                          r"\(MQTT 5\)")
+        pid = self.rig.daemon.pid
+        self.limit.add(pid)
+        sub = Subscriber(self.broker.port, (f"{PREFIX}/status",), client_id="hostile-watch")
+        sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online")
+        rss = peak_rss(pid)
+        attacker = mqtt.Client(client_id="hostile", clean_session=True)
+        attacker.connect("127.0.0.1", self.broker.port, keepalive=30)
+        attacker.loop_start()
+        attacker.publish(topic("hub0/dom16_0", "out3/set"), b"1" * (250 << 20),
+                         qos=1).wait_for_publish(60)
+        attacker.publish(topic("hub0/dom16_0", "out4/set"), "ON", qos=1).wait_for_publish(10)
+        attacker.loop_stop()
+        attacker.disconnect()
+        sub.close()
+        # The small set after it acts; the huge one never came.
+        eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0010, 20, "out4 on")
+        self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0008, 0)
+        self.assertIsNone(self.rig.daemon.poll(), "ioportd is running")
+        grown = peak_rss(pid) - rss
+        print(f"\na 250 MB set: peak RSS {grown / 1048576:+.1f} MiB", file=sys.stderr)
+        self.assertLess(grown, 32 << 20)
+        self.assertRegex(self.rig.metrics(), r'(?m)^ioportd_mqtt_json_sets_total\{result="accepted"\} 1$')
+
+    def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
+        old = Mqtt311Broker()
+        old.start()
+        try:
+            self.rig.broker_port = old.port
+            self.rig.configure(HUB)
+            self.rig.start_daemon()
+            self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} refused MQTT 5, so "
+                              r"MQTT 3\.1\.1, which cannot ask it to send nothing larger than "
+                              r"65536 bytes: set its message_size_limit", 10)
+            self.rig.wait_log(r"mqtt_json: connected to \S+ as \S+ \(MQTT 3\.1\.1\)", 10)
+            self.assertEqual(old.levels[:2], [5, 4])
+        finally:
+            old.close()
+
+
 @unittest.skipUnless(NODE_RED_DIR, "Node-RED is not installed (tests/mqtt_json/node_red.py)")
 class NodeRed(JsonCase):
     """A real consumer: a Node-RED flow subscribes to dim16_0's state and, when in0 is on, sets
@@ -476,4 +613,4 @@ def read(path):
 if __name__ == "__main__":
     if NODE_RED_DIR:
         node_red.install(NODE_RED_DIR)
-    unittest.main(argv=sys.argv[:1], verbosity=2)
+    unittest.main(argv=sys.argv[:1] + sys.argv[4:], verbosity=2)
