@@ -11,26 +11,7 @@
 #include "protocol/json.hpp"
 
 namespace ioport::mqtt_json {
-namespace {
-
-using sparkplug::DataType;
-using sparkplug::Value;
-
-// A Sparkplug metric name as a state key: "in/5" → "in5", "value/0" → "value0".
-std::string key_of(std::string_view metric) {
-    std::string key(metric);
-    std::erase(key, '/');
-    return key;
-}
-
-// The other way: "out5" → "out/5"; words without a number stay as they are.
-std::string metric_of(std::string_view point) {
-    const auto digit = point.find_first_of("0123456789");
-    if (digit == std::string_view::npos || digit == 0) return std::string(point);
-    return fmt::format("{}/{}", point.substr(0, digit), point.substr(digit));
-}
-
-}  // namespace
+namespace {}  // namespace
 
 std::string safe_id(std::string_view text) {
     std::string out(text);
@@ -44,7 +25,7 @@ std::string safe_id(std::string_view text) {
 
 namespace {
 
-void json_value(Json& json, const std::optional<Value>& value, std::string_view key) {
+void json_value(Json& json, const std::optional<gateway::PointValue>& value, std::string_view key) {
     if (!value) {
         json.null();
         return;
@@ -57,44 +38,7 @@ void json_value(Json& json, const std::optional<Value>& value, std::string_view 
             json.null();
         return;
     }
-    std::visit(
-        [&](const auto& v) {
-            using T = std::decay_t<decltype(v)>;
-            if constexpr (std::is_same_v<T, std::string>)
-                json.value(std::string_view(v));
-            else
-                json.value(v);
-        },
-        *value);
-}
-
-std::optional<bool> parse_switch(std::string_view payload) {
-    for (const auto on : {"ON", "on", "1", "true"})
-        if (payload == on) return true;
-    for (const auto off : {"OFF", "off", "0", "false"})
-        if (payload == off) return false;
-    return std::nullopt;
-}
-
-// A whole number 0…max, decimal or 0x hex, nothing else (no sign, no fraction, no space).
-std::optional<std::uint64_t> parse_number(std::string_view payload, std::uint64_t max) {
-    int base = 10;
-    if (payload.starts_with("0x") || payload.starts_with("0X")) {
-        base = 16;
-        payload.remove_prefix(2);
-    }
-    if (payload.empty() || payload.size() > 8) return std::nullopt;
-    std::uint64_t number = 0;
-    for (const char c : payload) {
-        int digit = -1;
-        if (c >= '0' && c <= '9') digit = c - '0';
-        if (base == 16 && c >= 'a' && c <= 'f') digit = c - 'a' + 10;
-        if (base == 16 && c >= 'A' && c <= 'F') digit = c - 'A' + 10;
-        if (digit < 0 || digit >= base) return std::nullopt;
-        number = number * static_cast<std::uint64_t>(base) + static_cast<std::uint64_t>(digit);
-    }
-    if (number > max) return std::nullopt;
-    return number;
+    std::visit([&](const auto& v) { json.value(v); }, *value);
 }
 
 }  // namespace
@@ -163,21 +107,20 @@ std::optional<SetTopic> parse_set_topic(std::string_view prefix, std::string_vie
 
 std::vector<std::string> state_keys(std::optional<ModuleType> type) {
     std::vector<std::string> keys;
-    for (const auto& metric : sparkplug::module_metrics(type))
-        if (metric.name != "reset") keys.push_back(key_of(metric.name));
+    for (const auto& point : gateway::module_points(type))
+        if (!point.command) keys.push_back(point.id);
     return keys;
 }
 
-std::string state_json(std::optional<ModuleType> type, const sparkplug::ModuleValues& values) {
-    const auto metrics = sparkplug::module_metrics(type);
-    const auto now = sparkplug::module_values(type, values);
+std::string state_json(std::optional<ModuleType> type,
+                       std::span<const std::optional<gateway::PointValue>> values) {
+    const auto& points = gateway::module_points(type);
     Json json;
     json.begin_object();
-    for (std::size_t i = 0; i < metrics.size(); ++i) {
-        if (metrics[i].name == "reset") continue;  // a command, not a state
-        const auto key = key_of(metrics[i].name);
-        json.key(key);
-        json_value(json, now[i], key);
+    for (std::size_t i = 0; i < points.size() && i < values.size(); ++i) {
+        if (points[i].command) continue;  // a command, not a state
+        json.key(points[i].id);
+        json_value(json, values[i], points[i].id);
     }
     json.end_object();
     return json.take();
@@ -189,50 +132,16 @@ Result<gateway::WritePlan> plan_set(std::optional<ModuleAddress> module, std::st
         return fail(Errc::invalid_argument,
                     fmt::format("{} {}: {}", module_id(module), printable(point, 40), why));
     };
-    const auto metric_name = metric_of(point);
-    const auto metrics =
-        sparkplug::module_metrics(module ? std::optional(module->type) : std::nullopt);
-    const auto spec = std::ranges::find(metrics, metric_name, &sparkplug::MetricSpec::name);
-    if (spec == metrics.end() || key_of(metric_name) != point) return refused("no such point");
-    if (!spec->writable) return refused("an input: it cannot be set");
+    const auto found =
+        gateway::find_point(module ? std::optional(module->type) : std::nullopt, point);
+    if (!found) return refused("no such point");
+    if (!found->spec->writable) return refused("an input: it cannot be set");
     if (payload.size() > max_set_bytes)
         return refused(
             fmt::format("a payload of {} bytes: at most {}", payload.size(), max_set_bytes));
-    const auto bad = [&](std::string_view allowed) {
-        return refused(fmt::format("'{}' is not allowed: {}", printable(payload, 40), allowed));
-    };
-    std::optional<Value> value;
-    switch (spec->type) {
-        case DataType::boolean:
-            if (const auto on = parse_switch(payload)) value = *on;
-            if (!value) return bad("send ON or OFF (or 1/0, true/false)");
-            break;
-        case DataType::uint16:
-            if (const auto n = parse_number(payload, 0xFFFF)) value = *n;
-            if (!value) return bad("send a number 0-65535 (or 0x0000-0xFFFF)");
-            break;
-        case DataType::uint8:
-            if (point == "colour") {
-                if (const auto colour = colour_from_name(payload))
-                    value = std::uint64_t{static_cast<std::uint8_t>(*colour)};
-                else if (const auto n = parse_number(payload, colour_count - 1))
-                    value = *n;
-                if (!value)
-                    return bad(
-                        "send a colour: off, red, green, blue, cyan, magenta, "
-                        "yellow, white (or 0-7)");
-            } else {
-                if (const auto n = parse_number(payload, mux_test_points - 1)) value = *n;
-                if (!value) return bad("send a test point 0-7");
-            }
-            break;
-        case DataType::int64:
-        case DataType::uint64:
-        case DataType::float32:
-        case DataType::string:
-            return refused("cannot be set");
-    }
-    auto plan = sparkplug::plan_command(module, metric_name, 0, value);
+    const auto value = gateway::parse_point_text(*found->spec, payload);
+    if (!value) return refused(value.error().message);
+    auto plan = gateway::plan_point_write(module, point, *value);
     if (!plan) return refused(plan.error().message);
     return plan;
 }

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -11,7 +12,7 @@
 #include "protocol/error.hpp"
 #include "protocol/gateway_map.hpp"
 #include "protocol/ioport.hpp"
-#include "protocol/sparkplug.hpp"  // ModuleValues: what a module holds now
+#include "protocol/points.hpp"
 #include "protocol/tags.hpp"
 
 namespace ioport::mqtt_json {
@@ -41,14 +42,17 @@ struct SetTopic {
 // nullopt for a topic that is not <prefix>/<link>/<module>/<point>/set.
 std::optional<SetTopic> parse_set_topic(std::string_view prefix, std::string_view topic);
 
-// The state keys of a module in document order: dim16/lim16 in0…in15 and word; dom16 out0…out15
-// and word; analog value0…, raw0…; rgbdm colour; mux8m pos, neg; the ID-2 stop, count.
+// The state keys of a module in document order: its points (protocol/points.hpp) but the ID-2's
+// reset, a command: dim16/lim16 in0…in15 and word; dom16 out0…out15 and word; analog raw0…,
+// value0…; rgbdm colour; mux8m pos, neg; the ID-2 stop, count.
 std::vector<std::string> state_keys(std::optional<ModuleType> type);
 
-// The retained state document: every key of the module, null where nothing was read yet (so that
-// a template never meets a missing key). Inputs and outputs are true/false, words and raw values
-// numbers, value<ch> the engineering value (gateway.md §6.1), colour its name.
-std::string state_json(std::optional<ModuleType> type, const sparkplug::ModuleValues& values);
+// The retained state document of a module's point values (gateway::point_values, in the points'
+// order): every key, null where nothing was read yet (so that a template never meets a missing
+// key). Inputs and outputs are true/false, words and raw values numbers, value<ch> the
+// engineering value (gateway.md §6.1), colour its name.
+std::string state_json(std::optional<ModuleType> type,
+                       std::span<const std::optional<gateway::PointValue>> values);
 
 // The longest `set` payload read; a longer one is refused unread.
 inline constexpr std::size_t max_set_bytes = 32;

@@ -42,6 +42,28 @@ std::string_view type_of(const Value& value) {
     }
 }
 
+// Sparkplug's name of a point: a number after a word goes after a slash ("out3" is out/3,
+// "value0" value/0); words without one stay as they are.
+std::string metric_name(std::string_view point) {
+    const auto digit = point.find_first_of("0123456789");
+    if (digit == std::string_view::npos || digit == 0) return std::string(point);
+    return fmt::format("{}/{}", point.substr(0, digit), point.substr(digit));
+}
+
+DataType datatype_of(gateway::PointType type) {
+    switch (type) {
+        case gateway::PointType::boolean:
+            return DataType::boolean;
+        case gateway::PointType::uint8:
+            return DataType::uint8;
+        case gateway::PointType::uint16:
+            return DataType::uint16;
+        case gateway::PointType::float32:
+            break;
+    }
+    return DataType::float32;
+}
+
 // The value of a command to a metric of `type`, in range, or why not.
 Result<std::uint64_t> command_value(std::string_view name, DataType type,
                                     const std::optional<Value>& value, std::uint64_t max) {
@@ -160,43 +182,13 @@ std::string device_id(std::string_view link, std::optional<ModuleAddress> module
 
 std::vector<MetricSpec> module_metrics(std::optional<ModuleType> type) {
     std::vector<MetricSpec> metrics;
-    const auto bits = [&](std::string_view prefix, bool writable) {
-        for (int k = 0; k < 16; ++k)
-            metrics.push_back({fmt::format("{}/{}", prefix, k), DataType::boolean, writable});
-        metrics.push_back({"word", DataType::uint16, writable});
-    };
-    if (!type) {
-        metrics.push_back({"stop", DataType::boolean, false});
-        metrics.push_back({"count", DataType::uint16, false});
-        metrics.push_back({"reset", DataType::boolean, true});
-        return metrics;
-    }
-    switch (*type) {
-        case ModuleType::dim16:
-        case ModuleType::lim16:
-            bits("in", false);
-            break;
-        case ModuleType::dom16:
-            bits("out", true);
-            break;
-        case ModuleType::acm3p:
-        case ModuleType::acm3c:
-        case ModuleType::dccim:
-        case ModuleType::dcvim:
-            for (int ch = 0; ch < reply_words(*type); ++ch)
-                metrics.push_back({fmt::format("raw/{}", ch), DataType::uint16, false});
-            for (int ch = 0; ch < reply_words(*type); ++ch)
-                metrics.push_back({fmt::format("value/{}", ch), DataType::float32, false});
-            break;
-        case ModuleType::rgbdm:
-            metrics.push_back({"colour", DataType::uint8, true});
-            break;
-        case ModuleType::mux8m:
-            metrics.push_back({"pos", DataType::uint8, true});
-            metrics.push_back({"neg", DataType::uint8, true});
-            break;
-    }
+    for (const auto& point : gateway::module_points(type))
+        metrics.push_back({metric_name(point.id), datatype_of(point.type), point.writable});
     return metrics;
+}
+
+Value metric_value(const gateway::PointValue& value) {
+    return std::visit([](const auto& v) { return Value(v); }, value);
 }
 
 std::vector<std::vector<Property>> module_properties(std::optional<ModuleAddress> module,
@@ -229,84 +221,6 @@ std::vector<std::vector<Property>> module_properties(std::optional<ModuleAddress
                              ? tags.points[i]
                              : std::string());
     return out;
-}
-
-std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
-                                                const ModuleValues& values) {
-    std::vector<std::optional<Value>> out;
-    const auto bits = [&](std::optional<std::uint16_t> word) {
-        for (int k = 0; k < 16; ++k)
-            out.push_back(word ? std::optional<Value>((*word >> k & 1) != 0) : std::nullopt);
-        out.push_back(word ? std::optional<Value>(std::uint64_t{*word}) : std::nullopt);
-    };
-    if (!type) {
-        out.push_back(values.stop ? std::optional<Value>(*values.stop) : std::nullopt);
-        out.push_back(values.count ? std::optional<Value>(std::uint64_t{*values.count})
-                                   : std::nullopt);
-        out.emplace_back(false);
-        return out;
-    }
-    const auto& reading = values.reading;
-    switch (*type) {
-        case ModuleType::dim16:
-        case ModuleType::lim16:
-            bits(reading ? std::optional(reading->raw[0]) : std::nullopt);
-            break;
-        case ModuleType::dom16:
-            bits(values.output);
-            break;
-        case ModuleType::acm3p:
-        case ModuleType::acm3c:
-        case ModuleType::dccim:
-        case ModuleType::dcvim: {
-            const auto channels = static_cast<std::size_t>(reply_words(*type));
-            for (std::size_t ch = 0; ch < channels; ++ch)
-                out.push_back(reading ? std::optional<Value>(std::uint64_t{reading->raw[ch]})
-                                      : std::nullopt);
-            for (std::size_t ch = 0; ch < channels; ++ch)
-                out.push_back(reading ? std::optional<Value>(gateway::channel_value(
-                                            *type, reading->raw[ch], *values.tags, ch))
-                                      : std::nullopt);
-            break;
-        }
-        case ModuleType::rgbdm:
-            out.push_back(values.output ? std::optional<Value>(std::uint64_t{*values.output})
-                                        : std::nullopt);
-            break;
-        case ModuleType::mux8m:
-            out.push_back(values.output ? std::optional<Value>(
-                                              static_cast<std::uint64_t>(*values.output >> 8))
-                                        : std::nullopt);
-            out.push_back(values.output ? std::optional<Value>(
-                                              static_cast<std::uint64_t>(*values.output & 0xFF))
-                                        : std::nullopt);
-            break;
-    }
-    return out;
-}
-
-std::vector<std::size_t> changed_metrics(std::optional<ModuleType> type,
-                                         const std::vector<std::optional<Value>>& published,
-                                         const std::vector<std::optional<Value>>& now,
-                                         double deadband) {
-    const auto moved = [&](std::size_t i) {
-        if (published[i].has_value() != now[i].has_value()) return true;
-        if (!now[i]) return false;
-        const auto* before = std::get_if<float>(&*published[i]);
-        const auto* after = std::get_if<float>(&*now[i]);
-        if (before != nullptr && after != nullptr && deadband > 0)
-            return std::fabs(static_cast<double>(*after) - static_cast<double>(*before)) > deadband;
-        return *published[i] != *now[i];
-    };
-    // Analog modules publish raw/0…raw/n-1, then value/0…value/n-1: a raw word goes with its value.
-    const auto analog = type && (*type == ModuleType::acm3p || *type == ModuleType::acm3c ||
-                                 *type == ModuleType::dccim || *type == ModuleType::dcvim);
-    const auto channels = analog ? static_cast<std::size_t>(reply_words(*type)) : 0;
-    std::vector<std::size_t> changed;
-    const auto count = std::min(published.size(), now.size());
-    for (std::size_t i = 0; i < count; ++i)
-        if (i < 2 * channels ? moved(channels + i % channels) : moved(i)) changed.push_back(i);
-    return changed;
 }
 
 std::size_t writable_metrics(std::optional<ModuleType> type) {
@@ -373,35 +287,13 @@ Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std
     if (datatype != 0 && datatype != static_cast<std::uint32_t>(spec->type))
         return refused(name, fmt::format("declared datatype {}, but the metric is {}", datatype,
                                          to_string(spec->type)));
-    gateway::WritePlan plan;
-    if (!module) {  // the ID-2's reset
-        auto reset = command_value(name, spec->type, value, 1);
-        if (!reset) return Unexpected(reset.error());
-        plan.reset_counter = *reset != 0;
-        return plan;
-    }
-    // The metric's type bounds the number; the module's own rule (validate_output_value, as for
-    // a Modbus write) bounds the value.
-    const auto max = spec->type == DataType::boolean ? 1u
-                     : spec->type == DataType::uint8 ? 0xFFu
-                                                     : 0xFFFFu;
-    auto number = command_value(name, spec->type, value, max);
+    const auto& point = gateway::module_points(
+        module ? std::optional(module->type)
+               : std::nullopt)[static_cast<std::size_t>(spec - metrics.begin())];
+    auto number = command_value(name, spec->type, value, gateway::max_number(point.type));
     if (!number) return Unexpected(number.error());
-    const auto v = static_cast<std::uint16_t>(*number);
-    gateway::OutputChange change{*module, 0xFFFF, v};
-    if (name.starts_with("out/")) {
-        const auto bit = static_cast<int>(spec - metrics.begin());  // out/0 … out/15 come first
-        change.mask = static_cast<std::uint16_t>(1u << bit);
-        change.value = static_cast<std::uint16_t>(v << bit);
-    } else if (name == "pos") {
-        change.mask = 0xFF00;
-        change.value = static_cast<std::uint16_t>(v << 8);
-    } else if (name == "neg") {
-        change.mask = 0x00FF;
-    }
-    if (auto valid = validate_output_value(module->type, change.value); !valid)
-        return refused(name, valid.error().message);
-    plan.changes.push_back(change);
+    auto plan = gateway::plan_point_write(module, point.id, *number);
+    if (!plan) return refused(name, plan.error().message);
     return plan;
 }
 

@@ -15,6 +15,7 @@
 #include "protocol/error.hpp"
 #include "protocol/gateway_map.hpp"
 #include "protocol/ioport.hpp"
+#include "protocol/points.hpp"
 #include "protocol/tags.hpp"
 
 namespace ioport::sparkplug {
@@ -136,39 +137,19 @@ struct MetricSpec {
     bool writable = false;
     friend bool operator==(const MetricSpec&, const MetricSpec&) = default;
 };
-// Every metric a module will ever publish, in DBIRTH order. nullopt: the ID-2.
+// Every metric a module will ever publish, in DBIRTH order: its points (protocol/points.hpp),
+// each under Sparkplug's name for it (out3 is out/3, value0 value/0; words stay as they are),
+// with its datatype. nullopt: the ID-2.
 std::vector<MetricSpec> module_metrics(std::optional<ModuleType> type);
+// A point's value as a metric's.
+Value metric_value(const gateway::PointValue& value);
 
-// What a module holds now, as the gateway knows it: the raw words of an input module's last
-// good reading, an output module's confirmed state, the ID-2's stop input and count.
-struct ModuleValues {
-    std::optional<Reading> reading;
-    std::optional<std::uint16_t> output;
-    std::optional<bool> stop;
-    std::optional<std::uint16_t> count;
-    const gateway::ModuleTags* tags = &gateway::no_tags;  // value/<ch> is scaled as they say
-};
 // The properties of module_metrics(type)'s metrics in a DBIRTH, in the same order (gateway.md
 // §6.1): every value/<ch> has engLow and engHigh (its range) and engUnit when it has a unit; any
 // metric of a named channel or point, or of a named module, has documentation ("boiler 1: supply
 // temperature"). Metric names never change, so a rename never breaks a host's history.
 std::vector<std::vector<Property>> module_properties(std::optional<ModuleAddress> module,
                                                      const gateway::ModuleTags& tags);
-
-// The values of module_metrics(type), in the same order; nullopt where nothing was read yet
-// (published as is_null). The ID-2's `reset` is always false: a command, not a state.
-std::vector<std::optional<Value>> module_values(std::optional<ModuleType> type,
-                                                const ModuleValues& values);
-
-// The metrics of a module that go out in DDATA, as indexes into module_metrics(type): those whose
-// value differs from the one last published (`published`, nullopt for is_null), except that an
-// analog channel's raw/<ch> and value/<ch> go out together, and only when the value moved more
-// than `deadband` from the one last published (gateway.md §5.5), so that a noisy channel within
-// the deadband publishes nothing and a slow drift goes out once it adds up.
-std::vector<std::size_t> changed_metrics(std::optional<ModuleType> type,
-                                         const std::vector<std::optional<Value>>& published,
-                                         const std::vector<std::optional<Value>>& now,
-                                         double deadband);
 
 // --- Commands (DCMD) --------------------------------------------------------------------------
 
@@ -197,13 +178,12 @@ Result<std::size_t> count_metrics(std::span<const std::uint8_t> bytes);
 // Sparkplug B payload.
 Result<Payload> decode_command(std::span<const std::uint8_t> bytes, std::size_t max_metrics);
 
-// A DCMD metric as a write the gateway plans like any other: output changes (dom16 bits or
-// word, rgbdm colour, mux8m pos or neg, merged into the desired state when sent) or an ID-2
-// counter reset. `reset_counter` with no changes: reset. Neither: nothing to do (reset false).
-// `datatype`: what the command declares (0: none). Fails (invalid_argument, with a message
-// naming the metric) for a metric the module does not have, one that is not writable, a declared
-// datatype other than the metric's, a value of another kind or outside the metric's range:
-// never truncated.
+// A DCMD metric as a write of its point, planned by the one planner of every output
+// (gateway::plan_point_write): output changes (dom16 bits or word, rgbdm colour, mux8m pos or
+// neg, merged into the desired state when sent) or an ID-2 counter reset. `datatype`: what the
+// command declares (0: none). Fails (invalid_argument, with a message naming the metric) for a
+// metric the module does not have, one that is not writable, a declared datatype other than the
+// metric's, a value of another kind or outside the metric's range: never truncated.
 Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std::string_view name,
                                         std::uint32_t datatype, const std::optional<Value>& value);
 

@@ -20,8 +20,8 @@ std::span<const std::uint8_t> bytes(std::string_view text) {
     return {reinterpret_cast<const std::uint8_t*>(text.data()), text.size()};
 }
 
-sparkplug::ModuleValues values_of(const ModuleState& view) {
-    return {view.reading, view.output, view.stop, view.count, view.tags};
+gateway::ModuleReadings readings_of(const ModuleState& view) {
+    return {view.reading, view.output, view.stop, view.count};
 }
 
 std::optional<ModuleType> type_of(const std::optional<ModuleAddress>& module) {
@@ -209,13 +209,13 @@ void MqttJsonOutput::update(Module& module) {
     // Offline: the last document stays, marked unavailable; the next one comes with fresh values.
     if (!online) return;
     const auto type = type_of(module.address);
-    const auto values = values_of(*view);
-    auto now = sparkplug::module_values(type, values);
+    std::vector<std::optional<gateway::PointValue>> now;
+    gateway::point_values(type, readings_of(*view), *view->tags, now);
     const bool moved =
         module.state_due || module.values.size() != now.size() ||
-        !sparkplug::changed_metrics(type, module.values, now, settings_.deadband).empty();
+        !gateway::changed_points(type, module.values, now, settings_.deadband).empty();
     if (!moved) return;
-    module.state_due = !publish(module.state_topic, mqtt_json::state_json(type, values), 0, true);
+    module.state_due = !publish(module.state_topic, mqtt_json::state_json(type, now), 0, true);
     if (!module.state_due) module.values = std::move(now);
 }
 

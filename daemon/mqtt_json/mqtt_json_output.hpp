@@ -37,7 +37,6 @@
 #include "daemon/log.hpp"
 #include "daemon/mqtt/mqtt_client.hpp"
 #include "protocol/mqtt_json.hpp"
-#include "protocol/sparkplug.hpp"
 
 namespace ioport::daemon {
 
@@ -92,7 +91,7 @@ class MqttJsonOutput : public std::enable_shared_from_this<MqttJsonOutput> {
         std::vector<mqtt_json::Discovery> discovery{};
         // As last published in this session; nullopt: not yet.
         std::optional<bool> online{};
-        std::vector<std::optional<sparkplug::Value>> values{};  // of the last state document
+        std::vector<std::optional<gateway::PointValue>> values{};  // of the last state document
         bool state_due = true;
     };
 

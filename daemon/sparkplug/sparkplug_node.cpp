@@ -32,12 +32,22 @@ std::uint32_t wire(DataType type) {
     return static_cast<std::uint32_t>(type);
 }
 
-sparkplug::ModuleValues values_of(const ModuleState& view) {
-    return {view.reading, view.output, view.stop, view.count, view.tags};
-}
-
 std::optional<ModuleType> type_of(const std::optional<ModuleAddress>& module) {
     return module ? std::optional(module->type) : std::nullopt;
+}
+
+gateway::ModuleReadings readings_of(const ModuleState& view) {
+    return {view.reading, view.output, view.stop, view.count};
+}
+
+std::vector<std::optional<gateway::PointValue>> point_values(const ModuleState& view) {
+    std::vector<std::optional<gateway::PointValue>> values;
+    gateway::point_values(type_of(view.address), readings_of(view), *view.tags, values);
+    return values;
+}
+
+std::optional<Value> metric_value(const std::optional<gateway::PointValue>& value) {
+    return value ? std::optional(sparkplug::metric_value(*value)) : std::nullopt;
 }
 
 // Of a string from the broker, this much reaches a log line (escaped).
@@ -411,13 +421,13 @@ void SparkplugNode::birth() {
 
 void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
     const auto now = now_ms();
-    auto values = sparkplug::module_values(type_of(device.module), values_of(view));
+    auto values = point_values(view);
     Payload payload{now, next_seq(), {}};
     payload.metrics.reserve(device.metrics.size());
     for (std::size_t i = 0; i < device.metrics.size(); ++i)
         payload.metrics.push_back(Metric{device.metrics[i].name, device.first_alias + i, now,
-                                         wire(device.metrics[i].type), values[i], false,
-                                         device.properties[i]});
+                                         wire(device.metrics[i].type), metric_value(values[i]),
+                                         false, device.properties[i]});
     if (!publish(MessageType::dbirth, device.id, payload)) return;
     device.published = std::move(values);
     device.born = true;
@@ -588,25 +598,23 @@ void SparkplugNode::update(Device& device) {
 
 SparkplugNode::Changes SparkplugNode::changes(Device& device, const ModuleState& view,
                                               MetricsBy by) const {
-    Changes data{sparkplug::module_values(type_of(device.module), values_of(view)),
-                 {},
-                 Payload{now_ms(), std::nullopt, {}}};
+    Changes data{point_values(view), {}, Payload{now_ms(), std::nullopt, {}}};
     // Never published in this process (kept while no session could take it): all is news.
     if (device.published.size() != data.values.size())
         device.published.assign(data.values.size(), std::nullopt);
-    data.changed = sparkplug::changed_metrics(type_of(device.module), device.published, data.values,
-                                              settings_.deadband);
+    data.changed = gateway::changed_points(type_of(device.module), device.published, data.values,
+                                           settings_.deadband);
     const auto now = data.payload.timestamp;
     for (const auto i : data.changed) {
         const auto type = wire(device.metrics[i].type);
         switch (by) {
             case MetricsBy::alias:
                 data.payload.metrics.push_back(
-                    Metric{{}, device.first_alias + i, now, type, data.values[i]});
+                    Metric{{}, device.first_alias + i, now, type, metric_value(data.values[i])});
                 break;
             case MetricsBy::name:
-                data.payload.metrics.push_back(
-                    Metric{device.metrics[i].name, std::nullopt, now, type, data.values[i]});
+                data.payload.metrics.push_back(Metric{device.metrics[i].name, std::nullopt, now,
+                                                      type, metric_value(data.values[i])});
                 break;
         }
     }

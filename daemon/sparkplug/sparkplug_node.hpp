@@ -128,7 +128,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
         gateway::ModuleTags tags{};
         std::vector<std::vector<sparkplug::Property>> properties{};
         bool born = false;  // DBIRTH sent, no DDEATH since, in this session
-        std::vector<std::optional<sparkplug::Value>> published{};
+        std::vector<std::optional<gateway::PointValue>> published{};
     };
     struct LinkMetrics {
         std::string name;
@@ -161,7 +161,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     // session).
     enum class MetricsBy { alias, name };
     struct Changes {
-        std::vector<std::optional<sparkplug::Value>> values;  // every metric's, now
+        std::vector<std::optional<gateway::PointValue>> values;  // every metric's point, now
         std::vector<std::size_t> changed;                     // indexes into values
         sparkplug::Payload payload;
     };

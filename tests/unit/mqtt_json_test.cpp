@@ -53,24 +53,32 @@ TEST(MqttJsonTopics, APrefixIsLevelsOfPrintableUtf8WithoutWildcards) {
     EXPECT_EQ(why(std::string(max_topic_prefix + 1, 'p')), "is 129 bytes long: at most 128");
 }
 
+// The state document of what the core holds of a module.
+std::string state_of(std::optional<ModuleType> type, const gateway::ModuleReadings& now,
+                     const gateway::ModuleTags& tags = gateway::no_tags) {
+    std::vector<std::optional<gateway::PointValue>> values;
+    gateway::point_values(type, now, tags, values);
+    return state_json(type, values);
+}
+
 TEST(MqttJsonState, EveryKeyOfTheModuleNullUntilRead) {
-    EXPECT_EQ(state_json(ModuleType::dim16, {}),
+    EXPECT_EQ(state_of(ModuleType::dim16, {}),
               R"({"in0":null,"in1":null,"in2":null,"in3":null,"in4":null,"in5":null,"in6":null,)"
               R"("in7":null,"in8":null,"in9":null,"in10":null,"in11":null,"in12":null,)"
               R"("in13":null,"in14":null,"in15":null,"word":null})");
-    const auto dim = state_json(ModuleType::dim16, {Reading{{0x8001, 0, 0}, 1}, {}, {}, {}});
+    const auto dim = state_of(ModuleType::dim16, {Reading{{0x8001, 0, 0}, 1}, {}, {}, {}});
     EXPECT_NE(dim.find(R"("in0":true,"in1":false)"), std::string::npos) << dim;
     EXPECT_NE(dim.find(R"("in15":true,"word":32769})"), std::string::npos) << dim;
-    EXPECT_EQ(state_json(ModuleType::rgbdm, {{}, 3, {}, {}}), R"({"colour":"blue"})");
-    EXPECT_EQ(state_json(ModuleType::mux8m, {{}, 0x0302, {}, {}}), R"({"pos":3,"neg":2})");
-    EXPECT_EQ(state_json(std::nullopt, {{}, {}, true, 42}), R"({"stop":true,"count":42})");
+    EXPECT_EQ(state_of(ModuleType::rgbdm, {{}, 3, {}, {}}), R"({"colour":"blue"})");
+    EXPECT_EQ(state_of(ModuleType::mux8m, {{}, 0x0302, {}, {}}), R"({"pos":3,"neg":2})");
+    EXPECT_EQ(state_of(std::nullopt, {{}, {}, true, 42}), R"({"stop":true,"count":42})");
 }
 
 TEST(MqttJsonState, AnalogValuesAreTheEngineeringValues) {
     auto tags = gateway::default_tags(acm3p);
     tags.channels[0].scale = gateway::Scale{0, 100, -20, 150};
     const auto text =
-        state_json(ModuleType::acm3p, {Reading{{0, 32768, 65535}, 3}, {}, {}, {}, &tags});
+        state_of(ModuleType::acm3p, {Reading{{0, 32768, 65535}, 3}, {}, {}, {}}, tags);
     EXPECT_EQ(text, R"({"raw0":0,"raw1":32768,"raw2":65535,"value0":-20,"value1":50.000763,)"
                     R"("value2":100})");
     EXPECT_EQ(state_keys(ModuleType::dccim), (std::vector<std::string>{"raw0", "value0"}));

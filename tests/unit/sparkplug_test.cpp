@@ -272,36 +272,10 @@ TEST(SparkplugModule, EveryMetricOfEveryModule) {
                                        {"reset", DataType::boolean, true}}));
 }
 
-TEST(SparkplugModule, ValuesFollowTheMetrics) {
-    const auto dim = module_values(ModuleType::dim16, {Reading{{0x8001, 0, 0}, 1}, {}, {}, {}});
-    ASSERT_EQ(dim.size(), 17u);
-    EXPECT_EQ(dim[0], Value(true));
-    EXPECT_EQ(dim[1], Value(false));
-    EXPECT_EQ(dim[15], Value(true));
-    EXPECT_EQ(dim[16], Value(std::uint64_t{0x8001}));
-    const auto acm = module_values(ModuleType::acm3p, {Reading{{0, 32768, 65535}, 3}, {}, {}, {}});
-    ASSERT_EQ(acm.size(), 6u);
-    EXPECT_EQ(acm[1], Value(std::uint64_t{32768}));
-    EXPECT_EQ(acm[5], Value(100.0f));  // raw 65535 = full scale, 100 %
-    const auto mux = module_values(ModuleType::mux8m, {{}, 0x0302, {}, {}});
-    EXPECT_EQ(
-        mux, (std::vector<std::optional<Value>>{Value(std::uint64_t{3}), Value(std::uint64_t{2})}));
-    const auto never = module_values(ModuleType::dom16, {});
-    ASSERT_EQ(never.size(), 17u);
-    EXPECT_EQ(never[16], std::nullopt);  // published as is_null
-    const auto id2 = module_values(std::nullopt, {{}, {}, true, 42});
-    EXPECT_EQ(id2, (std::vector<std::optional<Value>>{Value(true), Value(std::uint64_t{42}),
-                                                      Value(false)}));
-}
-
-TEST(SparkplugModule, ScaledChannelsPublishTheEngineeringValue) {
-    auto tags = gateway::default_tags({ModuleType::acm3p, 0});
-    tags.channels[0].scale = gateway::Scale{0, 100, -20, 150};
-    const auto acm =
-        module_values(ModuleType::acm3p, {Reading{{0, 32768, 65535}, 3}, {}, {}, {}, &tags});
-    EXPECT_EQ(acm[3], Value(-20.0f));            // value/0, scaled
-    EXPECT_EQ(acm[0], Value(std::uint64_t{0}));  // raw/0 as it was
-    EXPECT_EQ(acm[5], Value(100.0f));            // value/2, unscaled %
+TEST(SparkplugModule, MetricValuesAreThePointsValues) {
+    EXPECT_EQ(metric_value(gateway::PointValue(true)), Value(true));
+    EXPECT_EQ(metric_value(gateway::PointValue(std::uint64_t{42})), Value(std::uint64_t{42}));
+    EXPECT_EQ(metric_value(gateway::PointValue(1.5F)), Value(1.5F));
 }
 
 TEST(SparkplugModule, BirthPropertiesNameUnitAndRange) {
@@ -498,54 +472,6 @@ TEST(SparkplugCommandSize, ABoundOfBytesLeavesRoomForLongNames) {
     EXPECT_LE(long_names.size(), max_command_bytes(17));
     EXPECT_TRUE(decode_command(long_names, 17));
     EXPECT_FALSE(decode_command(Bytes(max_command_bytes(17) + 1, 0), 17));
-}
-
-// --- What goes out in DDATA (gateway.md §5.5: deadband) ---------------------------------------
-
-std::vector<std::optional<Value>> acm3p(std::uint16_t r0, std::uint16_t r1, std::uint16_t r2) {
-    ModuleValues values;
-    values.reading = Reading{};
-    values.reading->raw = {r0, r1, r2};
-    return module_values(ModuleType::acm3p, values);
-}
-
-TEST(SparkplugDeadband, AChannelsRawAndValueGoOutTogetherOnlyBeyondTheDeadband) {
-    // acm3p: raw/0..2 are 0..2, value/0..2 are 3..5; full scale 100 %, a raw step 0.0015 %
-    const auto published = acm3p(1000, 2000, 100);
-    // noise of a few raw steps on channel 1 within a deadband of 1 %: nothing
-    for (const std::uint16_t noisy :
-         std::initializer_list<std::uint16_t>{2001, 1999, 2030, 1970, 2600})
-        EXPECT_EQ(changed_metrics(ModuleType::acm3p, published, acm3p(1000, noisy, 100), 1.0),
-                  std::vector<std::size_t>{})
-            << noisy;
-    // beyond it (+1.07 %): raw/1 and value/1, in one DDATA
-    EXPECT_EQ(changed_metrics(ModuleType::acm3p, published, acm3p(1000, 2700, 100), 1.0),
-              (std::vector<std::size_t>{1, 4}));
-    // compared with the last published value: a drift of small steps goes out once it adds up
-    EXPECT_EQ(changed_metrics(ModuleType::acm3p, published, acm3p(1000, 1300, 100), 1.0),
-              (std::vector<std::size_t>{1, 4}));
-    // without a deadband, every change; two channels at once
-    EXPECT_EQ(changed_metrics(ModuleType::acm3p, published, acm3p(1001, 2000, 101), 0.0),
-              (std::vector<std::size_t>{0, 2, 3, 5}));
-    // a channel read for the first time (was null) goes out whole
-    const auto unread = module_values(ModuleType::acm3p, {});
-    EXPECT_EQ(changed_metrics(ModuleType::acm3p, unread, published, 1.0),
-              (std::vector<std::size_t>{0, 1, 2, 3, 4, 5}));
-}
-
-TEST(SparkplugDeadband, OtherModulesPublishEveryChange) {
-    ModuleValues before;
-    before.output = 0x0005;
-    ModuleValues after;
-    after.output = 0x0105;
-    EXPECT_EQ(changed_metrics(ModuleType::dom16, module_values(ModuleType::dom16, before),
-                              module_values(ModuleType::dom16, after), 50.0),
-              (std::vector<std::size_t>{8, 16}));  // out/8 and word
-    before.count = 3;
-    after.count = 4;
-    EXPECT_EQ(changed_metrics(std::nullopt, module_values(std::nullopt, before),
-                              module_values(std::nullopt, after), 50.0),
-              (std::vector<std::size_t>{1}));  // count
 }
 
 }  // namespace
