@@ -7,6 +7,8 @@
 #include <optional>
 #include <string_view>
 
+#include "protocol/points.hpp"
+
 namespace ioport::gateway {
 namespace {
 
@@ -737,7 +739,9 @@ Plan read_back(const UnitState& unit, const Policy& policy, std::uint16_t addres
 // --- The tables -----------------------------------------------------------------------------
 
 void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
-                   WordOrder order, const ModuleTags& tags) {
+                   WordOrder order, std::span<const std::optional<PointValue>> values) {
+    // Analog modules' points are raw0…rawN-1, then value0…valueN-1.
+    const auto channels = values.size() / 2;
     for_each_channel(module, [&](const Region& region, int address, int c) {
         switch (region.content) {
             case Content::input_bit:
@@ -748,10 +752,8 @@ void store_reading(const Tables& tables, ModuleAddress module, const Reading& re
                 put(tables, region.table, address, channel_raw(reading, c));
                 break;
             case Content::engineering:
-                put_words(tables, address,
-                          words(channel_value(module.type, channel_raw(reading, c), tags,
-                                              static_cast<std::size_t>(c)),
-                                order));
+                if (const auto& value = values[channels + static_cast<std::size_t>(c)])
+                    put_words(tables, address, words(std::get<float>(*value), order));
                 break;
             case Content::output_bit:
             case Content::output_word:
@@ -765,6 +767,13 @@ void store_reading(const Tables& tables, ModuleAddress module, const Reading& re
                 break;  // not a reading's: outputs, the ID-2, diagnostics
         }
     });
+}
+
+void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
+                   WordOrder order, const ModuleTags& tags) {
+    std::vector<std::optional<PointValue>> values;
+    point_values(module.type, {reading, {}, {}, {}}, tags, values);
+    store_reading(tables, module, reading, order, values);
 }
 
 void store_output(const Tables& tables, ModuleAddress module, std::uint16_t value) {

@@ -7,6 +7,7 @@
 #include <array>
 #include <chrono>
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <string>
 #include <variant>
@@ -59,6 +60,10 @@ float engineering_float(ModuleType type, std::uint16_t raw);
 // --- Requests -------------------------------------------------------------------------------
 
 // What the planner needs to know of a unit at the moment a request arrives.
+// The value of a module's point (protocol/points.hpp): boolean as bool, the integers as their
+// number, float32 as float.
+using PointValue = std::variant<bool, std::uint64_t, float>;
+
 struct UnitState {
     UnitKind kind = UnitKind::ioport;
     bool port_open = false;
@@ -115,8 +120,12 @@ Plan read_back(const UnitState& unit, const Policy& policy, std::uint16_t addres
 // --- The tables -----------------------------------------------------------------------------
 
 // Raw words and float32 values of an ioport input module (dim16, lim16, acm3p, acm3c, dccim,
-// dcvim) from a good reading.
-// The float32 registers carry each channel's engineering value as `tags` scale it (§6.1).
+// dcvim) from a good reading. The float32 registers carry each channel's engineering value
+// (§6.1): its value<ch> among the module's point `values` (protocol/points.hpp), made from this
+// reading, as every output shows it.
+void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
+                   WordOrder order, std::span<const std::optional<PointValue>> values);
+// The same, with the point values made here, scaled as `tags` say.
 void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
                    WordOrder order, const ModuleTags& tags = no_tags);
 // A confirmed output state: dom16 holding register n and coils 16n…16n+15; rgbdm 8 + n;

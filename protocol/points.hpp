@@ -48,9 +48,6 @@ struct FoundPoint {
 };
 std::optional<FoundPoint> find_point(std::optional<ModuleType> type, std::string_view id);
 
-// A point's value: boolean as bool, the integers as their number, float32 as float.
-using PointValue = std::variant<bool, std::uint64_t, float>;
-
 // What the core holds of a module: the raw words of an input module's last good reading, an
 // output module's confirmed state, the ID-2's stop input and count.
 struct ModuleReadings {

@@ -85,7 +85,7 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
         entries_ = {{.target = id2::Command::stop_input, .slot = 0},
                     {.target = id2::Command::count, .slot = 0}};
         state_.status[0] = ModuleStatus::not_polled;
-        modules_.push_back({.name = "ID-2"});
+        modules_.push_back({.name = "ID-2", .unit = &state_});
         module_of_slot_[0] = 0;
     }
     for (auto& module : config_.modules) {
@@ -103,16 +103,27 @@ LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config
         modules_.push_back({.name = to_string(module.address),
                             .address = module.address,
                             .slot = at,
+                            .unit = &state_,
                             .trend = entries_.back().trend.get(),
                             .tags = &module.tags});
         state_.status[static_cast<std::size_t>(at)] = ModuleStatus::not_polled;
     }
+    for (auto& module : modules_)
+        make_values(module);
+}
+
+void LinkScheduler::make_values(ModuleState& module) {
+    gateway::point_values(module.address ? std::optional(module.address->type) : std::nullopt,
+                          {module.reading, module.output, module.stop, module.count}, *module.tags,
+                          module.values);
 }
 
 void LinkScheduler::retag(const config::LinkConfig& next) {
     // config_.modules is never resized, so the modules' tag pointers stay where they are.
     for (std::size_t i = 0; i < config_.modules.size(); ++i)
         config_.modules[i].tags = next.modules[i].tags;
+    for (auto& module : modules_)
+        make_values(module);  // rescaled
     notify({.kind = Change::Kind::tags, .slot = -1});
 }
 
@@ -285,6 +296,7 @@ void LinkScheduler::store(std::size_t index, const Reading& reading) {
     } else {
         module.reading = reading;
     }
+    make_values(module);
     if (entry.trend) entry.trend->add(std::chrono::system_clock::now(), reading.raw);
     notify({.kind = Change::Kind::values, .slot = entry.slot});
 }
@@ -297,7 +309,9 @@ asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
 }
 
 void LinkScheduler::confirmed(std::size_t entry, std::uint16_t value) {
-    modules_[entries_[entry].module].output = value;
+    auto& module = modules_[entries_[entry].module];
+    module.output = value;
+    make_values(module);
     notify({.kind = Change::Kind::values, .slot = entries_[entry].slot});
 }
 
@@ -452,7 +466,7 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
     auto& entry = entries_[index];
     if (result) {
         plan_.done(index, true, now);
-        entry.status = ModuleStatus::online;
+        entry.outcome = ModuleStatus::online;
         entry.last_good = now;
         update_slot(entry, nullptr);
         return;
@@ -465,11 +479,11 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
             port_lost(error);
             return;
         case Failure::no_answer:
-            entry.status = ModuleStatus::no_answer;
+            entry.outcome = ModuleStatus::no_answer;
             break;
         case Failure::bad_answer:
         case Failure::error_ack:
-            entry.status = ModuleStatus::bad_answer;
+            entry.outcome = ModuleStatus::bad_answer;
             break;
     }
     plan_.done(index, false, now);
@@ -477,13 +491,13 @@ void LinkScheduler::record(std::size_t index, const Result<Reading>& result) {
 }
 
 void LinkScheduler::update_slot(const Entry& changed, const Error* error) {
-    auto status = changed.status;
+    auto status = changed.outcome;
     auto last_good = changed.last_good;
     if (state_.kind == gateway::UnitKind::id2) {
         // The stop input and the count share slot 0: online only while both reads succeed,
         // failed or not polled yet while either is, as old as the older of the two good reads.
         const auto& other = &changed == &entries_[0] ? entries_[1] : entries_[0];
-        if (status == ModuleStatus::online) status = other.status;
+        if (status == ModuleStatus::online) status = other.outcome;
         last_good = last_good && other.last_good
                         ? std::optional(std::min(*last_good, *other.last_good))
                         : std::nullopt;
@@ -497,9 +511,8 @@ void LinkScheduler::set_status(int slot_index, ModuleStatus status, const Error*
     if (current == status) return;
     const bool was_online = current == ModuleStatus::online;
     current = status;
-    auto& module =
+    const auto& module =
         modules_[static_cast<std::size_t>(module_of_slot_[static_cast<std::size_t>(slot_index)])];
-    module.status = status;
     Event event{.link = config_.name, .module = module.name};
     if (status == ModuleStatus::online) {
         event.kind = EventKind::module_online;
@@ -524,12 +537,10 @@ void LinkScheduler::port_lost(const Error& error) {
     log_.warn(fields(), "{}", text);
     // Polled modules answer 0B (or hold) while the port is away; never-polled ones stay 4.
     for (auto& entry : entries_)
-        if (entry.status != ModuleStatus::not_polled) entry.status = ModuleStatus::no_answer;
-    for (auto& module : modules_) {
-        if (module.status == ModuleStatus::not_polled) continue;
-        module.status = ModuleStatus::no_answer;
-        state_.status[static_cast<std::size_t>(module.slot)] = module.status;
-    }
+        if (entry.outcome != ModuleStatus::not_polled) entry.outcome = ModuleStatus::no_answer;
+    for (const auto& module : modules_)
+        if (module.status() != ModuleStatus::not_polled)
+            state_.status[static_cast<std::size_t>(module.slot)] = ModuleStatus::no_answer;
     fail_pending_writes(WriteResult::link_down);
     const Event event{.kind = EventKind::port_down, .link = config_.name, .text = std::move(text)};
     notify({.kind = Change::Kind::port, .event = &event});
@@ -604,8 +615,8 @@ Health health(const Links& links) {
             continue;
         }
         for (const auto& module : link->modules())
-            if (module.status != ModuleStatus::online)
-                add(fmt::format("link {}: {} {}", name, module.name, status_text(module.status)));
+            if (module.status() != ModuleStatus::online)
+                add(fmt::format("link {}: {} {}", name, module.name, status_text(module.status())));
     }
     return health;
 }

@@ -104,9 +104,9 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
         std::uint16_t desired = 0;  // outputs: last confirmed value, `initial`, or `safe`
         std::uint16_t initial = 0;
         std::uint16_t safe = 0;
-        // The outcome of this entry's last transaction. A slot's status is its entry's, except
-        // the ID-2's slot 0, which its two reads share (slot_status).
-        gateway::ModuleStatus status = gateway::ModuleStatus::not_polled;
+        // The outcome of this entry's last transaction: the slot's status for a module, one of
+        // the two the ID-2's slot 0 is made of (update_slot).
+        gateway::ModuleStatus outcome = gateway::ModuleStatus::not_polled;
         std::optional<Clock::time_point> last_good{};
         std::shared_ptr<Trend> trend{};  // analog modules
     };
@@ -123,6 +123,8 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     asio::awaitable<WriteResult> reset_counter();
     void confirmed(std::size_t entry, std::uint16_t value);
     void store(std::size_t entry, const Reading& reading);
+    // The module's point values, from what it holds now (ModuleState::values).
+    void make_values(ModuleState& module);
     asio::awaitable<void> sleep_until(Clock::time_point when);
     asio::awaitable<void> set_outputs_to_initial();
     asio::awaitable<void> send_safe_state();

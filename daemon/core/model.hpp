@@ -10,22 +10,27 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "daemon/core/events.hpp"
 #include "daemon/core/poll_plan.hpp"  // Clock
 #include "daemon/core/trend.hpp"
 #include "link/serial_link.hpp"
 #include "protocol/gateway_map.hpp"
+#include "protocol/points.hpp"
 
 namespace ioport::daemon {
 
 // A configured module as the core last saw it. The values are the last good ones, however old:
-// `status` and `last_good` say whether they are still current.
+// status() and `last_good` say whether they are still current.
 struct ModuleState {
     std::string name;                        // "dim16 0", "ID-2"
     std::optional<ModuleAddress> address{};  // nullopt: the ID-2
     int slot = 0;
-    gateway::ModuleStatus status = gateway::ModuleStatus::not_polled;
+    // The unit's status of every slot, the one place a module's status is held (the Modbus
+    // map's planner reads it there); never null.
+    const gateway::UnitState* unit = nullptr;
+    gateway::ModuleStatus status() const { return unit->status[static_cast<std::size_t>(slot)]; }
     std::optional<Clock::time_point> last_good{};
     std::optional<Reading> reading{};       // input modules: the last good reading
     std::optional<std::uint16_t> output{};  // output modules: the state the device confirmed
@@ -35,6 +40,9 @@ struct ModuleState {
     // Names, units and scales (gateway.md §6.1); never null. Every value shown anywhere is
     // gateway::channel_value(type, raw, tags->channels[c].scale).
     const gateway::ModuleTags* tags = &gateway::no_tags;
+    // Its points' values (protocol/points.hpp), engineering values included: made once, when a
+    // reading or a confirmed output is stored or the tags change, and rendered by every output.
+    std::vector<std::optional<gateway::PointValue>> values{};
 };
 
 // "online", "no answer", "bad answer", "not polled yet", "not configured".

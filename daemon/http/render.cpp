@@ -63,11 +63,10 @@ std::vector<Channel> input_channels(const ModuleState& module) {
     if (!module.reading || is_output(type)) return channels;
     const auto& reading = *module.reading;
     if (full_scale(type) > 0) {
-        for (int ch = 0; ch < reading.count; ++ch)
-            channels.push_back(
-                {std::to_string(ch),
-                 gateway::channel_value(type, reading.raw[static_cast<std::size_t>(ch)],
-                                        *module.tags, static_cast<std::size_t>(ch))});
+        // raw0…, then value0…: the engineering values the link made when it stored the reading
+        const auto count = module.values.size() / 2;
+        for (std::size_t ch = 0; ch < count; ++ch)
+            channels.push_back({std::to_string(ch), std::get<float>(*module.values[count + ch])});
     } else {
         for (int bit = 0; bit < 16; ++bit)
             channels.push_back({std::to_string(bit), (reading.raw[0] >> bit & 1) != 0 ? 1.0 : 0.0});
@@ -159,7 +158,7 @@ void module_families(Exposition& out, const Links& links) {
         for (const auto& module : links[l]->modules())
             out.sample("ioportd_module_status",
                        {{"link", links[l]->config().name}, {"module", module.name}},
-                       static_cast<int>(module.status));
+                       static_cast<int>(module.status()));
     out.family("ioportd_module_age_seconds", "gauge",
                "Time since the module's last good transaction (absent before the first)");
     for (std::size_t l = 0; l < links.size(); ++l)
@@ -355,9 +354,9 @@ void module_values(Json& json, const ModuleState& module) {
                 const auto& tag = tags.channels[ch];
                 json.begin_object();
                 if (module.reading) {
-                    const auto raw = module.reading->raw[ch];
-                    json.member("raw", static_cast<int>(raw));
-                    json.member("value", gateway::channel_value(type, raw, tag.scale));
+                    json.member("raw", static_cast<int>(module.reading->raw[ch]));
+                    json.member("value",
+                                std::get<float>(*module.values[tags.channels.size() + ch]));
                 } else {
                     json.key("raw").null().key("value").null();
                 }
@@ -427,8 +426,8 @@ void link_json(Json& json, const LinkScheduler& link, Clock::time_point now) {
             .member("type", module.address ? name(module.address->type) : "id2")
             .member("number", module.address ? static_cast<int>(module.address->number) : 0)
             .member("slot", module.slot)
-            .member("status", static_cast<int>(module.status))
-            .member("status_text", status_text(module.status));
+            .member("status", static_cast<int>(module.status()))
+            .member("status_text", status_text(module.status()));
         json.key("age_seconds");
         const auto seconds = age(module, now);
         seconds ? json.value(*seconds) : json.null();

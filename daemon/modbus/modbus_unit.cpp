@@ -62,7 +62,8 @@ void ModbusUnit::store(const ModuleState& module) {
         return;
     }
     if (module.reading)
-        gateway::store_reading(tables, *module.address, *module.reading, word_order_, *module.tags);
+        gateway::store_reading(tables, *module.address, *module.reading, word_order_,
+                               module.values);
     if (module.output) gateway::store_output(tables, *module.address, *module.output);
 }
 

@@ -20,10 +20,6 @@ std::span<const std::uint8_t> bytes(std::string_view text) {
     return {reinterpret_cast<const std::uint8_t*>(text.data()), text.size()};
 }
 
-gateway::ModuleReadings readings_of(const ModuleState& view) {
-    return {view.reading, view.output, view.stop, view.count};
-}
-
 std::optional<ModuleType> type_of(const std::optional<ModuleAddress>& module) {
     return module ? std::optional(module->type) : std::nullopt;
 }
@@ -202,21 +198,20 @@ void MqttJsonOutput::changed(const LinkScheduler* link, int slot) {
 void MqttJsonOutput::update(Module& module) {
     const auto* view = module.link->module_at(module.slot);
     if (view == nullptr) return;
-    const bool online = view->status == gateway::ModuleStatus::online;
+    const bool online = view->status() == gateway::ModuleStatus::online;
     if (module.online != online &&
         publish(module.availability_topic, online ? online_text : offline_text, 1, true))
         module.online = online;
     // Offline: the last document stays, marked unavailable; the next one comes with fresh values.
     if (!online) return;
     const auto type = type_of(module.address);
-    std::vector<std::optional<gateway::PointValue>> now;
-    gateway::point_values(type, readings_of(*view), *view->tags, now);
+    const auto& now = view->values;
     const bool moved =
         module.state_due || module.values.size() != now.size() ||
         !gateway::changed_points(type, module.values, now, settings_.deadband).empty();
     if (!moved) return;
     module.state_due = !publish(module.state_topic, mqtt_json::state_json(type, now), 0, true);
-    if (!module.state_due) module.values = std::move(now);
+    if (!module.state_due) module.values = now;
 }
 
 void MqttJsonOutput::tick() {

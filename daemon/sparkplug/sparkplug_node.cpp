@@ -36,16 +36,6 @@ std::optional<ModuleType> type_of(const std::optional<ModuleAddress>& module) {
     return module ? std::optional(module->type) : std::nullopt;
 }
 
-gateway::ModuleReadings readings_of(const ModuleState& view) {
-    return {view.reading, view.output, view.stop, view.count};
-}
-
-std::vector<std::optional<gateway::PointValue>> point_values(const ModuleState& view) {
-    std::vector<std::optional<gateway::PointValue>> values;
-    gateway::point_values(type_of(view.address), readings_of(view), *view.tags, values);
-    return values;
-}
-
 std::optional<Value> metric_value(const std::optional<gateway::PointValue>& value) {
     return value ? std::optional(sparkplug::metric_value(*value)) : std::nullopt;
 }
@@ -409,7 +399,7 @@ void SparkplugNode::birth() {
     for (auto& device : devices_) {
         device.born = false;
         const auto view = device.link->module_at(device.slot);
-        if (view && view->status == gateway::ModuleStatus::online) {
+        if (view && view->status() == gateway::ModuleStatus::online) {
             device_birth(device, *view);
             ++devices;
         }
@@ -421,7 +411,7 @@ void SparkplugNode::birth() {
 
 void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
     const auto now = now_ms();
-    auto values = point_values(view);
+    const auto& values = view.values;
     Payload payload{now, next_seq(), {}};
     payload.metrics.reserve(device.metrics.size());
     for (std::size_t i = 0; i < device.metrics.size(); ++i)
@@ -429,7 +419,7 @@ void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
                                          wire(device.metrics[i].type), metric_value(values[i]),
                                          false, device.properties[i]});
     if (!publish(MessageType::dbirth, device.id, payload)) return;
-    device.published = std::move(values);
+    device.published = values;
     device.born = true;
 }
 
@@ -452,7 +442,7 @@ void SparkplugNode::changed(const LinkScheduler* link, int slot) {
 // metrics by name (aliases belong to a session) and their acquisition time.
 void SparkplugNode::keep(Device& device) {
     const auto view = device.link->module_at(device.slot);
-    if (!view || view->status != gateway::ModuleStatus::online) return;
+    if (!view || view->status() != gateway::ModuleStatus::online) return;
     auto data = changes(device, *view, MetricsBy::name);
     if (data.changed.empty()) return;
     if (!store_->pending()) backlog_oldest_ms_ = data.payload.timestamp;
@@ -579,7 +569,7 @@ void SparkplugNode::subscribed(int mid) {
 void SparkplugNode::update(Device& device) {
     const auto view = device.link->module_at(device.slot);
     if (!view) return;
-    const bool online = view->status == gateway::ModuleStatus::online;
+    const bool online = view->status() == gateway::ModuleStatus::online;
     if (!online) {
         if (device.born &&
             publish(MessageType::ddeath, device.id, Payload{now_ms(), next_seq(), {}}))
@@ -598,7 +588,7 @@ void SparkplugNode::update(Device& device) {
 
 SparkplugNode::Changes SparkplugNode::changes(Device& device, const ModuleState& view,
                                               MetricsBy by) const {
-    Changes data{point_values(view), {}, Payload{now_ms(), std::nullopt, {}}};
+    Changes data{view.values, {}, Payload{now_ms(), std::nullopt, {}}};
     // Never published in this process (kept while no session could take it): all is news.
     if (device.published.size() != data.values.size())
         device.published.assign(data.values.size(), std::nullopt);

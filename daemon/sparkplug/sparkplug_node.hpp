@@ -40,6 +40,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -161,8 +162,9 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     // session).
     enum class MetricsBy { alias, name };
     struct Changes {
-        std::vector<std::optional<gateway::PointValue>> values;  // every metric's point, now
-        std::vector<std::size_t> changed;                     // indexes into values
+        // every metric's point, now: the module's values in the link, for this call only
+        std::span<const std::optional<gateway::PointValue>> values;
+        std::vector<std::size_t> changed;  // indexes into values
         sparkplug::Payload payload;
     };
     Changes changes(Device& device, const ModuleState& view, MetricsBy by) const;

@@ -67,7 +67,7 @@ TEST_F(LinkEvents, EverySubscriberHearsEveryChangeTypedUntilItLetsGo) {
     ASSERT_NE(link->module_at(0), nullptr);
     ASSERT_TRUE(link->module_at(0)->reading);
     EXPECT_EQ(link->module_at(0)->reading->raw[0], 0x0005);
-    EXPECT_EQ(link->module_at(0)->status, gateway::ModuleStatus::online);
+    EXPECT_EQ(link->module_at(0)->status(), gateway::ModuleStatus::online);
 
     second_subscription.reset();
     const auto heard = second.size();
