@@ -18,9 +18,9 @@ struct JsonObject::Document {
 JsonObject::JsonObject(std::shared_ptr<const Document> document) : document_(std::move(document)) {}
 
 Result<JsonObject> JsonObject::parse(std::string_view text) {
-    auto document = std::make_shared<Document>();
+    nlohmann::json value;
     try {
-        document->value = nlohmann::json::parse(text);
+        value = nlohmann::json::parse(text);
     } catch (const nlohmann::json::parse_error& error) {
         // "[json.exception.parse_error.101] parse error at line 1, column 5: …": where reading
         // stopped and what was expected there, without the library's tag.
@@ -29,8 +29,8 @@ Result<JsonObject> JsonObject::parse(std::string_view text) {
             what.remove_prefix(tag + 2);
         return fail(Errc::malformed, fmt::format("not JSON: {}", what));
     }
-    if (!document->value.is_object()) return fail(Errc::malformed, "not a JSON object");
-    return JsonObject(std::move(document));
+    if (!value.is_object()) return fail(Errc::malformed, "not a JSON object");
+    return JsonObject(std::make_shared<const Document>(Document{std::move(value)}));
 }
 
 bool JsonObject::has(std::string_view key) const {
