@@ -12,15 +12,14 @@ namespace ioport::daemon {
 
 Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log,
                  DiskThread& disk)
-    : executor_(executor), config_(std::move(config)), log_(log), disk_(disk) {}
+    : executor_(executor),
+      config_(std::move(config)),
+      log_(log),
+      disk_(disk),
+      recorded_(bus_.subscribe([this](const BusEvent& event) { record(events_, event); })) {}
 
 std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) {
-    auto made = std::make_shared<LinkScheduler>(executor_, link, log_);
-    std::erase_if(recorded_, [](const auto& entry) { return entry.first.expired(); });
-    recorded_.emplace_back(made, made->subscribe([this](const Change& change) {
-        if (change.event) events_.add(*change.event);
-    }));
-    return made;
+    return std::make_shared<LinkScheduler>(executor_, link, log_, bus_);
 }
 
 std::shared_ptr<HttpServer> Gateway::make_http(const config::HttpSettings& settings) {
@@ -37,11 +36,10 @@ Result<> Gateway::start() {
     for (const auto& link : config_.links)
         links_.push_back(make_link(link));
     // Comm loss reaches the links running then: a reload replaces links_, not this callback.
-    server_ =
-        std::make_shared<ModbusServer>(executor_, config_.modbus, links_, log_, events_, [this] {
-            for (auto& link : links_)
-                link->enter_safe_state();
-        });
+    server_ = std::make_shared<ModbusServer>(executor_, config_.modbus, links_, log_, bus_, [this] {
+        for (auto& link : links_)
+            link->enter_safe_state();
+    });
     for (auto& link : links_)
         link->start();
     if (auto started = server_->start(); !started) return started;
@@ -61,7 +59,7 @@ void Gateway::log_warnings() {
 
 Result<> Gateway::start_sparkplug(std::uint64_t next_bdseq) {
     if (!config_.mqtt) return {};
-    auto node = SparkplugNode::create(executor_, *config_.mqtt, log_, events_, disk_, next_bdseq);
+    auto node = SparkplugNode::create(executor_, *config_.mqtt, log_, bus_, disk_, next_bdseq);
     if (!node) return Unexpected(node.error());
     sparkplug_ = std::move(*node);
     sparkplug_->set_read_only(config_.modbus.read_only);
@@ -71,7 +69,7 @@ Result<> Gateway::start_sparkplug(std::uint64_t next_bdseq) {
 
 Result<> Gateway::start_mqtt_json() {
     if (!config_.mqtt_json) return {};
-    auto output = MqttJsonOutput::create(executor_, *config_.mqtt_json, log_, events_);
+    auto output = MqttJsonOutput::create(executor_, *config_.mqtt_json, log_, bus_);
     if (!output) return Unexpected(output.error());
     mqtt_json_ = std::move(*output);
     mqtt_json_->set_read_only(config_.modbus.read_only);
@@ -189,7 +187,8 @@ Result<std::string> Gateway::reload(config::GatewayConfig next) {
         modbus_changed ? "changed" : "unchanged", http_changed ? "changed" : "unchanged",
         mqtt_changed ? "changed" : "unchanged", mqtt_json_changed ? "changed" : "unchanged",
         list(names.retagged));
-    events_.add(EventKind::reload, {}, {}, {}, fmt::format("configuration reloaded: {}", summary));
+    bus_.publish(Note{.kind = EventKind::reload,
+                      .text = fmt::format("configuration reloaded: {}", summary)});
     return summary;
 }
 

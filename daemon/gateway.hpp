@@ -50,12 +50,13 @@ class Gateway {
 
     // What the HTTP side shows.
     GatewayView view() const;
-    EventLog& events() { return events_; }
+    // Where the gateway's parts tell what happened; main tells a refused reload there.
+    EventBus& bus() { return bus_; }
     // The HTTP server's address; nullopt when it is off.
     std::optional<asio::ip::tcp::endpoint> http_endpoint() const;
 
   private:
-    // A new link, its events recorded in the event log.
+    // A new link, telling the bus.
     std::shared_ptr<LinkScheduler> make_link(const config::LinkConfig& link);
     std::shared_ptr<HttpServer> make_http(const config::HttpSettings& settings);
     // A reload's first HTTP step: binds the new address, if it moved (into next_http_).
@@ -71,9 +72,10 @@ class Gateway {
     Log& log_;
     DiskThread& disk_;
     const std::string host_name_ = machine_host_name();  // read once: HTTP's Host check
-    EventLog events_;
-    // The event log's own: one per link still alive (a removed link may finish a write).
-    std::vector<std::pair<std::weak_ptr<LinkScheduler>, LinkScheduler::Subscription>> recorded_;
+    // Before everything that tells it something, so that it outlives them.
+    EventBus bus_;
+    EventLog events_;                  // for the status page
+    EventBus::Subscription recorded_;  // of events_, a subscriber like any other
     std::chrono::system_clock::time_point started_ = std::chrono::system_clock::now();
     Links links_;
     std::shared_ptr<ModbusServer> server_;

@@ -118,15 +118,16 @@ class Daemon {
             auto text = fmt::format("SIGHUP: {} error(s) in {}; the running configuration is kept",
                                     next.error().size(), path);
             log_.error({}, "{}", text);
-            gateway_.events().add(ioport::daemon::EventKind::reload, {}, {}, {}, std::move(text));
+            gateway_.bus().publish(
+                ioport::daemon::Note{.kind = ioport::daemon::EventKind::reload, .text = text});
         } else {
             const auto level = next->log_level;
             if (auto applied = gateway_.reload(std::move(*next)); !applied) {
                 auto text = fmt::format("SIGHUP: {}; the running configuration is kept",
                                         applied.error().message);
                 log_.error({}, "{}", text);
-                gateway_.events().add(ioport::daemon::EventKind::reload, {}, {}, {},
-                                      std::move(text));
+                gateway_.bus().publish(
+                    ioport::daemon::Note{.kind = ioport::daemon::EventKind::reload, .text = text});
             } else {
                 if (!options_.log_level) log_.set_level(level);
                 log_.info({}, "SIGHUP: reloaded {}: {}", path, *applied);

@@ -74,6 +74,7 @@
 #include "protocol/device_identification.hpp"
 #include "protocol/gateway_map.hpp"
 #include "protocol/modbus.hpp"
+#include "protocol/points.hpp"
 #include "protocol/request_labels.hpp"
 
 namespace ioport::fuzz {
@@ -350,7 +351,9 @@ void store_polled(const Unit& unit, gateway::WordOrder order) {
         for (std::size_t c = 0; c < reading.raw.size(); ++c)
             reading.raw[c] = static_cast<std::uint16_t>(
                 static_cast<std::size_t>(slot(module.address)) * 0x0301 + c * 0x1111);
-        gateway::store_reading(tables, module.address, reading, order, module.tags);
+        std::vector<std::optional<gateway::PointValue>> values;
+        gateway::point_values(module.address.type, {reading, {}, {}, {}}, module.tags, values);
+        gateway::store_reading(tables, module.address, reading, order, values);
     }
 }
 

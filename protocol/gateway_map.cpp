@@ -7,8 +7,6 @@
 #include <optional>
 #include <string_view>
 
-#include "protocol/points.hpp"
-
 namespace ioport::gateway {
 namespace {
 
@@ -767,13 +765,6 @@ void store_reading(const Tables& tables, ModuleAddress module, const Reading& re
                 break;  // not a reading's: outputs, the ID-2, diagnostics
         }
     });
-}
-
-void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
-                   WordOrder order, const ModuleTags& tags) {
-    std::vector<std::optional<PointValue>> values;
-    point_values(module.type, {reading, {}, {}, {}}, tags, values);
-    store_reading(tables, module, reading, order, values);
 }
 
 void store_output(const Tables& tables, ModuleAddress module, std::uint16_t value) {

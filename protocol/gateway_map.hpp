@@ -125,9 +125,6 @@ Plan read_back(const UnitState& unit, const Policy& policy, std::uint16_t addres
 // reading, as every output shows it.
 void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
                    WordOrder order, std::span<const std::optional<PointValue>> values);
-// The same, with the point values made here, scaled as `tags` say.
-void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
-                   WordOrder order, const ModuleTags& tags = no_tags);
 // A confirmed output state: dom16 holding register n and coils 16n…16n+15; rgbdm 8 + n;
 // mux8m 16 + n.
 void store_output(const Tables& tables, ModuleAddress module, std::uint16_t value);

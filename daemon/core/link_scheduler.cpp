@@ -71,9 +71,10 @@ struct LinkScheduler::PendingWrite {
 };
 
 LinkScheduler::LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link,
-                             Log& log)
+                             Log& log, EventBus& bus)
     : config_(link),
       log_(log),
+      bus_(bus),
       link_(executor, link_settings(link)),
       wake_(executor),
       plan_(poll_entries(link)) {
@@ -124,7 +125,7 @@ void LinkScheduler::retag(const config::LinkConfig& next) {
         config_.modules[i].tags = next.modules[i].tags;
     for (auto& module : modules_)
         make_values(module);  // rescaled
-    notify({.kind = Change::Kind::tags, .slot = -1});
+    bus_.publish(TagsChanged{this});
 }
 
 void LinkScheduler::start() {
@@ -180,9 +181,7 @@ bool LinkScheduler::try_open() {
         state_.port_open = true;
         last_open_error_.clear();
         plan_.port_opened(Clock::now());
-        const Event event{
-            .kind = EventKind::port_up, .link = config_.name, .text = std::move(text)};
-        notify({.kind = Change::Kind::port, .event = &event});
+        bus_.publish(PortChanged{this, true, text});
         return true;
     }
     if (opened.error().message != last_open_error_) {
@@ -298,7 +297,7 @@ void LinkScheduler::store(std::size_t index, const Reading& reading) {
     }
     make_values(module);
     if (entry.trend) entry.trend->add(std::chrono::system_clock::now(), reading.raw);
-    notify({.kind = Change::Kind::values, .slot = entry.slot});
+    bus_.publish(ValuesChanged{this, &module});
 }
 
 asio::awaitable<void> LinkScheduler::refresh(std::size_t entry) {
@@ -312,7 +311,7 @@ void LinkScheduler::confirmed(std::size_t entry, std::uint16_t value) {
     auto& module = modules_[entries_[entry].module];
     module.output = value;
     make_values(module);
-    notify({.kind = Change::Kind::values, .slot = entries_[entry].slot});
+    bus_.publish(ValuesChanged{this, &module});
 }
 
 asio::awaitable<WriteResult> LinkScheduler::write(gateway::WritePlan plan, WriteOrigin origin) {
@@ -353,11 +352,7 @@ void LinkScheduler::audit(const WriteOrigin& origin, WriteResult result) {
     log_.notice(
         {.link = config_.name, .unit = config_.unit_id, .client = origin.client, .audit = &audit},
         "{}", text);
-    const Event event{.kind = EventKind::write,
-                      .link = config_.name,
-                      .client = origin.client,
-                      .text = std::move(text)};
-    notify({.kind = Change::Kind::write, .event = &event});
+    bus_.publish(WriteAudited{this, &origin, result, text});
 }
 
 // Counted, and logged at most once a minute with the number refused meanwhile: the writer is a
@@ -509,24 +504,20 @@ void LinkScheduler::update_slot(const Entry& changed, const Error* error) {
 void LinkScheduler::set_status(int slot_index, ModuleStatus status, const Error* error) {
     auto& current = state_.status[static_cast<std::size_t>(slot_index)];
     if (current == status) return;
-    const bool was_online = current == ModuleStatus::online;
-    current = status;
+    const auto before = std::exchange(current, status);
+    const bool was_online = before == ModuleStatus::online;
     const auto& module =
         modules_[static_cast<std::size_t>(module_of_slot_[static_cast<std::size_t>(slot_index)])];
-    Event event{.link = config_.name, .module = module.name};
+    std::string text;
     if (status == ModuleStatus::online) {
-        event.kind = EventKind::module_online;
-        event.text = fmt::format("link {}: {} online", config_.name, module.name);
-        log_.info(fields(module.name), "{}", event.text);
+        text = fmt::format("link {}: {} online", config_.name, module.name);
+        log_.info(fields(module.name), "{}", text);
     } else if (was_online || error) {
-        event.kind = EventKind::module_offline;
-        event.text = fmt::format("link {}: {} offline: {}", config_.name, module.name,
-                                 error ? error->message : std::string("port closed"));
-        log_.warn(fields(module.name), "{}", event.text);
+        text = fmt::format("link {}: {} offline: {}", config_.name, module.name,
+                           error ? error->message : std::string("port closed"));
+        log_.warn(fields(module.name), "{}", text);
     }
-    notify({.kind = Change::Kind::status,
-            .slot = slot_index,
-            .event = event.text.empty() ? nullptr : &event});
+    bus_.publish(StatusChanged{this, &module, before, status, text});
 }
 
 void LinkScheduler::port_lost(const Error& error) {
@@ -542,40 +533,29 @@ void LinkScheduler::port_lost(const Error& error) {
         if (module.status() != ModuleStatus::not_polled)
             state_.status[static_cast<std::size_t>(module.slot)] = ModuleStatus::no_answer;
     fail_pending_writes(WriteResult::link_down);
-    const Event event{.kind = EventKind::port_down, .link = config_.name, .text = std::move(text)};
-    notify({.kind = Change::Kind::port, .event = &event});
+    bus_.publish(PortChanged{this, false, text});
 }
 
-LinkScheduler::Subscription LinkScheduler::subscribe(Observer observer) {
-    auto subscription = std::make_shared<const Observer>(std::move(observer));
-    observers_.push_back(subscription);
-    return subscription;
-}
-
-std::vector<LinkScheduler::Subscription> watch_module_data(
-    const Links& links, const std::function<void(const LinkScheduler* link, int slot)>& changed) {
-    std::vector<LinkScheduler::Subscription> subscriptions;
+EventBus::Subscription watch_module_data(
+    EventBus& bus, const Links& links,
+    const std::function<void(const LinkScheduler* link, int slot)>& changed) {
+    std::vector<const LinkScheduler*> watched;
     for (const auto& link : links)
-        subscriptions.push_back(link->subscribe([changed, raw = link.get()](const Change& change) {
-            switch (change.kind) {
-                case Change::Kind::values:
-                case Change::Kind::status:
-                case Change::Kind::port:
-                    changed(raw, change.slot);
-                    return;
-                case Change::Kind::write:
-                case Change::Kind::tags:
-                    return;
-            }
-        }));
-    return subscriptions;
-}
-
-void LinkScheduler::notify(const Change& change) {
-    std::erase_if(observers_, [](const auto& observer) { return observer.expired(); });
-    // By index: an observer may subscribe while called; the call holds its own observer alive.
-    for (std::size_t i = 0; i < observers_.size(); ++i)
-        if (const auto observer = observers_[i].lock()) (*observer)(change);
+        watched.push_back(link.get());
+    auto subscription = bus.subscribe([changed, watched](const BusEvent& event) {
+        const auto* link = link_of(event);
+        if (link == nullptr || std::ranges::find(watched, link) == watched.end()) return;
+        std::visit(
+            [&](const auto& e) {
+                using E = std::decay_t<decltype(e)>;
+                if constexpr (std::is_same_v<E, ValuesChanged> || std::is_same_v<E, StatusChanged>)
+                    changed(link, e.module->slot);
+                else if constexpr (std::is_same_v<E, PortChanged>)
+                    changed(link, -1);
+            },
+            event);
+    });
+    return subscription;
 }
 
 void LinkScheduler::fail_pending_writes(WriteResult outcome) {

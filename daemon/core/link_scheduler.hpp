@@ -20,7 +20,7 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
-#include "daemon/core/events.hpp"
+#include "daemon/core/bus.hpp"
 #include "daemon/core/model.hpp"
 #include "daemon/core/poll_plan.hpp"
 #include "daemon/core/trend.hpp"
@@ -38,7 +38,9 @@ inline constexpr std::chrono::microseconds watchdog_slack = 1s;
 
 class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
   public:
-    LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link, Log& log);
+    // `bus`: where it tells what happens (core/bus.hpp): values, statuses, its port, writes.
+    LinkScheduler(const asio::any_io_executor& executor, const config::LinkConfig& link, Log& log,
+                  EventBus& bus);
     LinkScheduler(const LinkScheduler&) = delete;
     LinkScheduler& operator=(const LinkScheduler&) = delete;
 
@@ -53,8 +55,10 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     void stop();
 
     const config::LinkConfig& config() const { return config_; }
+    // Where it tells what happens; the gateway's one.
+    EventBus& bus() const { return bus_; }
     // A reload that changed only names, units or scales (`next` == config() as settings): the
-    // link keeps running, its port open and its outputs as they are; subscribers are told.
+    // link keeps running, its port open and its outputs as they are; the bus is told.
     void retag(const config::LinkConfig& next);
     // The port and every slot's status, as the Modbus map's planner decides requests by.
     const gateway::UnitState& state() const { return state_; }
@@ -63,7 +67,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     // at once (busy) when max_pending_writes are waiting: a flood of writes, from whichever
     // path, must neither grow without bound nor be applied hours after it was asked for. A write
     // that reached the link is audited once its outcome is known: logged (with the journal's
-    // audit fields) and told to the subscribers as a Change::Kind::write, in `origin`'s words.
+    // audit fields) and published as WriteAudited, in `origin`'s words.
     asio::awaitable<WriteResult> write(gateway::WritePlan plan, WriteOrigin origin);
     // Communication loss (gateway.md §5.3): every output module's safe value becomes its desired
     // state and is sent next, after the transaction in flight; the writes still waiting are
@@ -77,14 +81,6 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     const std::vector<ModuleState>& modules() const { return modules_; }
     // The module of `slot` (the ID-2's is 0); null when none is configured there.
     const ModuleState* module_at(int slot) const;
-    // `observer` is called on the loop, at once, with every Change: a module's values stored,
-    // its status changed, the port opened or lost, a write audited. It must not block; it may
-    // compare and publish. Each subscriber has its own place: dropping the Subscription ends its
-    // calls and no other's (a node replaced by a reload may outlive its successor's
-    // subscriptions while a command of its own finishes).
-    using Observer = std::function<void(const Change& change)>;
-    using Subscription = std::shared_ptr<const Observer>;
-    [[nodiscard]] Subscription subscribe(Observer observer);
     // Writes by WriteResult: the clients', and the safe state of a communication loss.
     const std::array<std::uint64_t, write_result_count>& writes() const { return writes_count_; }
     const LinkCounters& counters() const { return link_.counters(); }
@@ -135,7 +131,6 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     void update_slot(const Entry& changed, const Error* error);
     void set_status(int slot, gateway::ModuleStatus status, const Error* error);
     void port_lost(const Error& error);
-    void notify(const Change& change);
     void audit(const WriteOrigin& origin, WriteResult result);
     void fail_pending_writes(WriteResult outcome);
     void refuse_busy();
@@ -143,6 +138,7 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
 
     config::LinkConfig config_;
     Log& log_;
+    EventBus& bus_;
     SerialLink link_;
     asio::steady_timer wake_;
     PollPlan plan_;
@@ -157,7 +153,6 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
     bool stopping_ = false;
     std::optional<config::OnShutdown> finishing_;
     std::function<void()> finished_;
-    std::vector<std::weak_ptr<const Observer>> observers_;
     std::string last_open_error_;
     Clock::time_point woke_ = Clock::now();  // started, or last woke from a sleep
     std::optional<Clock::time_point> asleep_until_;
@@ -167,11 +162,12 @@ class LinkScheduler : public std::enable_shared_from_this<LinkScheduler> {
 using Links = std::vector<std::shared_ptr<LinkScheduler>>;
 
 // For the outputs that publish modules as they change (Sparkplug, plain MQTT): a subscription to
-// each of `links` that calls changed(link, slot) when a module's values or status change (slot
-// -1: every module of the link). A write's values come as a change of their own; new names and
-// units reach the output through its set_links() at the reload.
-std::vector<LinkScheduler::Subscription> watch_module_data(
-    const Links& links, const std::function<void(const LinkScheduler* link, int slot)>& changed);
+// the bus that calls changed(link, slot) when a module of one of `links` changes its values or
+// status (slot -1: every module of the link, its port opened or lost). A write's values come as
+// a change of their own; new names and units reach the output through the reload.
+EventBus::Subscription watch_module_data(
+    EventBus& bus, const Links& links,
+    const std::function<void(const LinkScheduler* link, int slot)>& changed);
 
 // /healthz (gateway.md §5.4): every link's port open and every module online.
 struct Health {

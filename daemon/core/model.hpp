@@ -1,5 +1,5 @@
-// The one read model: what the core knows of each configured module, and the changes it tells
-// whoever subscribed. Every transport renders this — the Modbus server its register image, the
+// The one read model: what the core knows of each configured module (the bus, core/bus.hpp,
+// tells what changes). Every transport renders this — the Modbus server its register image, the
 // HTTP side its pages, the Sparkplug node its metrics — and none keeps a second copy of a
 // module's values or status. Only the gateway's vocabulary (protocol/gateway_map.hpp: statuses,
 // write plans) is shared with the Modbus map; nothing here knows a register or a topic.
@@ -12,7 +12,6 @@
 #include <string_view>
 #include <vector>
 
-#include "daemon/core/events.hpp"
 #include "daemon/core/poll_plan.hpp"  // Clock
 #include "daemon/core/trend.hpp"
 #include "link/serial_link.hpp"
@@ -64,21 +63,6 @@ struct WriteOrigin {
     std::string value{};     // "[1, 0]", "true"
     std::string request{};   // the audit line's words for it: "FC 06 address 1101 values [1]"
     Clock::time_point asked = Clock::now();
-};
-
-// What a link tells its subscribers, on the loop, the moment it happens.
-struct Change {
-    enum class Kind {
-        values,  // a module's reading or confirmed output was stored
-        status,  // a module went online or offline
-        port,    // the port opened, or was lost (every module's status with it)
-        write,   // a write's outcome is known and audited
-        tags,    // a reload changed names, units or scales (slot -1); values are unchanged
-    };
-    Kind kind = Kind::values;
-    int slot = -1;  // values, status: the module's slot; -1: every module
-    // status, port, write: what the event log keeps (seq and time are the log's own).
-    const Event* event = nullptr;
 };
 
 }  // namespace ioport::daemon

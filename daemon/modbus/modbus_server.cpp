@@ -161,13 +161,13 @@ struct ModbusServer::Connection {
 };
 
 ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                           const Links& links, Log& log, EventLog& events,
+                           const Links& links, Log& log, EventBus& bus,
                            std::function<void()> comm_lost)
     : executor_(executor),
       settings_(std::move(settings)),
       policy_{settings_.read_only, settings_.stale},
       log_(log),
-      events_(events),
+      bus_(bus),
       accept_retry_(executor),
       scratch_(scratch_mapping()),
       comm_lost_(std::move(comm_lost)),
@@ -299,7 +299,7 @@ void ModbusServer::comm_loss_due(const boost::system::error_code& ec) {
         "and keeps it until a client writes it",
         format_duration(settings_.comm_loss_timeout));
     log_.warn({.comm_loss = true}, "{}", text);
-    events_.add(EventKind::comm_loss, {}, {}, {}, std::move(text));
+    bus_.publish(Note{.kind = EventKind::comm_loss, .text = text});
     if (comm_lost_) comm_lost_();
 }
 
@@ -446,7 +446,8 @@ void ModbusServer::close_revoked() {
             "the reloaded modbus.tls.client_crl",
             connection->peer, tls_peer(*connection->tls).subject, *serial);
         log_.warn({.client = connection->peer}, "{}", text);
-        events_.add(EventKind::client_refused, {}, {}, connection->peer, std::move(text));
+        bus_.publish(
+            Note{.kind = EventKind::client_refused, .client = connection->peer, .text = text});
         connection->close();
     }
 }
@@ -555,8 +556,9 @@ void ModbusServer::log_refusal(const asio::ip::address& address, const std::stri
     log_.warn({.client = client},
               "refused Modbus client {}: {} (logged once a minute per address and reason){}",
               client, why, held_back(*held));
-    events_.add(EventKind::client_refused, {}, {}, client,
-                fmt::format("refused Modbus client {}: {}", client, why));
+    bus_.publish(Note{.kind = EventKind::client_refused,
+                      .client = client,
+                      .text = fmt::format("refused Modbus client {}: {}", client, why)});
 }
 
 // Keepalive reaps clients that vanished without a FIN: their connection would otherwise hold a

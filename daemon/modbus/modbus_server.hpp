@@ -24,7 +24,6 @@
 #include <modbus/modbus.h>
 
 #include "config/gateway_config.hpp"
-#include "daemon/core/events.hpp"
 #include "daemon/core/histogram.hpp"
 #include "daemon/core/link_scheduler.hpp"
 #include "daemon/listener.hpp"
@@ -78,8 +77,7 @@ class ModbusServer : public std::enable_shared_from_this<ModbusServer> {
     // exactly one). `comm_lost`: called when no request has come from any client for
     // settings.comm_loss_timeout (gateway.md §5.3); not again until a request has come.
     ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                 const Links& links, Log& log, EventLog& events,
-                 std::function<void()> comm_lost = {});
+                 const Links& links, Log& log, EventBus& bus, std::function<void()> comm_lost = {});
     ModbusServer(const ModbusServer&) = delete;
     ModbusServer& operator=(const ModbusServer&) = delete;
     ~ModbusServer();
@@ -204,7 +202,7 @@ class ModbusServer : public std::enable_shared_from_this<ModbusServer> {
     config::ModbusSettings settings_;
     gateway::Policy policy_;
     Log& log_;
-    EventLog& events_;
+    EventBus& bus_;
     ModbusStats stats_;
     std::array<std::shared_ptr<ModbusUnit>, 256> units_{};
     Listener plain_;

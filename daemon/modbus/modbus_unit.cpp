@@ -33,25 +33,17 @@ ModbusUnit::ModbusUnit(std::shared_ptr<LinkScheduler> link, gateway::WordOrder w
     for (const auto& module : link_->modules())
         store(module);
     (void)image(true);
-    subscription_ = link_->subscribe([this](const Change& change) {
-        switch (change.kind) {
-            case Change::Kind::values:
-                store(change.slot);
-                break;
-            case Change::Kind::tags:  // rescaled: the float32 registers again
-                for (const auto& module : link_->modules())
-                    store(module);
-                break;
-            case Change::Kind::status:
-            case Change::Kind::port:
-            case Change::Kind::write:
-                break;  // the diagnostics are made per request, by image()
+    // The image follows the link's values as they are stored; the diagnostics are made per
+    // request, by image().
+    subscription_ = link_->bus().subscribe([this](const BusEvent& event) {
+        if (link_of(event) != link_.get()) return;
+        if (const auto* changed = std::get_if<ValuesChanged>(&event)) {
+            store(*changed->module);
+        } else if (std::holds_alternative<TagsChanged>(event)) {  // rescaled: every float again
+            for (const auto& module : link_->modules())
+                store(module);
         }
     });
-}
-
-void ModbusUnit::store(int slot) {
-    if (const auto* module = link_->module_at(slot)) store(*module);
 }
 
 void ModbusUnit::store(const ModuleState& module) {

@@ -38,14 +38,13 @@ class ModbusUnit {
     const gateway::Tables& tables() const { return image_.tables(); }
 
   private:
-    void store(int slot);
     void store(const ModuleState& module);
 
     std::shared_ptr<LinkScheduler> link_;
     gateway::WordOrder word_order_;
     modbus::DeviceIdentity identity_;
     UnitImage image_;
-    LinkScheduler::Subscription subscription_;
+    EventBus::Subscription subscription_;
 };
 
 }  // namespace ioport::daemon

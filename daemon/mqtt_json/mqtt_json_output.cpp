@@ -28,8 +28,8 @@ std::optional<ModuleType> type_of(const std::optional<ModuleAddress>& module) {
 
 Result<std::shared_ptr<MqttJsonOutput>> MqttJsonOutput::create(
     const asio::any_io_executor& executor, const config::MqttJsonSettings& settings, Log& log,
-    EventLog& events) {
-    std::shared_ptr<MqttJsonOutput> output(new MqttJsonOutput(executor, settings, log, events));
+    EventBus& bus) {
+    std::shared_ptr<MqttJsonOutput> output(new MqttJsonOutput(executor, settings, log, bus));
     std::weak_ptr<MqttJsonOutput> weak = output;
     auto client = MqttClient::create(
         executor, settings.connection, MqttClient::Protocol::mqtt5(mqtt_json_maximum_packet_size),
@@ -54,13 +54,13 @@ Result<std::shared_ptr<MqttJsonOutput>> MqttJsonOutput::create(
 }
 
 MqttJsonOutput::MqttJsonOutput(const asio::any_io_executor& executor,
-                               config::MqttJsonSettings settings, Log& log, EventLog& events)
+                               config::MqttJsonSettings settings, Log& log, EventBus& bus)
     : executor_(executor),
       settings_(std::move(settings)),
       node_{settings_.discovery_prefix, settings_.topic_prefix, IOPORTD_VERSION},
       status_topic_(mqtt_json::status_topic(settings_.topic_prefix)),
       log_(log),
-      events_(events),
+      bus_(bus),
       ticker_(executor) {}
 
 void MqttJsonOutput::start(const Links& links) {
@@ -102,7 +102,7 @@ void MqttJsonOutput::build(const Links& links) {
 
 void MqttJsonOutput::watch_links() {
     const std::weak_ptr<MqttJsonOutput> weak = shared_from_this();
-    subscriptions_ = watch_module_data(links_, [weak](const LinkScheduler* link, int slot) {
+    subscription_ = watch_module_data(bus_, links_, [weak](const LinkScheduler* link, int slot) {
         if (auto self = weak.lock()) self->changed(link, slot);
     });
 }
@@ -126,7 +126,7 @@ void MqttJsonOutput::set_links(const Links& links) {
 void MqttJsonOutput::stop(std::chrono::milliseconds deadline, std::function<void()> done) {
     stopping_ = true;
     ticker_.cancel();
-    subscriptions_.clear();
+    subscription_.reset();
     // The will is for an unexpected end; a clean one says so itself.
     if (client_->connected())
         publish(status_topic_, offline_text, 1, true, MqttClient::Bound::none);
@@ -272,7 +272,8 @@ void MqttJsonOutput::refuse(std::string_view key, const LogFields& fields, std::
     if (!held) return;
     text += held_back(*held);
     log_.warn(fields, "{} (logged once a minute per module and reason)", text);
-    events_.add(EventKind::write, fields.link, {}, "mqtt_json", std::move(text));
+    bus_.publish(
+        Note{.kind = EventKind::write, .link = fields.link, .client = "mqtt_json", .text = text});
 }
 
 void MqttJsonOutput::set(const mqtt_json::SetTopic& topic, std::string_view payload,

@@ -62,7 +62,7 @@ class MqttJsonOutput : public std::enable_shared_from_this<MqttJsonOutput> {
   public:
     static Result<std::shared_ptr<MqttJsonOutput>> create(const asio::any_io_executor& executor,
                                                           const config::MqttJsonSettings& settings,
-                                                          Log& log, EventLog& events);
+                                                          Log& log, EventBus& bus);
     ~MqttJsonOutput() = default;
     MqttJsonOutput(const MqttJsonOutput&) = delete;
     MqttJsonOutput& operator=(const MqttJsonOutput&) = delete;
@@ -96,7 +96,7 @@ class MqttJsonOutput : public std::enable_shared_from_this<MqttJsonOutput> {
     };
 
     MqttJsonOutput(const asio::any_io_executor& executor, config::MqttJsonSettings settings,
-                   Log& log, EventLog& events);
+                   Log& log, EventBus& bus);
     void build(const Links& links);
     void watch_links();
     void connecting();
@@ -119,10 +119,10 @@ class MqttJsonOutput : public std::enable_shared_from_this<MqttJsonOutput> {
     mqtt_json::Node node_;
     std::string status_topic_;
     Log& log_;
-    EventLog& events_;
+    EventBus& bus_;
     std::shared_ptr<MqttClient> client_;
     asio::steady_timer ticker_;
-    std::vector<LinkScheduler::Subscription> subscriptions_;
+    EventBus::Subscription subscription_;
     LogLimiter refusals_;
     Links links_;
     std::vector<Module> modules_;

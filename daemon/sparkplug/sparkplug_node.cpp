@@ -66,10 +66,10 @@ std::string value_text(const std::optional<Value>& value) {
 
 Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_executor& executor,
                                                              const config::MqttSettings& settings,
-                                                             Log& log, EventLog& events,
+                                                             Log& log, EventBus& bus,
                                                              DiskThread& disk,
                                                              std::uint64_t next_bdseq) {
-    std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, events));
+    std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, bus));
     node->next_bdseq_ = next_bdseq % 256;
     std::weak_ptr<SparkplugNode> weak = node;
     // MQTT 3.1.1: the Sparkplug hosts and the TCK rules this node is held to (MQTT 5 would make
@@ -112,11 +112,11 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
 }
 
 SparkplugNode::SparkplugNode(const asio::any_io_executor& executor, config::MqttSettings settings,
-                             Log& log, EventLog& events)
+                             Log& log, EventBus& bus)
     : executor_(executor),
       settings_(std::move(settings)),
       log_(log),
-      events_(events),
+      bus_(bus),
       ticker_(executor),
       rebirth_timer_(executor),
       host_online_(settings_.primary_host_id.empty()),
@@ -159,7 +159,7 @@ void SparkplugNode::build(const Links& links) {
 
 void SparkplugNode::watch_links() {
     const std::weak_ptr<SparkplugNode> weak = shared_from_this();
-    subscriptions_ = watch_module_data(links_, [weak](const LinkScheduler* link, int slot) {
+    subscription_ = watch_module_data(bus_, links_, [weak](const LinkScheduler* link, int slot) {
         if (auto self = weak.lock()) self->changed(link, slot);
     });
 }
@@ -205,7 +205,7 @@ void SparkplugNode::stop(std::chrono::milliseconds deadline, std::function<void(
     rebirth_timer_.cancel();
     forward_timer_.cancel();
     host_timer_.cancel();
-    subscriptions_.clear();
+    subscription_.reset();
     // The will is for an unexpected end; a clean one says so itself (Sparkplug 3.0 §7.3).
     if (client_->connected()) publish_death();
     born_ = false;
@@ -747,7 +747,8 @@ void SparkplugNode::refuse(std::string_view key, const LogFields& fields, std::s
     if (!held) return;
     text += held_back(*held);
     log_.warn(fields, "{} (logged once a minute per device and reason)", text);
-    events_.add(EventKind::write, fields.link, {}, "sparkplug", std::move(text));
+    bus_.publish(
+        Note{.kind = EventKind::write, .link = fields.link, .client = "sparkplug", .text = text});
 }
 
 void SparkplugNode::command(const sparkplug::Topic& topic, std::span<const std::uint8_t> bytes) {

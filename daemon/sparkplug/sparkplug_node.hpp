@@ -96,8 +96,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     // for the store.
     static Result<std::shared_ptr<SparkplugNode>> create(const asio::any_io_executor& executor,
                                                          const config::MqttSettings& settings,
-                                                         Log& log, EventLog& events,
-                                                         DiskThread& disk,
+                                                         Log& log, EventBus& bus, DiskThread& disk,
                                                          std::uint64_t next_bdseq = 0);
     ~SparkplugNode() = default;
     SparkplugNode(const SparkplugNode&) = delete;
@@ -140,7 +139,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     };
 
     SparkplugNode(const asio::any_io_executor& executor, config::MqttSettings settings, Log& log,
-                  EventLog& events);
+                  EventBus& bus);
     void build(const Links& links);
     void watch_links();
     void connecting();
@@ -190,11 +189,11 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     asio::any_io_executor executor_;
     config::MqttSettings settings_;
     Log& log_;
-    EventLog& events_;
+    EventBus& bus_;
     std::shared_ptr<MqttClient> client_;
     asio::steady_timer ticker_;
     asio::steady_timer rebirth_timer_;
-    std::vector<LinkScheduler::Subscription> subscriptions_;
+    EventBus::Subscription subscription_;
     LogLimiter refusals_;
     std::vector<Device> devices_;
     std::vector<LinkMetrics> links_published_;

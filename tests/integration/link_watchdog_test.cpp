@@ -32,13 +32,13 @@ class LinkWatchdog : public ::testing::Test {
     asio::io_context io;
     PtyDevice device{io};
     Log log{Log::Target::standard_error, config::LogLevel::off};
-    EventLog events;
+    EventBus bus;
 };
 
 TEST_F(LinkWatchdog, ALoopThatStopsActingIsStuckOneTimeoutAndTheSlackLater) {
     const auto timeout = 200ms;
-    auto link =
-        std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout), log);
+    auto link = std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout),
+                                                log, bus);
     const auto before = Clock::now();
     link->start();
     ASSERT_TRUE(run_until(io, [&] { return !device.requests().empty(); }));
@@ -54,8 +54,8 @@ TEST_F(LinkWatchdog, ALoopThatStopsActingIsStuckOneTimeoutAndTheSlackLater) {
 // line takes 11 × (10 timeouts of noise + 1): 5.5 s. Every moment of it is progress.
 TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
     const auto timeout = 50ms;
-    auto link =
-        std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout), log);
+    auto link = std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout),
+                                                log, bus);
     link->start();
     ASSERT_TRUE(run_until(io, [&] { return !device.requests().empty(); }));
     asio::steady_timer chatter(io);

@@ -12,9 +12,19 @@
 #include <vector>
 
 #include "protocol/gateway_map.hpp"
+#include "protocol/points.hpp"
 
 namespace ioport::gateway {
 namespace {
+
+// A good reading stored as the daemon stores it: with the module's point values, scaled as
+// `tags` say (protocol/points.hpp).
+void store_reading(const Tables& tables, ModuleAddress module, const Reading& reading,
+                   WordOrder order, const ModuleTags& tags = no_tags) {
+    std::vector<std::optional<PointValue>> values;
+    point_values(module.type, {reading, {}, {}, {}}, tags, values);
+    gateway::store_reading(tables, module, reading, order, values);
+}
 
 using modbus::Exception;
 using modbus::Table;
