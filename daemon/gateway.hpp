@@ -1,25 +1,26 @@
-// The running gateway: one LinkScheduler per configured link, the Modbus server in front of them,
-// the read-only HTTP side, the Sparkplug edge node and the plain MQTT (JSON) output, on one
-// io_context. Started and stopped in a fixed order: links first (so the first clients find ports
-// already being opened), then the Modbus server, HTTP, Sparkplug, MQTT JSON; stopped the other
-// way round.
-// A reload swaps in a new configuration while running, touching only what it changes.
+// The running gateway: one LinkScheduler per configured link, and the outputs in front of them
+// (core/output.hpp) in one list: the Modbus server, the HTTP side, the Sparkplug node and the
+// plain MQTT (JSON) output, on one io_context. Started in a fixed order: links first (so the
+// first clients find ports already being opened), then the outputs in the list's order; stopped
+// the other way round. A reload swaps in a new configuration while running, touching only what
+// it changes. The gateway's own policy lives here too: what a communication loss does.
 #pragma once
 
+#include <chrono>
 #include <functional>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "config/gateway_config.hpp"
+#include "daemon/core/bus.hpp"
+#include "daemon/core/comm_loss.hpp"
 #include "daemon/core/events.hpp"
 #include "daemon/core/link_scheduler.hpp"
+#include "daemon/core/output.hpp"
 #include "daemon/disk_thread.hpp"
-#include "daemon/http/http_server.hpp"
-#include "daemon/http/render.hpp"
-#include "daemon/modbus/modbus_server.hpp"
-#include "daemon/mqtt_json/mqtt_json_output.hpp"
-#include "daemon/sparkplug/sparkplug_node.hpp"
+#include "daemon/http/http_output.hpp"
+#include "daemon/modbus/modbus_output.hpp"
 
 namespace ioport::daemon {
 
@@ -31,15 +32,17 @@ class Gateway {
 
     Result<> start();
     // The orderly end: no new requests; writes in flight finish; the outputs are set as
-    // on_shutdown says; `done` is called when every link has closed its port.
+    // on_shutdown says; `done` is called when every link has closed its port and every output
+    // has finished.
     void shut_down(std::function<void()> done);
     // The abrupt end, for when shut_down() takes too long: everything is cancelled now.
     void stop();
 
     // Applies a new configuration. Links whose settings are unchanged keep running (port, image,
     // queued writes); changed ones are restarted, removed ones stopped, new ones started. Client
-    // connections stay unless the new allow list refuses them. Fails, changing nothing, when the
-    // new listen address cannot be bound. On success, what changed, in one line.
+    // connections stay unless the new allow list refuses them. Fails, changing nothing, when an
+    // output cannot take it (a listen address that cannot be bound, a store directory refused).
+    // On success, what changed, in one line.
     Result<std::string> reload(config::GatewayConfig next);
 
     const config::GatewayConfig& config() const { return config_; }
@@ -47,23 +50,14 @@ class Gateway {
     std::string summary() const;
     // Every link's loop is making progress (see LinkScheduler::progressing).
     bool healthy() const;
-
-    // What the HTTP side shows.
-    GatewayView view() const;
     // Where the gateway's parts tell what happened; main tells a refused reload there.
     EventBus& bus() { return bus_; }
-    // The HTTP server's address; nullopt when it is off.
-    std::optional<asio::ip::tcp::endpoint> http_endpoint() const;
 
   private:
-    // A new link, telling the bus.
     std::shared_ptr<LinkScheduler> make_link(const config::LinkConfig& link);
-    std::shared_ptr<HttpServer> make_http(const config::HttpSettings& settings);
-    // A reload's first HTTP step: binds the new address, if it moved (into next_http_).
-    Result<> prepare_http(const std::optional<config::HttpSettings>& next);
-    void apply_http(const std::optional<config::HttpSettings>& next);
-    Result<> start_sparkplug(std::uint64_t next_bdseq = 0);
-    Result<> start_mqtt_json();
+    GatewayView view() const;
+    // A communication loss (gateway.md §5.3): every link to its safe state.
+    void comm_lost();
     // What the configuration weakens (config::warnings), at start-up and after each reload.
     void log_warnings();
 
@@ -71,21 +65,15 @@ class Gateway {
     config::GatewayConfig config_;
     Log& log_;
     DiskThread& disk_;
-    const std::string host_name_ = machine_host_name();  // read once: HTTP's Host check
     // Before everything that tells it something, so that it outlives them.
     EventBus bus_;
     EventLog events_;                  // for the status page
     EventBus::Subscription recorded_;  // of events_, a subscriber like any other
     std::chrono::system_clock::time_point started_ = std::chrono::system_clock::now();
     Links links_;
-    std::shared_ptr<ModbusServer> server_;
-    std::shared_ptr<HttpServer> http_;
-    std::shared_ptr<HttpServer> next_http_;  // bound by prepare_http(), taken by apply_http()
-    std::shared_ptr<SparkplugNode> sparkplug_;
-    std::shared_ptr<MqttJsonOutput> mqtt_json_;
+    std::shared_ptr<CommLossWatch> comm_loss_;
+    std::shared_ptr<ModbusOutput> modbus_;  // the first output: its clients are the summary's
+    Outputs outputs_;  // Modbus, HTTP, Sparkplug, plain MQTT: started in this order
 };
-
-// The lines printed by --check-config: the links, their modules and the Modbus front.
-std::string check_config_text(const config::GatewayConfig& config);
 
 }  // namespace ioport::daemon

@@ -10,6 +10,7 @@
 #include <string_view>
 #include <vector>
 
+#include "config/check_text.hpp"
 #include "config/gateway_config.hpp"
 #include "daemon/gateway.hpp"
 #include "daemon/http/render.hpp"
@@ -196,7 +197,7 @@ int main(int argc, char** argv) {
     switch (options->mode) {
         case Options::Mode::check_config:
             std::cout << options->config_path << ": valid\n"
-                      << ioport::daemon::check_config_text(*config);
+                      << ioport::config::check_config_text(*config);
             return 0;
         case Options::Mode::print_map:
             return print_map(*config, options->map_format);

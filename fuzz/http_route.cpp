@@ -1,5 +1,5 @@
 // Fuzz target: the HTTP side's routes, Host check and query parsing (daemon/http/http_route.hpp),
-// and the writers of its two text formats (daemon/http/exposition.hpp) on arbitrary bytes.
+// and the writers of its two text formats (protocol/exposition.hpp) on arbitrary bytes.
 //
 // Input: a request line, "METHOD TARGET" up to the first LF or TAB (split at its first space;
 // with no space, the whole line is the method and the target is empty), then, after a TAB, its
@@ -44,9 +44,10 @@
 #include <string_view>
 #include <vector>
 
-#include "daemon/http/exposition.hpp"
 #include "daemon/http/http_route.hpp"
 #include "fuzz/fuzz.hpp"
+#include "protocol/exposition.hpp"
+#include "protocol/json.hpp"
 
 namespace ioport::fuzz {
 namespace {
@@ -305,12 +306,12 @@ bool has_unescaped_quote(std::string_view text) {
 
 void check_exposition(std::string_view bytes) {
     std::string label;
-    daemon::append_escaped_label(label, bytes);
+    append_escaped_label(label, bytes);
     check(label.find('\n') == std::string::npos, "an escaped label holds no raw newline");
     check(!has_unescaped_quote(label), "an escaped label holds no unescaped quote");
     check(unescaped(label, true) == std::string(bytes), "an escaped label unescapes to its bytes");
 
-    daemon::Exposition e;
+    Exposition e;
     e.family("ioportd_fuzz", "gauge", bytes);
     e.sample("ioportd_fuzz", {{"link", bytes}, {"module", "dim16 0"}}, std::uint64_t{7});
     const auto text = e.take();
@@ -505,7 +506,7 @@ std::string well_formed(std::string_view bytes) {
 
 void check_json_string(std::string_view bytes) {
     std::string literal;
-    daemon::append_json_string(literal, bytes);
+    append_json_string(literal, bytes);
     for (const char c : literal)
         check(static_cast<unsigned char>(c) >= 0x20 && c != 0x7F,
               "a JSON string holds no raw control byte nor DEL");
@@ -529,7 +530,7 @@ struct Written {
 // well formed as the daemon's renderers do: keys only in objects, and before every value there;
 // the containers still open are closed at the end.
 std::string build_json(std::string_view bytes, std::vector<Written>& numbers) {
-    daemon::Json json;
+    Json json;
     std::vector<char> open{'{'};  // a document is an object, as every page's is
     json.begin_object();
     std::size_t i = 0;

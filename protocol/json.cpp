@@ -3,6 +3,7 @@
 #include <array>
 #include <charconv>
 #include <cmath>
+#include <ctime>
 #include <iterator>
 
 #include <fmt/format.h>
@@ -10,21 +11,6 @@
 #include "protocol/error.hpp"
 
 namespace ioport {
-
-namespace {
-
-// A number in the shortest text that reads back as the same value (std::to_chars: exact by the
-// standard, whatever the compiler). fmt 9.1's "{}" is exact too when g++ compiles it, but its
-// header code as clang 14 compiles it writes subnormal doubles to one digit
-// (7.6485216289552275e-309 as "8e-309"), which the fuzz target found.
-template <class T>
-void append_number(std::string& out, T value) {
-    std::array<char, 32> text;  // the longest double, "-2.2250738585072014e-308", is 24
-    const auto written = std::to_chars(text.data(), text.data() + text.size(), value);
-    out.append(text.data(), written.ptr);
-}
-
-}  // namespace
 
 void append_json_string(std::string& out, std::string_view text) {
     out += '"';
@@ -155,6 +141,15 @@ Json& Json::null() {
     separate();
     text_ += "null";
     return *this;
+}
+
+std::string rfc3339(std::chrono::system_clock::time_point at) {
+    const auto ms = std::chrono::floor<std::chrono::milliseconds>(at).time_since_epoch().count();
+    const std::time_t seconds = ms / 1000;
+    std::tm utc{};
+    ::gmtime_r(&seconds, &utc);
+    return fmt::format("{:04}-{:02}-{:02}T{:02}:{:02}:{:02}.{:03}Z", utc.tm_year + 1900,
+                       utc.tm_mon + 1, utc.tm_mday, utc.tm_hour, utc.tm_min, utc.tm_sec, ms % 1000);
 }
 
 }  // namespace ioport

@@ -3,6 +3,9 @@
 // (gateway.md §5.4, §6.3) both write with it.
 #pragma once
 
+#include <array>
+#include <charconv>
+#include <chrono>
 #include <cstdint>
 #include <string>
 #include <string_view>
@@ -45,5 +48,21 @@ class Json {
 // byte, a cut or overlong sequence, a surrogate, past U+10FFFF) as U+FFFD, so that the document
 // is valid JSON whatever bytes a network peer put into a name or a message.
 void append_json_string(std::string& out, std::string_view text);
+
+// A number in the shortest text that reads back as the same value (std::to_chars: exact by the
+// standard, whatever the compiler). fmt 9.1's "{}" is exact too when g++ compiles it, but its
+// header code as clang 14 compiles it writes subnormal doubles to one digit
+// (7.6485216289552275e-309 as "8e-309"), which the fuzz target found. JSON and the Prometheus
+// exposition both write numbers so.
+template <class T>
+void append_number(std::string& out, T value) {
+    std::array<char, 32> text;  // the longest double, "-2.2250738585072014e-308", is 24
+    const auto written = std::to_chars(text.data(), text.data() + text.size(), value);
+    out.append(text.data(), written.ptr);
+}
+
+// A time as the JSON documents give it: RFC 3339 in UTC, to the millisecond
+// ("2026-12-02T03:50:00.123Z").
+std::string rfc3339(std::chrono::system_clock::time_point at);
 
 }  // namespace ioport

@@ -4,7 +4,8 @@
 
 #include <fmt/format.h>
 
-#include "daemon/http/exposition.hpp"
+#include "protocol/exposition.hpp"
+#include "protocol/json.hpp"
 
 namespace ioport::daemon {
 namespace {
@@ -31,16 +32,6 @@ double seconds(std::chrono::microseconds duration) {
 std::optional<double> age(const ModuleState& module, Clock::time_point now) {
     if (!module.last_good) return std::nullopt;
     return std::chrono::duration<double>(now - *module.last_good).count();
-}
-
-// "2026-12-02T03:50:00.123Z".
-std::string rfc3339(SystemClock::time_point at) {
-    const auto ms = std::chrono::floor<std::chrono::milliseconds>(at).time_since_epoch().count();
-    const std::time_t seconds = ms / 1000;
-    std::tm utc{};
-    ::gmtime_r(&seconds, &utc);
-    return fmt::format("{:04}-{:02}-{:02}T{:02}:{:02}:{:02}.{:03}Z", utc.tm_year + 1900,
-                       utc.tm_mon + 1, utc.tm_mday, utc.tm_hour, utc.tm_min, utc.tm_sec, ms % 1000);
 }
 
 // One input channel: the name it has in /metrics and its value in engineering units.
@@ -190,119 +181,6 @@ void module_families(Exposition& out, const Links& links) {
                            static_cast<int>(*module.output));
 }
 
-void modbus_families(Exposition& out, const ModbusServer& server) {
-    const auto& stats = server.stats();
-    out.family("ioportd_modbus_connections", "gauge", "Modbus client connections open now");
-    out.sample("ioportd_modbus_connections", {}, static_cast<std::uint64_t>(server.connections()));
-    out.family("ioportd_modbus_connections_refused_total", "counter",
-               "Modbus connections refused at accept, by reason");
-    out.sample("ioportd_modbus_connections_refused_total", {{"reason", "not_allowed"}},
-               stats.refused_not_allowed);
-    out.sample("ioportd_modbus_connections_refused_total", {{"reason", "too_many"}},
-               stats.refused_too_many);
-    out.sample("ioportd_modbus_connections_refused_total", {{"reason", "tls_handshake"}},
-               stats.refused_tls_handshake);
-    out.sample("ioportd_modbus_connections_refused_total", {{"reason", "too_many_handshakes"}},
-               stats.refused_too_many_handshakes);
-    out.family(
-        "ioportd_modbus_requests_total", "counter",
-        "Modbus requests answered, by configured unit id and function code, the rest as other");
-    for (const auto& [key, count] : stats.responses.requests())
-        out.sample("ioportd_modbus_requests_total",
-                   {{"unit", gateway::label_text(key.first)},
-                    {"function", gateway::label_text(key.second)}},
-                   count);
-    out.family(
-        "ioportd_modbus_exceptions_total", "counter",
-        "Modbus exception responses, by configured unit id and exception code, the rest as other");
-    for (const auto& [key, count] : stats.responses.exceptions())
-        out.sample(
-            "ioportd_modbus_exceptions_total",
-            {{"unit", gateway::label_text(key.first)}, {"code", gateway::label_text(key.second)}},
-            count);
-    const auto& histogram = stats.request_duration;
-    out.family("ioportd_modbus_request_duration_seconds", "histogram",
-               "From a request's last byte received to its response sent");
-    for (std::size_t i = 0; i < histogram.bounds().size(); ++i)
-        out.sample("ioportd_modbus_request_duration_seconds_bucket",
-                   {{"le", fmt::format("{}", histogram.bounds()[i])}}, histogram.cumulative(i));
-    out.sample("ioportd_modbus_request_duration_seconds_bucket", {{"le", "+Inf"}},
-               histogram.count());
-    out.sample("ioportd_modbus_request_duration_seconds_sum", {}, histogram.sum());
-    out.sample("ioportd_modbus_request_duration_seconds_count", {}, histogram.count());
-    out.family("ioportd_comm_loss", "gauge",
-               "1 while outputs are in their safe state after a communication loss (5.3)");
-    out.sample("ioportd_comm_loss", {}, server.comm_lost() ? 1 : 0);
-}
-
-// The three families of an MQTT connection, `prefix`_connected, …_messages_published_total and
-// …_messages_dropped_total; `what` names the connection in their help.
-template <typename Stats>
-void mqtt_connection_families(Exposition& out, std::string_view prefix, std::string_view what,
-                              const Stats& stats) {
-    const std::string connected = fmt::format("{}_connected", prefix);
-    const std::string published = fmt::format("{}_messages_published_total", prefix);
-    const std::string dropped = fmt::format("{}_messages_dropped_total", prefix);
-    out.family(connected, "gauge", fmt::format("1 while {} is connected to its broker", what));
-    out.sample(connected, {}, stats.connected ? 1 : 0);
-    out.family(published, "counter",
-               fmt::format("{} messages handed to the broker connection", what));
-    out.sample(published, {}, stats.published);
-    out.family(dropped, "counter",
-               fmt::format("{} messages dropped: not connected, or the send queue full", what));
-    out.sample(dropped, {}, stats.dropped);
-}
-
-void sparkplug_families(Exposition& out, const SparkplugNode* node) {
-    if (node == nullptr) return;  // MQTT off: no such families
-    const auto stats = node->stats();
-    mqtt_connection_families(out, "ioportd_mqtt", "Sparkplug B's MQTT", stats);
-    out.family("ioportd_sparkplug_online", "gauge",
-               "1 while the edge node's births are out in the current session");
-    out.sample("ioportd_sparkplug_online", {}, stats.online ? 1 : 0);
-    out.family("ioportd_sparkplug_births_total", "counter", "NBIRTHs sent, rebirths included");
-    out.sample("ioportd_sparkplug_births_total", {}, stats.births);
-    out.family("ioportd_sparkplug_commands_total", "counter", "DCMD metrics received, by result");
-    out.sample("ioportd_sparkplug_commands_total", {{"result", "accepted"}},
-               stats.commands - stats.commands_refused);
-    out.sample("ioportd_sparkplug_commands_total", {{"result", "refused"}}, stats.commands_refused);
-    out.family("ioportd_sparkplug_host_states_total", "counter",
-               "STATE messages of the primary host, by result (ahead: taken, its timestamp too "
-               "far ahead of this clock to order later ones)");
-    out.sample("ioportd_sparkplug_host_states_total", {{"result", "taken"}}, stats.states.taken);
-    out.sample("ioportd_sparkplug_host_states_total", {{"result", "ahead"}}, stats.states.ahead);
-    out.sample("ioportd_sparkplug_host_states_total", {{"result", "stale"}}, stats.states.stale);
-    out.sample("ioportd_sparkplug_host_states_total", {{"result", "refused"}},
-               stats.states.refused);
-    if (!stats.store) return;  // no store: no such families
-    const auto& store = *stats.store;
-    out.family("ioportd_sparkplug_store_bytes", "gauge", "Bytes of the store's files on disk");
-    out.sample("ioportd_sparkplug_store_bytes", {}, store.bytes);
-    out.family("ioportd_sparkplug_store_records", "gauge",
-               "Stored DDATA messages the broker does not have yet");
-    out.sample("ioportd_sparkplug_store_records", {}, store.records);
-    out.family("ioportd_sparkplug_store_dropped_total", "counter",
-               "Stored DDATA messages lost: the oldest beyond max_size, or the disk did not take "
-               "them");
-    out.sample("ioportd_sparkplug_store_dropped_total", {}, store.dropped);
-    out.family("ioportd_sparkplug_forwarded_total", "counter",
-               "Stored DDATA messages forwarded that the broker is known to have");
-    out.sample("ioportd_sparkplug_forwarded_total", {}, store.forwarded);
-}
-
-void mqtt_json_families(Exposition& out, const MqttJsonOutput* output) {
-    if (output == nullptr) return;  // MQTT JSON off: no such families
-    const auto stats = output->stats();
-    mqtt_connection_families(out, "ioportd_mqtt_json", "the MQTT JSON output", stats);
-    out.family("ioportd_mqtt_json_sets_total", "counter", "set messages received, by result");
-    out.sample("ioportd_mqtt_json_sets_total", {{"result", "accepted"}},
-               stats.sets - stats.sets_refused);
-    out.sample("ioportd_mqtt_json_sets_total", {{"result", "refused"}}, stats.sets_refused);
-    out.family("ioportd_mqtt_json_discovery_cleared_total", "counter",
-               "Home Assistant discovery configs cleared: their module is no longer configured");
-    out.sample("ioportd_mqtt_json_discovery_cleared_total", {}, stats.discovery_cleared);
-}
-
 void process_families(Exposition& out, const ProcessStats& process) {
     out.family("process_cpu_seconds_total", "counter", "User and system CPU time spent");
     out.sample("process_cpu_seconds_total", {}, process.cpu_seconds);
@@ -437,94 +315,6 @@ void link_json(Json& json, const LinkScheduler& link, Clock::time_point now) {
     json.end_array().end_object();
 }
 
-void modbus_json(Json& json, const ModbusServer& server) {
-    const auto& settings = server.settings();
-    json.key("modbus")
-        .begin_object()
-        .member("listen", settings.plain() ? host_port(server.local_endpoint()) : std::string())
-        .member("tls_listen", settings.tls ? host_port(server.tls_endpoint()) : std::string())
-        .member("connections", static_cast<std::uint64_t>(server.connections()))
-        .member("handshakes", static_cast<std::uint64_t>(server.handshakes()))
-        .member("max_connections", settings.max_connections)
-        .member("comm_loss", server.comm_lost());
-    json.key("refused")
-        .begin_object()
-        .member("not_allowed", server.stats().refused_not_allowed)
-        .member("too_many", server.stats().refused_too_many)
-        .member("tls_handshake", server.stats().refused_tls_handshake)
-        .member("too_many_handshakes", server.stats().refused_too_many_handshakes)
-        .end_object();
-    json.key("clients").begin_array();
-    for (const auto& client : server.clients())
-        json.begin_object()
-            .member("address", client.address)
-            .member("since", rfc3339(client.since))
-            .member("requests", client.requests)
-            .member("transport", client.tls ? "tls" : "tcp")
-            .member("role", client.role)
-            .end_object();
-    json.end_array().end_object();
-}
-
-void mqtt_json_json(Json& json, const MqttJsonOutput* output) {
-    json.key("mqtt_json");
-    if (output == nullptr) {
-        json.null();
-        return;
-    }
-    const auto stats = output->stats();
-    const auto& settings = output->settings();
-    json.begin_object()
-        .member("broker", output->broker())
-        .member("topic_prefix", settings.topic_prefix)
-        .member("discovery_prefix", settings.discovery ? settings.discovery_prefix : "")
-        .member("connected", stats.connected)
-        .member("published", stats.published)
-        .member("dropped", stats.dropped)
-        .member("sets", stats.sets)
-        .member("sets_refused", stats.sets_refused)
-        .member("discovery_cleared", stats.discovery_cleared)
-        .end_object();
-}
-
-void sparkplug_json(Json& json, const SparkplugNode* node) {
-    json.key("sparkplug");
-    if (node == nullptr) {
-        json.null();
-        return;
-    }
-    const auto stats = node->stats();
-    json.begin_object()
-        .member("broker", node->broker())
-        .member("group_id", node->settings().group_id)
-        .member("edge_node_id", node->settings().edge_node_id)
-        .member("connected", stats.connected)
-        .member("online", stats.online)
-        .member("bdseq", stats.bdseq)
-        .member("published", stats.published)
-        .member("dropped", stats.dropped)
-        .member("births", stats.births);
-    json.key("store");
-    if (const auto& store = stats.store) {
-        json.begin_object()
-            .member("path", node->settings().store->path)
-            .member("bytes", store->bytes)
-            .member("records", store->records)
-            .member("dropped", store->dropped)
-            .member("forwarded", store->forwarded)
-            .member("forwarding", stats.forwarding);
-        json.key("oldest");
-        if (stats.backlog_oldest_ms)
-            json.value(*stats.backlog_oldest_ms);
-        else
-            json.null();
-        json.end_object();
-    } else {
-        json.null();
-    }
-    json.end_object();
-}
-
 std::string html_escaped(std::string_view text) {
     std::string out;
     out.reserve(text.size());
@@ -586,9 +376,8 @@ std::string render_metrics(const GatewayView& gateway, const ProcessStats& proce
     out.sample("ioportd_build_info", {{"version", IOPORTD_VERSION}}, 1);
     link_families(out, gateway.links);
     module_families(out, gateway.links);
-    modbus_families(out, gateway.modbus);
-    sparkplug_families(out, gateway.sparkplug);
-    mqtt_json_families(out, gateway.mqtt_json);
+    for (const auto& output : gateway.outputs)
+        output->metrics(out);
     process_families(out, process);
     return out.take();
 }
@@ -607,9 +396,8 @@ std::string render_state(const GatewayView& gateway) {
     for (const auto& warning : config::warnings(gateway.config))
         json.value(warning);
     json.end_array();
-    modbus_json(json, gateway.modbus);
-    sparkplug_json(json, gateway.sparkplug);
-    mqtt_json_json(json, gateway.mqtt_json);
+    for (const auto& output : gateway.outputs)
+        output->state(json);
     json.key("links").begin_array();
     for (const auto& link : gateway.links)
         link_json(json, *link, now);

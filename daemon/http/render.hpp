@@ -1,17 +1,17 @@
 // The pages of the HTTP side (gateway.md §5.4), rendered from the running gateway on each
 // request: nothing is kept for them but the counters, events and trends that the links and the
-// Modbus server keep anyway.
+// outputs keep anyway. Every output shows itself through the seam (core/output.hpp): this room
+// includes none of theirs.
 #pragma once
 
 #include <string>
 
 #include "config/gateway_config.hpp"
+#include "daemon/core/events.hpp"
 #include "daemon/core/link_scheduler.hpp"
+#include "daemon/core/output.hpp"
 #include "daemon/http/http_server.hpp"
 #include "daemon/http/process_stats.hpp"
-#include "daemon/modbus/modbus_server.hpp"
-#include "daemon/mqtt_json/mqtt_json_output.hpp"
-#include "daemon/sparkplug/sparkplug_node.hpp"
 
 namespace ioport::daemon {
 
@@ -20,9 +20,7 @@ namespace ioport::daemon {
 struct GatewayView {
     const config::GatewayConfig& config;
     const Links& links;
-    const ModbusServer& modbus;
-    const SparkplugNode* sparkplug;   // null when MQTT is off
-    const MqttJsonOutput* mqtt_json;  // null when MQTT JSON is off
+    const Outputs& outputs;  // each shows its families and state members, in this order
     const EventLog& events;
     std::chrono::system_clock::time_point started;
 };

@@ -162,7 +162,7 @@ struct ModbusServer::Connection {
 
 ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
                            const Links& links, Log& log, EventBus& bus,
-                           std::function<void()> comm_lost)
+                           std::shared_ptr<CommLossWatch> comm_loss)
     : executor_(executor),
       settings_(std::move(settings)),
       policy_{settings_.read_only, settings_.stale},
@@ -170,8 +170,7 @@ ModbusServer::ModbusServer(const asio::any_io_executor& executor, config::Modbus
       bus_(bus),
       accept_retry_(executor),
       scratch_(scratch_mapping()),
-      comm_lost_(std::move(comm_lost)),
-      comm_loss_timer_(executor) {
+      comm_loss_(std::move(comm_loss)) {
     set_units(links);
 }
 
@@ -246,8 +245,7 @@ Result<> ModbusServer::start() {
         apply(settings_, transport);
     if (!plain_.acceptor && !tls_.acceptor)
         log_.warn({}, "no Modbus listener: modbus.listen is \"\" and modbus.tls has no listen");
-    last_request_ = last_contact_ = Clock::now();  // comm loss counts from start-up too
-    arm_comm_loss();
+    last_request_ = Clock::now();
     return {};
 }
 
@@ -256,13 +254,12 @@ void ModbusServer::note_request(Clock::time_point at, bool contact) {
         std::max(std::chrono::microseconds{0},
                  std::chrono::duration_cast<std::chrono::microseconds>(at - last_request_));
     last_request_ = at;
-    if (contact) last_contact_ = at;
+    if (contact) comm_loss_->contact(at);
 }
 
 void ModbusServer::answered_request(bool contact) {
     if (!contact) return;
-    comm_loss_ = false;  // the first request after a loss read 1020 as 1; later ones read 0
-    arm_comm_loss();
+    comm_loss_->answered();  // the first request after a loss read 1020 as 1; later ones read 0
 }
 
 // Only a request the gateway could serve shows that a SCADA is there: a client probing unknown
@@ -275,34 +272,6 @@ bool ModbusServer::keeps_contact(const Connection& c, std::span<const std::uint8
                                               adu[modbus::mbap_length]);
 }
 
-void ModbusServer::arm_comm_loss() {
-    if (comm_loss_armed_ || comm_loss_ || stopping_ || settings_.comm_loss_timeout.count() == 0)
-        return;
-    comm_loss_armed_ = true;
-    comm_loss_timer_.expires_at(last_contact_ + settings_.comm_loss_timeout);
-    comm_loss_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
-        if (const auto self = weak.lock()) self->comm_loss_due(ec);
-    });
-}
-
-void ModbusServer::comm_loss_due(const boost::system::error_code& ec) {
-    comm_loss_armed_ = false;
-    // Cancelled by a reload that changed the timeout (or by the stop): armed anew, or not.
-    if (ec || Clock::now() < last_contact_ + settings_.comm_loss_timeout) {
-        arm_comm_loss();
-        return;
-    }
-    if (settings_.comm_loss_timeout.count() == 0 || stopping_) return;
-    comm_loss_ = true;
-    auto text = fmt::format(
-        "no Modbus request from any client for {}: every output module is sent its safe value "
-        "and keeps it until a client writes it",
-        format_duration(settings_.comm_loss_timeout));
-    log_.warn({.comm_loss = true}, "{}", text);
-    bus_.publish(Note{.kind = EventKind::comm_loss, .text = text});
-    if (comm_lost_) comm_lost_();
-}
-
 int ModbusServer::counted_unit(std::span<const std::uint8_t> adu) const {
     const auto& unit = units_[adu[modbus::mbap_length - 1]];
     return unit ? unit->link().config().unit_id : -1;
@@ -310,7 +279,8 @@ int ModbusServer::counted_unit(std::span<const std::uint8_t> adu) const {
 
 void ModbusServer::store_front(ModbusUnit& unit) const {
     const auto& traffic = stats_.responses.traffic(unit.link().config().unit_id);
-    gateway::store_front(unit.tables(), {traffic, connections(), since_previous_, comm_loss_},
+    gateway::store_front(unit.tables(),
+                         {traffic, connections(), since_previous_, comm_loss_->lost()},
                          settings_.word_order);
 }
 
@@ -362,11 +332,15 @@ void ModbusServer::accept_on(Transport transport, Acceptor acceptor) {
           [this, transport, acceptor = l.acceptor] { return accept_loop(transport, acceptor); });
 }
 
-Result<> ModbusServer::prepare(const config::ModbusSettings& next) {
+void ModbusServer::abandon() {
     for (auto* l : {&plain_, &tls_}) {
         l->next.reset();
         l->next_context.reset();
     }
+}
+
+Result<> ModbusServer::prepare(const config::ModbusSettings& next) {
+    abandon();  // what an earlier prepare() left
     auto prepared = prepare(next, Transport::tcp);
     if (prepared) prepared = prepare(next, Transport::tls);
     if (!prepared) plain_.next.reset();  // the new plain address is not kept bound either
@@ -416,10 +390,6 @@ void ModbusServer::apply(config::ModbusSettings next, const Links& links) {
     policy_ = {settings_.read_only, settings_.stale};
     set_units(links);
     make_room();
-    if (comm_loss_armed_)
-        comm_loss_timer_.cancel();  // re-armed with the new timeout, or not at all
-    else
-        arm_comm_loss();
     for (const auto transport : {Transport::tcp, Transport::tls})
         apply(settings_, transport);
     for (auto* connection : connections_) {
@@ -454,7 +424,6 @@ void ModbusServer::close_revoked() {
 
 void ModbusServer::shut_down() {
     stopping_ = true;
-    comm_loss_timer_.cancel();
     boost::system::error_code ignored;
     for (auto* l : {&plain_, &tls_}) {
         close(*l);

@@ -24,6 +24,7 @@
 #include <modbus/modbus.h>
 
 #include "config/gateway_config.hpp"
+#include "daemon/core/comm_loss.hpp"
 #include "daemon/core/histogram.hpp"
 #include "daemon/core/link_scheduler.hpp"
 #include "daemon/listener.hpp"
@@ -74,10 +75,11 @@ struct ClientView {
 class ModbusServer : public std::enable_shared_from_this<ModbusServer> {
   public:
     // `links`: in configuration order; each serves its unit id (and 0 and 255 too when there is
-    // exactly one). `comm_lost`: called when no request has come from any client for
-    // settings.comm_loss_timeout (gateway.md §5.3); not again until a request has come.
+    // exactly one). `comm_loss`: the gateway's watch (gateway.md §5.3), told of every request
+    // that shows a SCADA is there.
     ModbusServer(const asio::any_io_executor& executor, config::ModbusSettings settings,
-                 const Links& links, Log& log, EventBus& bus, std::function<void()> comm_lost = {});
+                 const Links& links, Log& log, EventBus& bus,
+                 std::shared_ptr<CommLossWatch> comm_loss);
     ModbusServer(const ModbusServer&) = delete;
     ModbusServer& operator=(const ModbusServer&) = delete;
     ~ModbusServer();
@@ -97,13 +99,15 @@ class ModbusServer : public std::enable_shared_from_this<ModbusServer> {
     // refuses; TLS clients keep the role they connected with.
     Result<> prepare(const config::ModbusSettings& next);
     void apply(config::ModbusSettings next, const Links& links);
+    // Lets go of what prepare() bound, when the reload goes no further.
+    void abandon();
 
     // Clients connected now, plain or past their TLS handshake: what max_connections bounds.
     std::size_t connections() const { return connections_.size() - handshakes_; }
     // TLS connections still in their handshake (tls.max_handshakes bounds them).
     std::size_t handshakes() const { return handshakes_; }
     // A communication loss is in effect: declared, and no request since (register 1020).
-    bool comm_lost() const { return comm_loss_; }
+    bool comm_lost() const { return comm_loss_->lost(); }
     // Where the plain and the TLS listener are; a default endpoint for one that is off.
     asio::ip::tcp::endpoint local_endpoint() const;
     asio::ip::tcp::endpoint tls_endpoint() const;
@@ -170,8 +174,6 @@ class ModbusServer : public std::enable_shared_from_this<ModbusServer> {
     void answered_request(bool contact);
     // The request is one that keeps the communication-loss timer from firing.
     bool keeps_contact(const Connection& connection, std::span<const std::uint8_t> adu) const;
-    void arm_comm_loss();
-    void comm_loss_due(const boost::system::error_code& ec);
     // The unit id whose traffic a request counts in: its link's, or -1 for an unknown unit.
     int counted_unit(std::span<const std::uint8_t> adu) const;
     // A response sent: §5.1's traffic and the metrics.
@@ -218,13 +220,8 @@ class ModbusServer : public std::enable_shared_from_this<ModbusServer> {
     std::size_t ports_ = 0;
     bool stopping_ = false;
     Clock::time_point last_request_ = Clock::now();  // any request: 1019
-    Clock::time_point last_contact_ = Clock::now();  // a request keeps_contact() counts
     std::chrono::microseconds since_previous_{};
-    // §5.3. Lazily armed, as the connections' watchdogs: a request only moves last_request_.
-    std::function<void()> comm_lost_;
-    asio::steady_timer comm_loss_timer_;
-    bool comm_loss_armed_ = false;
-    bool comm_loss_ = false;  // register 1020, until the first request after the loss
+    std::shared_ptr<CommLossWatch> comm_loss_;  // §5.3, the gateway's
 };
 
 }  // namespace ioport::daemon

@@ -440,4 +440,19 @@ void MqttClient::on_message(mosquitto* /*client*/, void* self, const mosquitto_m
                          message->retain);
 }
 
+void connection_families(Exposition& out, std::string_view prefix, std::string_view what,
+                         const ConnectionCounts& counts) {
+    const std::string connected = fmt::format("{}_connected", prefix);
+    const std::string published = fmt::format("{}_messages_published_total", prefix);
+    const std::string dropped = fmt::format("{}_messages_dropped_total", prefix);
+    out.family(connected, "gauge", fmt::format("1 while {} is connected to its broker", what));
+    out.sample(connected, {}, counts.connected ? 1 : 0);
+    out.family(published, "counter",
+               fmt::format("{} messages handed to the broker connection", what));
+    out.sample(published, {}, counts.published);
+    out.family(dropped, "counter",
+               fmt::format("{} messages dropped: not connected, or the send queue full", what));
+    out.sample(dropped, {}, counts.dropped);
+}
+
 }  // namespace ioport::daemon

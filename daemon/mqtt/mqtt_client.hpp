@@ -29,6 +29,7 @@
 #include "config/gateway_config.hpp"
 #include "daemon/log.hpp"
 #include "link/asio.hpp"
+#include "protocol/exposition.hpp"
 
 struct mosquitto;
 struct mosquitto_message;
@@ -157,5 +158,16 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     std::vector<std::string> last_errors_;  // by broker: the reason last logged
     std::vector<bool> mqtt311_only_;        // by broker: it refused MQTT 5
 };
+
+// The three families of an MQTT connection on /metrics, `prefix`_connected,
+// …_messages_published_total and …_messages_dropped_total; `what` names the connection in their
+// help.
+struct ConnectionCounts {
+    bool connected = false;
+    std::uint64_t published = 0;
+    std::uint64_t dropped = 0;
+};
+void connection_families(Exposition& out, std::string_view prefix, std::string_view what,
+                         const ConnectionCounts& counts);
 
 }  // namespace ioport::daemon

@@ -54,8 +54,6 @@
 
 namespace ioport::daemon {
 
-// A clean stop's NDEATH and DISCONNECT get this long to leave.
-inline constexpr std::chrono::milliseconds sparkplug_stop_deadline{500};
 // Link counters go out in NDATA at most this often: they change with every transaction.
 inline constexpr std::chrono::seconds counter_period{10};
 // NCMD rebirth requests closer than this are served once (gateway.md §5.5).

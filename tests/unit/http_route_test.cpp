@@ -14,9 +14,10 @@
 
 #include "daemon/core/histogram.hpp"
 #include "daemon/core/trend.hpp"
-#include "daemon/http/exposition.hpp"
 #include "daemon/http/http_route.hpp"
 #include "daemon/http/process_stats.hpp"
+#include "protocol/exposition.hpp"
+#include "protocol/json.hpp"
 
 namespace ioport::daemon {
 namespace {

@@ -1,26 +1,10 @@
-#include "daemon/http/exposition.hpp"
+#include "protocol/exposition.hpp"
 
-#include <array>
-#include <charconv>
 #include <cmath>
 
-#include <fmt/format.h>
+#include "protocol/json.hpp"  // append_number
 
-namespace ioport::daemon {
-namespace {
-
-// A number in the shortest text that reads back as the same value (std::to_chars: exact by the
-// standard, whatever the compiler). fmt 9.1's "{}" is exact too when g++ compiles it, but its
-// header code as clang 14 compiles it writes subnormal doubles to one digit
-// (7.6485216289552275e-309 as "8e-309"), which the fuzz target found.
-template <class T>
-void append_number(std::string& out, T value) {
-    std::array<char, 32> text;  // the longest double, "-2.2250738585072014e-308", is 24
-    const auto written = std::to_chars(text.data(), text.data() + text.size(), value);
-    out.append(text.data(), written.ptr);
-}
-
-}  // namespace
+namespace ioport {
 
 void append_escaped_label(std::string& out, std::string_view value) {
     // Whole runs at a time: names and units (gateway.md §6.1) make labels long, and most of a
@@ -94,4 +78,4 @@ void Exposition::sample(std::string_view name, std::initializer_list<Label> labe
     text_ += '\n';
 }
 
-}  // namespace ioport::daemon
+}  // namespace ioport

@@ -1,7 +1,6 @@
-// Writers of the two text formats the HTTP side serves, kept free of the daemon's types so that
-// they are tested (and fuzzed through the routes) alone:
-// - Prometheus text exposition format 0.0.4: families with HELP and TYPE, samples with labels;
-// - JSON (protocol/json.hpp).
+// The writer of Prometheus text exposition format 0.0.4 (families with HELP and TYPE, samples
+// with labels), which /metrics serves and every output writes its families with
+// (daemon/core/output.hpp). Pure: tested, and fuzzed through the HTTP routes, alone.
 #pragma once
 
 #include <cstdint>
@@ -10,13 +9,7 @@
 #include <string_view>
 #include <utility>
 
-#include "protocol/json.hpp"
-
-namespace ioport::daemon {
-
-// The JSON writer is protocol/json.hpp's, which the MQTT JSON output uses too.
-using ioport::append_json_string;
-using ioport::Json;
+namespace ioport {
 
 class Exposition {
   public:
@@ -42,4 +35,4 @@ class Exposition {
 // A label value or HELP text as 0.0.4 wants it: \ " and newline escaped.
 void append_escaped_label(std::string& out, std::string_view value);
 
-}  // namespace ioport::daemon
+}  // namespace ioport
