@@ -30,7 +30,7 @@ import paho.mqtt.client as mqtt  # noqa: E402
 
 import node_red  # noqa: E402
 from broker import Broker  # noqa: E402
-from process_memory import MemoryLimit, peak_rss  # noqa: E402
+from process_memory import RSS_TELLS, MemoryLimit, peak_rss  # noqa: E402
 from rig import Rig, eventually, free_port  # noqa: E402
 
 PREFIX = "ioportd/box7"
@@ -562,8 +562,11 @@ class FromOutside(unittest.TestCase):
         self.assertIsNone(self.rig.daemon.poll(), "ioportd is running")
         grown = peak_rss(pid) - rss
         print(f"\na 250 MB set: peak RSS {grown / 1048576:+.1f} MiB", file=sys.stderr)
-        self.assertLess(grown, 32 << 20)
-        self.assertRegex(self.rig.metrics(), r'(?m)^ioportd_mqtt_json_sets_total\{result="accepted"\} 1$')
+        if RSS_TELLS:
+            self.assertLess(grown, 32 << 20)
+        metrics = self.rig.metrics()  # had it come, it would be counted refused (too long)
+        self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="accepted"\} 1$')
+        self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="refused"\} 0$')
 
     def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
         old = Mqtt311Broker()
