@@ -43,18 +43,13 @@ void json_value(Json& json, const std::optional<gateway::PointValue>& value, std
 
 }  // namespace
 
-std::string module_id(std::optional<ModuleAddress> module) {
-    if (!module) return "id2";
-    return fmt::format("{}_{}", name(module->type), module->number);
-}
-
 std::string status_topic(std::string_view prefix) {
     return fmt::format("{}/status", prefix);
 }
 
 std::string module_topic(std::string_view prefix, std::string_view link,
                          std::optional<ModuleAddress> module, std::string_view leaf) {
-    return fmt::format("{}/{}/{}/{}", prefix, link, module_id(module), leaf);
+    return fmt::format("{}/{}/{}/{}", prefix, link, gateway::module_id(module), leaf);
 }
 
 std::string set_subscription(std::string_view prefix) {
@@ -124,26 +119,6 @@ std::string state_json(std::optional<ModuleType> type,
     }
     json.end_object();
     return json.take();
-}
-
-Result<gateway::WritePlan> plan_set(std::optional<ModuleAddress> module, std::string_view point,
-                                    std::string_view payload) {
-    const auto refused = [&](std::string why) {
-        return fail(Errc::invalid_argument,
-                    fmt::format("{} {}: {}", module_id(module), printable(point, 40), why));
-    };
-    const auto found =
-        gateway::find_point(module ? std::optional(module->type) : std::nullopt, point);
-    if (!found) return refused("no such point");
-    if (!found->spec->writable) return refused("an input: it cannot be set");
-    if (payload.size() > max_set_bytes)
-        return refused(
-            fmt::format("a payload of {} bytes: at most {}", payload.size(), max_set_bytes));
-    const auto value = gateway::parse_point_text(*found->spec, payload);
-    if (!value) return refused(value.error().message);
-    auto plan = gateway::plan_point_write(module, point, *value);
-    if (!plan) return refused(plan.error().message);
-    return plan;
 }
 
 // --- Home Assistant discovery -------------------------------------------------------------
@@ -347,7 +322,7 @@ std::vector<Discovery> module_discovery(const Node& node, std::string_view link,
                                         std::optional<ModuleAddress> module,
                                         const gateway::ModuleTags& tags) {
     const auto id = node_id(node.topic_prefix);
-    const auto device_id = fmt::format("{}_{}", safe_id(link), module_id(module));
+    const auto device_id = fmt::format("{}_{}", safe_id(link), gateway::module_id(module));
     const auto state = module_topic(node.topic_prefix, link, module, "state");
     const auto availability = module_topic(node.topic_prefix, link, module, "availability");
     std::vector<Discovery> out;

@@ -17,9 +17,6 @@
 
 namespace ioport::mqtt_json {
 
-// A module in topics and ids: "dim16_0"; the ID-2: "id2".
-std::string module_id(std::optional<ModuleAddress> module);
-
 std::string status_topic(std::string_view prefix);  // <prefix>/status
 // <prefix>/<link>/<module>/<leaf>: leaf "state", "availability", or "<point>/set".
 std::string module_topic(std::string_view prefix, std::string_view link,
@@ -35,7 +32,7 @@ Result<> check_topic_prefix(std::string_view prefix);
 
 struct SetTopic {
     std::string link;
-    std::string module;  // as module_id() writes it
+    std::string module;  // as gateway::module_id() writes it
     std::string point;
     friend bool operator==(const SetTopic&, const SetTopic&) = default;
 };
@@ -53,16 +50,6 @@ std::vector<std::string> state_keys(std::optional<ModuleType> type);
 // engineering value (gateway.md §6.1), colour its name.
 std::string state_json(std::optional<ModuleType> type,
                        std::span<const std::optional<gateway::PointValue>> values);
-
-// The longest `set` payload read; a longer one is refused unread.
-inline constexpr std::size_t max_set_bytes = 32;
-
-// A `set` as the write the gateway plans like any other (gateway.md §6.3): outK and reset take
-// ON/OFF, 1/0, true/false; word a number 0–65535 (decimal or 0x hex); colour a colour name or
-// 0–7; pos and neg 0–7. Fails (invalid_argument, saying what is allowed) for a point the module
-// does not have or cannot write, and for any other payload: never truncated, never guessed.
-Result<gateway::WritePlan> plan_set(std::optional<ModuleAddress> module, std::string_view point,
-                                    std::string_view payload);
 
 // --- Home Assistant discovery -------------------------------------------------------------
 

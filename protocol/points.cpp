@@ -254,4 +254,25 @@ Result<std::uint64_t> parse_point_text(const PointSpec& point, std::string_view 
     return refused("cannot be set");
 }
 
+std::string module_id(std::optional<ModuleAddress> module) {
+    if (!module) return "id2";
+    return fmt::format("{}_{}", name(module->type), module->number);
+}
+
+Result<WritePlan> plan_text_write(std::optional<ModuleAddress> module, std::string_view id,
+                                  std::string_view text) {
+    const auto refused = [&](std::string why) {
+        return fail(Errc::invalid_argument,
+                    fmt::format("{} {}: {}", module_id(module), printable(id, 40), why));
+    };
+    const auto found = find_point(module ? std::optional(module->type) : std::nullopt, id);
+    if (!found) return refused("no such point");
+    if (!found->spec->writable) return refused("an input: it cannot be set");
+    if (text.size() > max_point_text)
+        return refused(fmt::format("a value of {} bytes: at most {}", text.size(), max_point_text));
+    const auto value = parse_point_text(*found->spec, text);
+    if (!value) return refused(value.error().message);
+    return plan_point_write(module, id, *value);
+}
+
 }  // namespace ioport::gateway

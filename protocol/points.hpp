@@ -85,6 +85,20 @@ std::uint64_t max_number(PointType type);
 Result<WritePlan> plan_point_write(std::optional<ModuleAddress> module, std::string_view id,
                                    std::uint64_t value);
 
+// A module in plain MQTT topics (gateway.md §6.3) and in HTTP writes (§7.1): "dim16_0"; the
+// ID-2: "id2".
+std::string module_id(std::optional<ModuleAddress> module);
+
+// The longest text a write's value is read from; a longer one is refused unread.
+inline constexpr std::size_t max_point_text = 32;
+
+// A write of `text` to point `id`, as a plain MQTT set and an HTTP write ask for it:
+// parse_point_text, then plan_point_write. Fails (invalid_argument, saying what is allowed and
+// naming the module and point) for a point the module does not have or cannot write, and for any
+// other text: never truncated, never guessed.
+Result<WritePlan> plan_text_write(std::optional<ModuleAddress> module, std::string_view id,
+                                  std::string_view text);
+
 // A point's value in the words of a plain MQTT set (gateway.md §6.3) and of an HTTP write
 // (§7.1): ON/OFF, 1/0, true/false for a boolean; a whole number, decimal or 0x hex, for a word;
 // a colour name or 0–7 for colour; 0–7 for pos and neg. Fails saying what the point takes.

@@ -85,7 +85,7 @@ void MqttJsonSession::build(const Links& links) {
             Module module{link,
                           view.slot,
                           view.address,
-                          mqtt_json::module_id(view.address),
+                          gateway::module_id(view.address),
                           mqtt_json::module_topic(prefix, name, view.address, "state"),
                           mqtt_json::module_topic(prefix, name, view.address, "availability")};
             if (settings_.discovery) {
@@ -307,7 +307,7 @@ void MqttJsonSession::set(const mqtt_json::SetTopic& topic, std::string_view pay
         refuse_set("read_only", "modbus.read_only is set: nothing is written on a client's behalf");
         return;
     }
-    auto plan = mqtt_json::plan_set(module->address, topic.point, payload);
+    auto plan = gateway::plan_text_write(module->address, topic.point, payload);
     if (!plan) {
         refuse_set("payload", printable(plan.error().message, 4 * shown_bytes));
         return;

@@ -15,11 +15,12 @@
 // longer configured are cleared even after a restart). A clean stop publishes `offline` itself.
 //
 // Writes: `<prefix>/<link>/<module>/<point>/set` takes the gateway's one write path
-// (mqtt_json::plan_set, then LinkScheduler::write): validated, confirmed by the device, audited
-// with CLIENT=mqtt_json; the state shows the value once the device confirmed it. Refused: a
-// retained set (a command left on the broker must not act at every connect), any set under
-// modbus.read_only, a module or point that is not there, a payload plan_set does not take. What
-// comes from the broker reaches the log escaped, and refusals go through one LogLimiter.
+// (gateway::plan_text_write, then LinkScheduler::write): validated, confirmed by the device,
+// audited with CLIENT=mqtt_json; the state shows the value once the device confirmed it.
+// Refused: a retained set (a command left on the broker must not act at every connect), any set
+// under modbus.read_only, a module or point that is not there, a payload plan_text_write does not
+// take. What comes from the broker reaches the log escaped, and refusals go through one
+// LogLimiter.
 #pragma once
 
 #include <chrono>

@@ -15,8 +15,6 @@ const ModuleAddress rgbdm{ModuleType::rgbdm, 2};
 const ModuleAddress mux8m{ModuleType::mux8m, 0};
 
 TEST(MqttJsonTopics, AsGatewayMdSays) {
-    EXPECT_EQ(module_id(dim16), "dim16_0");
-    EXPECT_EQ(module_id(std::nullopt), "id2");
     EXPECT_EQ(status_topic("ioportd/box7"), "ioportd/box7/status");
     EXPECT_EQ(module_topic("ioportd/box7", "hub0", dom16, "state"),
               "ioportd/box7/hub0/dom16_1/state");
@@ -82,51 +80,6 @@ TEST(MqttJsonState, AnalogValuesAreTheEngineeringValues) {
     EXPECT_EQ(text, R"({"raw0":0,"raw1":32768,"raw2":65535,"value0":-20,"value1":50.000763,)"
                     R"("value2":100})");
     EXPECT_EQ(state_keys(ModuleType::dccim), (std::vector<std::string>{"raw0", "value0"}));
-}
-
-TEST(MqttJsonSet, WritesAsTheOneWritePathPlansThem) {
-    const auto out3 = plan_set(dom16, "out3", "ON");
-    ASSERT_TRUE(out3) << out3.error().message;
-    EXPECT_EQ(out3->changes, (std::vector<gateway::OutputChange>{{dom16, 0x0008, 0x0008}}));
-    EXPECT_EQ(plan_set(dom16, "out3", "0")->changes,
-              (std::vector<gateway::OutputChange>{{dom16, 0x0008, 0x0000}}));
-    EXPECT_EQ(plan_set(dom16, "word", "0x00F0")->changes,
-              (std::vector<gateway::OutputChange>{{dom16, 0xFFFF, 0x00F0}}));
-    EXPECT_EQ(plan_set(dom16, "word", "65535")->changes[0].value, 0xFFFF);
-    EXPECT_EQ(plan_set(rgbdm, "colour", "magenta")->changes[0].value, 5);
-    EXPECT_EQ(plan_set(rgbdm, "colour", "3")->changes[0].value, 3);
-    EXPECT_EQ(plan_set(mux8m, "pos", "7")->changes,
-              (std::vector<gateway::OutputChange>{{mux8m, 0xFF00, 0x0700}}));
-    const auto reset = plan_set(std::nullopt, "reset", "ON");
-    ASSERT_TRUE(reset) << reset.error().message;
-    EXPECT_TRUE(reset->reset_counter);
-}
-
-TEST(MqttJsonSet, AnythingElseIsRefusedSayingWhatIsAllowed) {
-    const auto refused = [](std::optional<ModuleAddress> module, std::string_view point,
-                            std::string_view payload, std::string_view why) {
-        const auto plan = plan_set(module, point, payload);
-        ASSERT_FALSE(plan) << point << " " << payload;
-        EXPECT_EQ(plan.error().code, Errc::invalid_argument);
-        EXPECT_NE(plan.error().message.find(why), std::string::npos) << plan.error().message;
-    };
-    refused(dom16, "out3", "yes", "'yes' is not allowed: send ON or OFF");
-    refused(dom16, "out3", "ON ", "not allowed");
-    refused(dom16, "out16", "ON", "no such point");
-    refused(dom16, "out03", "ON", "no such point");
-    refused(dom16, "word", "65536", "send a number 0-65535");
-    refused(dom16, "word", "-1", "not allowed");
-    refused(dom16, "word", "1.0", "not allowed");
-    refused(dim16, "in3", "ON", "an input: it cannot be set");
-    refused(dim16, "word", "1", "an input");
-    refused(rgbdm, "colour", "pink", "send a colour: off, red");
-    refused(rgbdm, "colour", "8", "send a colour");
-    refused(mux8m, "neg", "8", "send a test point 0-7");
-    refused(acm3p, "value0", "1", "an input");
-    refused(std::nullopt, "count", "0", "an input");
-    refused(dom16, "out3", std::string(33, '1'), "a payload of 33 bytes: at most 32");
-    refused(dom16, "out3\n", "ON", "no such point");
-    refused(dom16, "out3", "\x1b[2J", "'\\x1B[2J' is not allowed");
 }
 
 // --- Home Assistant discovery -------------------------------------------------------------
