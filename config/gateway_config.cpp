@@ -35,6 +35,23 @@ std::string resolve_device(const std::string& device) {
     return error ? device : resolved.string();
 }
 
+namespace {
+
+bool loopback(const std::string& host) {
+    boost::system::error_code ec;
+    const auto address = ip::make_address(host, ec);
+    return host == "localhost" || (!ec && address.is_loopback());
+}
+
+// Every request names a user: a password, or a certificate the handshake verified.
+bool authenticates(const HttpSettings& http) {
+    return http.web &&
+           (!http.web->users.empty() ||
+            (http.web->tls && http.web->tls->client_auth == ClientAuth::require_and_verify));
+}
+
+}  // namespace
+
 std::vector<std::string> warnings(const GatewayConfig& config) {
     std::vector<std::string> found;
     const auto& modbus = config.modbus;
@@ -55,6 +72,13 @@ std::vector<std::string> warnings(const GatewayConfig& config) {
                     "over mqtt://, readable by anyone on the way: use mqtts://",
                     section, broker.host));
     };
+    if (config.http && !loopback(config.http->listen_host) && !authenticates(*config.http))
+        found.push_back(fmt::format(
+            "the HTTP side (http.listen \"{}\") is open to whoever reaches it: every value, the "
+            "event log and the configuration's names. Give it an http.web_config_file with "
+            "basic_auth_users or required client certificates (docs/http.md), or listen on "
+            "127.0.0.1",
+            host_port(config.http->listen_host, config.http->listen_port)));
     if (config.mqtt) password_in_clear(*config.mqtt, "mqtt");
     if (config.mqtt_json) password_in_clear(config.mqtt_json->connection, "mqtt_json");
     return found;

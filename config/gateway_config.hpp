@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -90,7 +91,40 @@ struct ModbusSettings {
     friend bool operator==(const ModbusSettings&, const ModbusSettings&) = default;
 };
 
-// The HTTP side (gateway.md §5.4): metrics, status page, health. Read-only.
+// http.web_config_file (gateway.md §7.1): the Prometheus exporter-toolkit's web configuration,
+// read and checked at load (and at each reload) like the other files that grant rights.
+// client_auth_type, in Go's crypto/tls words: whether a client certificate is asked for, needed,
+// and checked against client_ca_file. Only a checked one names a user.
+enum class ClientAuth {
+    none,                // NoClientCert
+    request,             // RequestClientCert: asked for, never checked
+    require_any,         // RequireAnyClientCert: needed, never checked
+    verify_if_given,     // VerifyClientCertIfGiven
+    require_and_verify,  // RequireAndVerifyClientCert
+};
+enum class TlsVersion { tls12, tls13 };
+struct WebTlsSettings {
+    std::string cert_file;  // paths, for messages
+    std::string key_file;
+    std::string client_ca_file;  // "" = none
+    std::string cert_pem;        // their contents, PEM
+    std::string key_pem;
+    std::string client_ca_pem;
+    ClientAuth client_auth = ClientAuth::none;
+    TlsVersion min_version = TlsVersion::tls12;
+    TlsVersion max_version = TlsVersion::tls13;
+    friend bool operator==(const WebTlsSettings&, const WebTlsSettings&) = default;
+};
+struct WebConfig {
+    std::string path;
+    std::optional<WebTlsSettings> tls;  // none: plain HTTP
+    // http_server_config.headers: added to every response after ioportd's own.
+    std::vector<std::pair<std::string, std::string>> headers;
+    std::map<std::string, std::string> users;  // basic_auth_users: name -> bcrypt hash
+    friend bool operator==(const WebConfig&, const WebConfig&) = default;
+};
+
+// The HTTP side (gateway.md §5.4, §7.1): metrics, status page, health; writes by operators.
 struct HttpSettings {
     std::string listen_host = "127.0.0.1";  // as ModbusSettings::listen_host
     std::uint16_t listen_port = 8502;
@@ -98,6 +132,8 @@ struct HttpSettings {
     // Names a request's Host may give besides IP literals, localhost and the machine's host
     // name: a reverse proxy's public name, a DNS alias (gateway.md §5.4).
     std::vector<std::string> server_names;
+    std::optional<WebConfig> web;        // http.web_config_file; none: plain, anyone reads (§5.4)
+    std::vector<std::string> operators;  // users who may write (§7.1)
     friend bool operator==(const HttpSettings&, const HttpSettings&) = default;
 };
 

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cstddef>
+#include <filesystem>
 #include <map>
 #include <optional>
 #include <span>
@@ -88,7 +89,10 @@ class Loader {
         read_root(root, config);
         if (errors_.empty()) return config;
         // Checks run per key, not in file order; the operator reads the file top to bottom.
-        std::ranges::stable_sort(errors_, {}, &ConfigError::line);
+        // A file the main one names (http.web_config_file) after it.
+        std::ranges::stable_sort(errors_, {}, [&](const ConfigError& e) {
+            return std::pair(e.file != config.file, e.line);
+        });
         return Unexpected(std::move(errors_));
     }
 
@@ -121,6 +125,16 @@ class Loader {
     // http_section.cpp
     void read_http(const Entry& entry, std::optional<HttpSettings>& http);
     void read_server_names(const Fields& fields, std::vector<std::string>& names);
+    void read_web(const Fields& fields, HttpSettings& http);
+
+    // web_config.cpp: http.web_config_file, the exporter-toolkit's web configuration. Its errors
+    // name its own file.
+    std::optional<WebConfig> read_web_config(const std::string& path);
+    void refuse_unimplemented(const Fields& fields);
+    void read_web_tls(const Entry& entry, const std::filesystem::path& base,
+                      std::optional<WebTlsSettings>& tls);
+    void read_web_headers(const Entry& entry, WebConfig& web);
+    void read_web_users(const Entry& entry, WebConfig& web);
 
     // mqtt_section.cpp: Sparkplug's mqtt:, and the connection keys mqtt_json: shares.
     void read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt);

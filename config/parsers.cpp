@@ -135,6 +135,19 @@ Parsed<std::string> text_value(const YAML::Node& value) {
     return value.Scalar();
 }
 
+Parsed<std::string> user_name(const std::string& name) {
+    constexpr std::size_t max_length = 64;
+    const bool valid =
+        !name.empty() && name.size() <= max_length && std::ranges::all_of(name, [](char c) {
+            return static_cast<unsigned char>(c) > 0x20 && c != 0x7F && c != ':';
+        });
+    if (valid) return name;
+    return Unexpected(
+        fmt::format("'{}' is not a user name: 1..{} printable characters without "
+                    "spaces or ':'",
+                    printable(name), max_length));
+}
+
 // A decimal number >= 0, such as 0.5 or 2.
 Parsed<double> non_negative(const YAML::Node& value) {
     const std::string& text = value.Scalar();

@@ -108,6 +108,9 @@ auto choice(Choices<E> choices) {
 
 // Any text, as written.
 Parsed<std::string> text_value(const YAML::Node& value);
+// A user of the HTTP side (gateway.md §7.1): 1..64 printable bytes, no space or ':' (RFC 7617
+// splits there).
+Parsed<std::string> user_name(const std::string& name);
 // A number of at least 0, unquoted.
 Parsed<double> non_negative(const YAML::Node& value);
 

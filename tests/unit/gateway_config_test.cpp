@@ -4,6 +4,8 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -1634,6 +1636,226 @@ TEST(GatewayConfigErrors, AFileThatGrantsRightsMustNotBeWritableByGroupOrOthers)
     const TempFile config(hub, owner_only | perms::group_read | perms::others_read);
     const auto loaded = load_config(config.path(), identity);
     EXPECT_TRUE(loaded) << describe(loaded.error());
+}
+
+// --- http.web_config_file (gateway.md §7.1) ----------------------------------------------------
+
+// A web configuration in a file of the test's, beside the TLS files (so that their names alone,
+// relative paths, are its neighbours), and the main file that names it.
+struct WebFiles {
+    TlsFiles tls;
+    std::unique_ptr<TempFile> web;
+
+    // `operators` and `listen` as the http: section's keys, on lines 2 and 3.
+    explicit WebFiles(const std::string& content, perms mode = owner_only)
+        : web(std::make_unique<TempFile>(content, mode)) {}
+    std::string yaml(const std::string& operators = "[alice]",
+                     const std::string& listen = "127.0.0.1:8502") const {
+        return "http:\n  web_config_file: " + web->path() + "\n  operators: " + operators +
+               "\n  listen: \"" + listen + "\"\n" + hub;
+    }
+    std::string name(const TempFile& file) const {
+        return std::filesystem::path(file.path()).filename().string();
+    }
+};
+
+constexpr const char* alice_hash = "$2y$04$sGO5GKf0dpvOcga0RM2/Ye037FPBgYeYLDPwBpx1VY2vk.4fZO5JW";
+constexpr const char* bob_hash = "$2b$10$d7enEMjJTTVxEJCW4OtbheqMos5ISD.cKh7EOO3YKSbYPpclm3qVa";
+
+// The errors of a main file whose web configuration is `web`: each must name the web file.
+std::vector<ConfigError> web_errors(const WebFiles& files,
+                                    const std::string& operators = "[alice]") {
+    const auto config = parse(files.yaml(operators));
+    if (config) return {};
+    return config.error();
+}
+
+void expect_web_error(const std::string& web, int line, const std::string& key,
+                      const std::string& fragment) {
+    SCOPED_TRACE(web);
+    const WebFiles files(web);
+    const auto errors = web_errors(files);
+    ASSERT_EQ(errors.size(), 1u) << describe(errors);
+    EXPECT_EQ(errors[0].file, files.web->path());
+    EXPECT_EQ(errors[0].line, line) << to_string(errors[0]);
+    EXPECT_EQ(errors[0].key, key) << to_string(errors[0]);
+    EXPECT_NE(errors[0].message.find(fragment), std::string::npos)
+        << to_string(errors[0]) << "\n  should contain: " << fragment;
+}
+
+TEST(GatewayConfig, TheWebConfigurationAsTheExporterToolkitWritesIt) {
+    const TlsFiles tls;
+    const WebFiles probe("");
+    // cert_file and key_file relative: beside the web file; client_ca_file absolute.
+    const WebFiles files("tls_server_config:\n  cert_file: " + probe.name(tls.certificate) +
+                         "\n  key_file: " + probe.name(tls.key) +
+                         "\n  client_ca_file: " + tls.ca.path() +
+                         "\n  client_auth_type: VerifyClientCertIfGiven\n"
+                         "  min_version: TLS13\n"
+                         "http_server_config:\n  http2: false\n  headers:\n"
+                         "    Strict-Transport-Security: max-age=31536000\n"
+                         "    X-Frame-Options: \"\"\n"
+                         "basic_auth_users:\n  alice: " +
+                         std::string(alice_hash) + "\n  grafana: " + bob_hash + "\n");
+    const auto config = parse(files.yaml("[alice]", "0.0.0.0:8443"));
+    ASSERT_TRUE(config) << describe(config.error());
+    ASSERT_TRUE(config->http && config->http->web);
+    const auto& web = *config->http->web;
+    EXPECT_EQ(web.path, files.web->path());
+    ASSERT_TRUE(web.tls);
+    EXPECT_EQ(web.tls->cert_file, tls.certificate.path());
+    EXPECT_EQ(web.tls->cert_pem, test::tls_fixtures::server_pem);
+    EXPECT_EQ(web.tls->key_pem, test::tls_fixtures::server_key);
+    EXPECT_EQ(web.tls->client_ca_pem, test::tls_fixtures::ca_pem);
+    EXPECT_EQ(web.tls->client_auth, ClientAuth::verify_if_given);
+    EXPECT_EQ(web.tls->min_version, TlsVersion::tls13);
+    EXPECT_EQ(web.tls->max_version, TlsVersion::tls13);
+    // A blank value unsets the header, as the exporter-toolkit says.
+    EXPECT_EQ(web.headers, (std::vector<std::pair<std::string, std::string>>{
+                               {"Strict-Transport-Security", "max-age=31536000"}}));
+    EXPECT_EQ(web.users,
+              (std::map<std::string, std::string>{{"alice", alice_hash}, {"grafana", bob_hash}}));
+    EXPECT_EQ(config->http->operators, (std::vector<std::string>{"alice"}));
+    // Passwords off loopback: nothing to warn of.
+    EXPECT_TRUE(warnings(*config).empty());
+
+    // An empty file is one without TLS and users: plain, anyone reads, no one writes.
+    const WebFiles empty("");
+    const auto plain = parse(empty.yaml("[]"));
+    ASSERT_TRUE(plain) << describe(plain.error());
+    ASSERT_TRUE(plain->http->web);
+    EXPECT_FALSE(plain->http->web->tls);
+    EXPECT_TRUE(plain->http->web->users.empty());
+}
+
+// Off loopback, whoever reaches the port reads everything unless every request names a user.
+TEST(GatewayConfig, AnHttpSideOffLoopbackWithoutUsersIsAWarning) {
+    const auto warned = [](const std::string& yaml) {
+        const auto config = parse(yaml);
+        EXPECT_TRUE(config) << describe(config.error());
+        return config && std::ranges::any_of(warnings(*config), [](const std::string& w) {
+                   return w.find("open to whoever reaches it") != std::string::npos;
+               });
+    };
+    EXPECT_TRUE(warned("http: { listen: \"0.0.0.0:8502\" }\n" + hub));
+    EXPECT_TRUE(warned("http: { listen: \"[::]:8502\" }\n" + hub));
+    EXPECT_FALSE(warned("http: { listen: \"127.0.0.1:8502\" }\n" + hub));
+    EXPECT_FALSE(warned("http: { listen: \"[::1]:8502\" }\n" + hub));
+    EXPECT_FALSE(warned("http: { listen: \"localhost:8502\" }\n" + hub));
+    const WebFiles empty("");
+    EXPECT_TRUE(warned(empty.yaml("[]", "0.0.0.0:8502")));
+    const WebFiles users("basic_auth_users: { alice: " + std::string(alice_hash) + " }\n");
+    EXPECT_FALSE(warned(users.yaml("[]", "0.0.0.0:8502")));
+    const TlsFiles tls;
+    const auto certificates = [&](const std::string& auth) {
+        return "tls_server_config:\n  cert_file: " + tls.certificate.path() +
+               "\n  key_file: " + tls.key.path() + "\n  client_ca_file: " + tls.ca.path() +
+               "\n  client_auth_type: " + auth + "\n";
+    };
+    const WebFiles verified(certificates("RequireAndVerifyClientCert"));
+    EXPECT_FALSE(warned(verified.yaml("[]", "0.0.0.0:8502")));
+    const WebFiles optional(certificates("VerifyClientCertIfGiven"));
+    EXPECT_TRUE(warned(optional.yaml("[]", "0.0.0.0:8502")));
+}
+
+TEST(GatewayConfigErrors, TheWebConfigurationIsReadStrictlyAndItsErrorsNameIt) {
+    const std::string alice = std::string("basic_auth_users:\n  alice: ") + alice_hash + "\n";
+    expect_web_error(alice + "tls_config: {}\n", 3, "tls_config",
+                     "unknown key: allowed here are tls_server_config");
+    expect_web_error(alice + "rate_limit: { interval: 1s }\n", 3, "rate_limit",
+                     "does not implement this key");
+    expect_web_error("basic_auth_users:\n  alice: secret\n", 2, "basic_auth_users.alice",
+                     "expected a bcrypt hash");
+    expect_web_error("basic_auth_users:\n  alice: $1$abc$defghijklmnop\n", 2,
+                     "basic_auth_users.alice", "htpasswd -nBC 10");
+    expect_web_error("basic_auth_users:\n  alice: " + std::string(alice_hash).substr(0, 59) + "\n",
+                     2, "basic_auth_users.alice", "expected a bcrypt hash");
+    expect_web_error("basic_auth_users: [alice]\n", 1, "basic_auth_users",
+                     "expected a mapping of user names to bcrypt hashes");
+    expect_web_error(alice + "  \"bad user\": " + alice_hash + "\n", 3, "basic_auth_users.bad user",
+                     "is not a user name");
+    expect_web_error(alice + "http_server_config:\n  headers:\n    Set-Cookie: a=b\n", 5,
+                     "http_server_config.headers.Set-Cookie", "not a header the web configuration");
+    expect_web_error(alice + "http_server_config:\n  http2: true\n", 4, "http_server_config.http2",
+                     "HTTP/1.1 only");
+    expect_web_error(alice + "- a\n", 3, "", "YAML syntax error");
+    expect_web_error("[1, 2]\n", 1, "", "expected a mapping");
+
+    const TlsFiles tls;
+    const std::string pair = "tls_server_config:\n  cert_file: " + tls.certificate.path() +
+                             "\n  key_file: " + tls.key.path() + "\n";
+    expect_web_error(pair + "  cipher_suites: [TLS_AES_128_GCM_SHA256]\n", 4,
+                     "tls_server_config.cipher_suites", "does not implement this key");
+    expect_web_error(pair + "  client_auth_type: RequireAndVerifyClientCert\n", 4,
+                     "tls_server_config.client_auth_type", "client_ca_file, which is missing");
+    expect_web_error(pair + "  client_auth_type: Always\n", 4, "tls_server_config.client_auth_type",
+                     "'Always' is not allowed");
+    expect_web_error(pair + "  min_version: TLS13\n  max_version: TLS12\n", 5,
+                     "tls_server_config.max_version", "is below min_version");
+    expect_web_error(pair + "  min_version: TLS10\n", 4, "tls_server_config.min_version",
+                     "'TLS10' is not allowed");
+    expect_web_error("tls_server_config:\n  cert_file: " + tls.certificate.path() + "\n", 2,
+                     "tls_server_config.key_file", "missing");
+    expect_web_error(
+        "tls_server_config:\n  cert_file: nonexistent.pem\n  key_file: " + tls.key.path() + "\n", 2,
+        "tls_server_config.cert_file", "nonexistent.pem: No such file");
+    const TempFile other_key(test::tls_fixtures::other_key, owner_only);
+    expect_web_error("tls_server_config:\n  cert_file: " + tls.certificate.path() +
+                         "\n  key_file: " + other_key.path() + "\n",
+                     3, "tls_server_config.key_file", "is not the key of the certificate");
+}
+
+// It holds the hashes and names who may write: a file that grants rights (§5.6), and a secret.
+TEST(GatewayConfigErrors, TheWebConfigurationIsAFileThatGrantsRights) {
+    const std::string alice = std::string("basic_auth_users: { alice: ") + alice_hash + " }\n";
+    for (const auto& [mode, fragment] :
+         {std::pair{owner_only | perms::others_write, "is writable by every user"},
+          std::pair{owner_only | perms::group_write, "is writable by its group"},
+          std::pair{owner_only | perms::others_read, "readable by every user"}}) {
+        SCOPED_TRACE(fragment);
+        const WebFiles files(alice, mode);
+        const auto errors = web_errors(files);
+        ASSERT_EQ(errors.size(), 1u) << describe(errors);
+        EXPECT_EQ(errors[0].file, files.web->path());
+        EXPECT_NE(errors[0].message.find(fragment), std::string::npos) << to_string(errors[0]);
+    }
+    const auto missing = parse("http:\n  web_config_file: /nonexistent/web.yml\n" + hub);
+    ASSERT_FALSE(missing);
+    EXPECT_EQ(missing.error()[0].file, "/nonexistent/web.yml");
+    EXPECT_NE(missing.error()[0].message.find("No such file"), std::string::npos);
+}
+
+TEST(GatewayConfigErrors, OperatorsAreUsersOfTheWebConfiguration) {
+    expect_one_error({"http:\n  operators: [alice]\n" + hub, 2, "http.operators",
+                      "there are none without http.web_config_file"});
+    const WebFiles files(std::string("basic_auth_users: { alice: ") + alice_hash + " }\n");
+    const auto errors = web_errors(files, "[alice, mallory]");
+    ASSERT_EQ(errors.size(), 1u) << describe(errors);
+    EXPECT_EQ(errors[0].file, "test.yaml");
+    EXPECT_EQ(errors[0].line, 3);
+    EXPECT_EQ(errors[0].key, "http.operators");
+    EXPECT_NE(
+        errors[0].message.find("'mallory' is not one of basic_auth_users in " + files.web->path()),
+        std::string::npos)
+        << to_string(errors[0]);
+    const auto bad = web_errors(files, "[\"al ice\"]");
+    ASSERT_EQ(bad.size(), 1u) << describe(bad);
+    EXPECT_EQ(bad[0].key, "http.operators[0]");
+    // Without passwords, a verified certificate's CN is the user: any name may be an operator.
+    const TlsFiles tls;
+    const WebFiles certificates("tls_server_config:\n  cert_file: " + tls.certificate.path() +
+                                "\n  key_file: " + tls.key.path() +
+                                "\n  client_ca_file: " + tls.ca.path() +
+                                "\n  client_auth_type: RequireAndVerifyClientCert\n");
+    EXPECT_TRUE(web_errors(certificates, "[\"scada-1\"]").empty());
+    // The main file's errors come first, then the web file's.
+    const WebFiles broken("basic_auth_users: { alice: secret }\n");
+    const auto both =
+        parse("http:\n  web_config_file: " + broken.web->path() + "\n  port: 1\n" + hub);
+    ASSERT_FALSE(both);
+    ASSERT_EQ(both.error().size(), 2u) << describe(both.error());
+    EXPECT_EQ(both.error()[0].file, "test.yaml");
+    EXPECT_EQ(both.error()[1].file, broken.web->path());
 }
 
 }  // namespace ioport::config
