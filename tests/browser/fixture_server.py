@@ -1,7 +1,8 @@
 #!/usr/bin/python3
 """A stand-in for ioportd's HTTP API (issue 16), so the status page can be developed and tested
-without the daemon: it serves daemon/http/status_page/index.html at / and JSON that follows
-/work/notes/state_schema.md (GET api/v1/state, GET api/v1/trends), with values that move.
+without the daemon: it serves daemon/http/status_page/ (index.html at /, app.js, app.css,
+icon.svg) and JSON that follows docs/http.md (GET api/v1/state, GET api/v1/trends), with values
+that move.
 
 Everything is also served under /ioportd/, to check that the page only uses relative URLs, as
 it must behind a reverse proxy.
@@ -26,8 +27,13 @@ import time
 import urllib.parse
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-PAGE = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..',
-                    'daemon', 'http', 'status_page', 'index.html')
+PAGE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..',
+                        'daemon', 'http', 'status_page')
+# The files of the page by path, as daemon/http/http_route.cpp routes them and render.cpp types them.
+ASSETS = {'/': ('index.html', 'text/html; charset=utf-8'),
+          '/app.js': ('app.js', 'text/javascript; charset=utf-8'),
+          '/app.css': ('app.css', 'text/css; charset=utf-8'),
+          '/icon.svg': ('icon.svg', 'image/svg+xml')}
 PREFIX = '/ioportd'  # the same site under a path, as behind a reverse proxy
 STATUS_TEXT = {1: 'online', 2: 'no answer', 3: 'bad answer', 4: 'not polled yet'}
 COLOURS = ['off', 'red', 'green', 'blue', 'cyan', 'magenta', 'yellow', 'white']
@@ -321,9 +327,10 @@ class Handler(BaseHTTPRequestHandler):
     def do_GET(self):
         path, _ = self.route()
         fx = self.fixture
-        if path == '/':
-            with open(PAGE, 'rb') as f:  # read each time: edits show on reload
-                return self.send(200, 'text/html; charset=utf-8', f.read())
+        if path in ASSETS:
+            name, ctype = ASSETS[path]
+            with open(os.path.join(PAGE_DIR, name), 'rb') as f:  # read each time: edits show on reload
+                return self.send(200, ctype, f.read())
         if path in ('/api/v1/state', '/api/v1/trends'):
             with fx.lock:
                 if time.time() < fx.outage_until:
