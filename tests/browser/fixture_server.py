@@ -1,8 +1,8 @@
 #!/usr/bin/python3
 """A stand-in for ioportd's HTTP API (issue 16), so the status page can be developed and tested
 without the daemon: it serves daemon/http/status_page/ (index.html at /, app.js, app.css,
-icon.svg) and JSON that follows docs/http.md (GET api/v1/state, GET api/v1/trends), with values
-that move.
+icon.svg) under the daemon's Content-Security-Policy, and JSON that follows docs/http.md
+(GET api/v1/state, GET api/v1/trends), with values that move.
 
 Everything is also served under /ioportd/, to check that the page only uses relative URLs, as
 it must behind a reverse proxy.
@@ -34,6 +34,9 @@ ASSETS = {'/': ('index.html', 'text/html; charset=utf-8'),
           '/app.js': ('app.js', 'text/javascript; charset=utf-8'),
           '/app.css': ('app.css', 'text/css; charset=utf-8'),
           '/icon.svg': ('icon.svg', 'image/svg+xml')}
+# As daemon/http/http_server.cpp sends them (gateway.md §7.1): the page must work under them.
+SECURITY_HEADERS = {'Content-Security-Policy': "default-src 'self'; frame-ancestors 'none'",
+                    'Referrer-Policy': 'no-referrer', 'X-Content-Type-Options': 'nosniff'}
 PREFIX = '/ioportd'  # the same site under a path, as behind a reverse proxy
 STATUS_TEXT = {1: 'online', 2: 'no answer', 3: 'bad answer', 4: 'not polled yet'}
 COLOURS = ['off', 'red', 'green', 'blue', 'cyan', 'magenta', 'yellow', 'white']
@@ -312,6 +315,8 @@ class Handler(BaseHTTPRequestHandler):
         self.send_header('Content-Type', ctype)
         self.send_header('Content-Length', str(len(data)))
         self.send_header('Cache-Control', 'no-store')
+        for name, value in SECURITY_HEADERS.items():
+            self.send_header(name, value)
         self.end_headers()
         self.wfile.write(data)
 

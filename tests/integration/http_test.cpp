@@ -609,6 +609,9 @@ TEST_F(Http, TheMapIsPrintMapsAndABadFormatIs400) {
 TEST_F(Http, TheStatusPageIsFilesOfItsOwnUnderAPolicyThatForbidsInlineCode) {
     const auto page = http_get(http_port(), "/");
     ASSERT_EQ(page.status, 200) << page.error;
+    EXPECT_EQ(page.header("Content-Security-Policy").value_or(""),
+              "default-src 'self'; frame-ancestors 'none'");
+    EXPECT_EQ(page.header("Referrer-Policy").value_or(""), "no-referrer");
     EXPECT_NE(page.body.find(R"(<script src="app.js" defer></script>)"), std::string::npos);
     EXPECT_NE(page.body.find(R"(<link rel="stylesheet" href="app.css">)"), std::string::npos);
     EXPECT_NE(page.body.find(R"(<link rel="icon" href="icon.svg")"), std::string::npos);
@@ -623,6 +626,9 @@ TEST_F(Http, TheStatusPageIsFilesOfItsOwnUnderAPolicyThatForbidsInlineCode) {
         const auto reply = http_get(http_port(), path);
         EXPECT_EQ(reply.status, 200) << path;
         EXPECT_EQ(reply.header("Content-Type").value_or(""), type) << path;
+        EXPECT_EQ(reply.header("Content-Security-Policy").value_or(""),
+                  "default-src 'self'; frame-ancestors 'none'")
+            << path;
     }
     EXPECT_NE(http_get(http_port(), "/app.js").body.find("api/v1/state"), std::string::npos);
     // The map shares the page's style sheet, under the same policy.
