@@ -19,7 +19,10 @@ normally when all passed. What it checks:
      a .status text other than "online";
   4. each (element id, text) of `shows`: within load_timeout the element's text contains it;
      each (link, module, text) of `tile_shows`: within load_timeout that tile's text contains it;
-  5. the browser console has no error (level SEVERE);
+  5. the page met no violation of its Content-Security-Policy (a `securitypolicyviolation`
+     event, recorded from the document's start) and the browser console has no error (level
+     SEVERE: Chromium reports there what the policy refused, and a failed request); then each
+     of `other_pages` (relative to url) is loaded and checked the same way;
   6. screenshots: the whole page at 1280 px wide to screenshot_path, and at 360 px wide to
      narrow_screenshot_path (default: screenshot_path with "-narrow" before the extension).
 Screenshots are taken even when a check failed, to see why.
@@ -155,6 +158,33 @@ class _Page:
             self.driver.save_screenshot(path)  # the window only, but something to look at
 
 
+# Installed before any of the page's own code runs in every document the browser loads, so that
+# a violation in the document's markup (an inline script, a style attribute) is caught too.
+_CSP_RECORDER = """
+window.__cspViolations = [];
+document.addEventListener('securitypolicyviolation', e => window.__cspViolations.push(
+  e.effectiveDirective + ' refused ' + (e.blockedURI || 'inline code') + ' at ' +
+  e.sourceFile + ':' + e.lineNumber));
+"""
+
+
+def problems(driver, allowed=()):
+    """What the browser refused or complained about: the current document's violations of its
+    Content-Security-Policy not yet reported, and the console's errors (level SEVERE) since the
+    last call but those matching one of the regular expressions `allowed`."""
+    violations = driver.execute_script(
+        'return window.__cspViolations ? window.__cspViolations.splice(0) : null')
+    if violations is None:
+        return ['the recorder of Content-Security-Policy violations did not run in %s'
+                % driver.current_url]
+    found = ['Content-Security-Policy: %s' % v for v in violations]
+    for entry in driver.get_log('browser'):
+        message = entry.get('message', '')
+        if entry.get('level') == 'SEVERE' and not any(re.search(a, message) for a in allowed):
+            found.append('console: %s' % message)
+    return found
+
+
 def _driver(profile):
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
@@ -164,13 +194,15 @@ def _driver(profile):
               '--window-size=%d,%d' % WIDE):
         options.add_argument(a)
     options.set_capability('goog:loggingPrefs', {'browser': 'ALL'})
-    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    driver.execute_cdp_cmd('Page.addScriptToEvaluateOnNewDocument', {'source': _CSP_RECORDER})
+    return driver
 
 
 def run(url, change_input, expected_word, fault, screenshot_path, *,
         input_link='hub0', input_module='dim16 0', fault_link='hub0', fault_module='dim16 0',
-        shows=(), tile_shows=(), narrow_screenshot_path=None, load_timeout=15.0, input_timeout=5.0,
-        fault_timeout=10.0):
+        shows=(), tile_shows=(), other_pages=(), narrow_screenshot_path=None, load_timeout=15.0,
+        input_timeout=5.0, fault_timeout=10.0):
     """Checks the status page at `url` in headless Chromium (see the module's docstring).
 
     change_input(): makes the input word of input_module on input_link become expected_word
@@ -276,11 +308,19 @@ def run(url, change_input, expected_word, fault, screenshot_path, *,
                 except PageTestFailed as e:
                     raise PageTestFailed('%s (it shows %r)' % (e, last[0])) from None
 
-            def console_clean():
-                errors = [e for e in driver.get_log('browser') if e.get('level') == 'SEVERE']
-                if errors:
-                    raise PageTestFailed('%d error(s) in the browser console:\n  %s' % (
-                        len(errors), '\n  '.join(e.get('message', '') for e in errors)))
+            def clean(where):
+                found = problems(driver)
+                if found:
+                    raise PageTestFailed('%s: %d problem(s):\n  %s'
+                                         % (where, len(found), '\n  '.join(found)))
+
+            def other_page_clean(path):
+                target = urllib.parse.urljoin(url, path)
+                try:
+                    driver.get(target)
+                except WebDriverException as e:
+                    raise PageTestFailed('cannot load %s: %s' % (target, e.msg)) from None
+                clean(target)
 
             def screenshots():
                 for path, size in ((screenshot_path, WIDE), (narrow_screenshot_path, NARROW)):
@@ -298,8 +338,11 @@ def run(url, change_input, expected_word, fault, screenshot_path, *,
                     check('tile %s / %s shows %r' % (link, module, text),
                           lambda link=link, module=module, text=text:
                           tile_shows_text(link, module, text))
-            check('no errors in the browser console', console_clean)
+            check('no policy violation, no error in the browser console', lambda: clean(url))
             check('screenshots', screenshots)
+            for path in other_pages:
+                check('%s: no policy violation, no error in the browser console' % path,
+                      lambda path=path: other_page_clean(path))
         finally:
             driver.quit()
     if failures:
