@@ -3,8 +3,11 @@
 // style attributes (setAttribute('style', …) too); only element.style.x = … is allowed.
 'use strict';
 // Relative URLs throughout, so the page also works behind a reverse proxy under a path.
-const STATE_URL = 'api/v1/state', TRENDS_URL = 'api/v1/trends';
+const STATE_URL = 'api/v1/state', TRENDS_URL = 'api/v1/trends', WRITE_URL = 'api/v1/write';
 const STATE_MS = 1000, TRENDS_MS = 5000, TIMEOUT_MS = 4000;
+// A write is answered once the device confirmed it, retries included (gateway.md §3.2), after
+// the writes queued before it: far longer than a read may take.
+const WRITE_TIMEOUT_MS = 30000;
 
 const DIGITAL = {dim16: 'input', lim16: 'input', dom16: 'output'};
 const ANALOG = {acm3p: [3, '%'], acm3c: [3, '%'], dccim: [1, 'A'], dcvim: [1, 'V']};
@@ -16,6 +19,7 @@ const digits = range => {
 };
 const SWATCH = {red: '#e5383b', green: '#2fb344', blue: '#2f6fed', cyan: '#19c3d1',
                 magenta: '#d33ad3', yellow: '#f2c418', white: '#ffffff'};
+const COLOURS = ['off', 'red', 'green', 'blue', 'cyan', 'magenta', 'yellow', 'white'];
 const STATUS_CLASS = {1: 's-ok', 2: 's-bad', 3: 's-warn', 4: 's-idle'};
 const EVENT_CLASS = {module_online: 's-ok', port_up: 's-ok', module_offline: 's-bad',
                      port_down: 's-bad', comm_loss: 's-bad', client_refused: 's-warn'};
@@ -45,12 +49,27 @@ function dur(s) {  // 0.012 → "12 ms", 75 → "1 min 15 s", 90000 → "1 d 1 h
   return d ? `${d} d ${hr} h` : hr ? `${hr} h ${m} min` : `${m} min ${Math.floor(s % 60)} s`;
 }
 const clock = t => t ? t.slice(11, 19) : '';  // RFC 3339 UTC → "03:50:00"
+// A module as a write names it, by the ids of gateway.md §6.3: dom16_0, the ID-2's id2.
+const moduleId = m => m.type === 'id2' ? 'id2' : `${m.type}_${m.number}`;
+
+// A URL of the daemon's, relative to the page, without the user and password of an address
+// typed as http://alice:secret@gateway/: fetch() refuses a URL that carries them, and the
+// browser sends the credentials it was given by itself.
+function apiUrl(path) {
+  const u = new URL(path, document.baseURI);
+  u.username = '';
+  u.password = '';
+  return u;
+}
 
 let serverNow = 0;           // the daemon's clock, seconds; trends are drawn against it
 let structure = '';          // links and modules the tiles were built for
 let tiles = new Map();       // "link|module" → tile view
 let series = new Map();      // "link|module|channel" → [[t, v], …]
 let span = 600, interval = 5, lastEvent = null, lastOk = 0;
+// The user the state names may write (gateway.md §7.1): the tiles are built with the controls
+// of the writable points. Everyone else's page has none.
+let operator = false;
 
 // ---- Links and module tiles -------------------------------------------------------------
 // A titled group of counters: <div><h3/><dl>…</dl></div> (a dl may not hold the heading).
@@ -96,13 +115,18 @@ function buildTile(link, m) {
   t.age = h('span', {class: 'age', title: 'since the last good transaction'});
   t.body = h('div', {class: 'body'});
   t.note = h('p', {class: 'note'});
+  if (operator) {
+    t.refusal = h('p', {class: 'refusal', role: 'alert', hidden: ''});
+    t.write = writer(t, link, moduleId(m));
+  }
   // A configured name heads the tile; the module's id stays beside it, as logs and Modbus say it.
   const named = m.name && m.name !== m.module;
   t.el = h('article', {class: 'tile s-idle', 'data-link': link, 'data-module': m.module},
     h('header', {}, h('h3', {}, named ? m.name : m.module),
       h('span', {class: 'muted'}, (named ? m.module + ' · ' : '') +
         (m.type === 'id2' ? 'machine input' : 'slot ' + m.slot))),
-    h('p', {class: 'badge'}, h('i', {class: 'icon'}), t.status, t.age), t.body, t.note);
+    h('p', {class: 'badge'}, h('i', {class: 'icon'}), t.status, t.age), t.body,
+    ...(t.refusal ? [t.refusal] : []), t.note);
   const fill = DIGITAL[m.type] ? digital : ANALOG[m.type] ? analog : {rgbdm, mux8m, id2}[m.type];
   const values = fill ? fill(t, m) : () => {};
   t.update = m => {
@@ -123,11 +147,21 @@ function digital(t, m) {
   const names = m[kind + 's'] || {};  // named points only: {"5": "pump running"}
   const word = h('code', {class: 'word'}, '—'), lamps = [];
   const ul = h('ul', {class: 'lamps ' + (kind === 'input' ? 'in' : 'out'), 'aria-label': kind + 's 0 to 15'});
+  // An operator's outputs are switches: each shows what the device confirmed, as a lamp does,
+  // and a press asks for the other state.
+  const write = kind === 'output' ? t.write : null;
   for (let i = 0; i < 16; i++) {
-    lamps.push(h('span', {class: 'lamp', role: 'img'}, String(i)));
-    ul.append(h('li', {}, lamps[i]));
+    const lamp = write ? h('button', {type: 'button', class: 'lamp', role: 'switch',
+                                      'aria-checked': 'false', 'data-point': 'out' + i}, String(i))
+                       : h('span', {class: 'lamp', role: 'img'}, String(i));
+    if (write)
+      lamp.addEventListener('click', () =>
+        write(lamp, 'out' + i, lamp.getAttribute('aria-checked') === 'true' ? 'OFF' : 'ON'));
+    lamps.push(lamp);
+    ul.append(h('li', {}, lamp));
   }
-  t.body.append(h('div', {class: 'row'}, h('span', {class: 'k'}, kind + 's'), word), ul);
+  t.body.append(h('div', {class: 'row'},
+    h('span', {class: 'k'}, kind + 's' + (write ? ' · press one to switch it' : '')), word), ul);
   const named = Object.keys(names);
   if (named.length)
     t.body.append(h('ul', {class: 'points muted'},
@@ -143,8 +177,16 @@ function digital(t, m) {
       e.classList.toggle('on', on);
       const what = names[i] ? `${names[i]} (${kind} ${i})` : `${kind} ${i}`;
       const label = `${what} ${w == null ? 'unknown' : on ? 'on' : 'off'}`;
-      e.setAttribute('aria-label', label);
-      e.title = label;
+      if (write) {
+        // A switch says its state in aria-checked; one whose state is unknown is not offered.
+        e.setAttribute('aria-checked', String(on));
+        e.setAttribute('aria-label', what);
+        e.disabled = w == null;
+        e.title = w == null ? label : `${label}: press to switch ${on ? 'off' : 'on'}`;
+      } else {
+        e.setAttribute('aria-label', label);
+        e.title = label;
+      }
     });
   };
 }
@@ -206,12 +248,24 @@ function drawTrends() {
 function rgbdm(t) {
   const sw = h('span', {class: 'swatch', role: 'img'}), name = h('span', {class: 'value colour-name'}, '—');
   t.body.append(h('div', {class: 'big'}, sw, name));
+  // An operator's: one button a colour, the confirmed one pressed.
+  const chips = t.write ? COLOURS.map(c => {
+    const b = h('button', {type: 'button', class: 'chip' + (c === 'off' ? ' off' : ''),
+                           'aria-pressed': 'false', 'data-point': 'colour', 'data-value': c,
+                           'aria-label': c, title: 'set the colour ' + c});
+    b.style.background = SWATCH[c] || '';
+    b.addEventListener('click', () => t.write(b, 'colour', c));
+    return b;
+  }) : [];
+  if (chips.length)
+    t.body.append(h('div', {class: 'chips', role: 'group', 'aria-label': 'colour'}, ...chips));
   return m => {
     const n = m.colour_name;
     txt(name, n == null ? '—' : n);
     sw.classList.toggle('off', n == null || n === 'off');
     sw.style.background = SWATCH[n] || '';
     attr(sw, 'aria-label', 'colour ' + (n == null ? 'unknown' : n));
+    for (const b of chips) attr(b, 'aria-pressed', String(b.dataset.value === n));
   };
 }
 
@@ -220,9 +274,25 @@ function mux8m(t) {
   const state = h('span', {class: 'muted'});
   t.body.append(h('div', {class: 'row'}, h('div', {class: 'pair'},
     h('div', {}, h('div', {class: 'k'}, 'pos'), pos), h('div', {}, h('div', {class: 'k'}, 'neg'), neg)), state));
+  // An operator's: a row of the eight test points for each side, the confirmed one pressed.
+  const picks = {pos: [], neg: []};
+  if (t.write)
+    for (const side of ['pos', 'neg']) {
+      for (let v = 0; v < 8; v++) {
+        const b = h('button', {type: 'button', class: 'pick', 'aria-pressed': 'false',
+                               'data-point': side, 'data-value': String(v),
+                               title: `set ${side} to ${v}`}, String(v));
+        b.addEventListener('click', () => t.write(b, side, String(v)));
+        picks[side].push(b);
+      }
+      t.body.append(h('div', {class: 'picks', role: 'group', 'aria-label': side},
+        h('span', {class: 'k'}, side), ...picks[side]));
+    }
   return m => {
     txt(pos, m.pos == null ? '—' : m.pos);
     txt(neg, m.neg == null ? '—' : m.neg);
+    for (const side of ['pos', 'neg'])
+      picks[side].forEach((b, v) => attr(b, 'aria-pressed', String(m[side] === v)));
     // Both sides on one test point means the multiplexer connects nothing.
     txt(state, m.pos == null ? '' : m.pos === m.neg ? 'disconnected' : 'connected');
   };
@@ -234,11 +304,83 @@ function id2(t) {
   t.body.append(h('div', {class: 'row'},
     h('div', {}, h('div', {class: 'k'}, 'stop'), h('div', {class: 'big'}, lamp, stop)),
     h('div', {class: 'end'}, h('div', {class: 'k'}, 'count'), count)));
+  if (t.write) t.body.append(h('div', {class: 'acts'}, resetButton(t)));
   return m => {
     txt(stop, m.stop == null ? '—' : m.stop ? 'on' : 'off');
     lamp.classList.toggle('on', !!m.stop);
     attr(lamp, 'aria-label', 'stop ' + (m.stop == null ? 'unknown' : m.stop ? 'on' : 'off'));
     txt(count, num(m.count));
+  };
+}
+
+// The ID-2's counter reset takes two presses within 5 s: the count is the production's tally,
+// not to be lost to a stray tap, and a confirm() dialog would stop the page's updates.
+function resetButton(t) {
+  const idle = 'reset count', asking = 'press again to reset the count';
+  const b = h('button', {type: 'button', class: 'act', 'data-point': 'reset'}, idle);
+  let armed = 0;
+  const disarm = () => {
+    clearTimeout(armed);
+    armed = 0;
+    txt(b, idle);
+    b.classList.remove('armed');
+  };
+  b.addEventListener('click', () => {
+    if (!armed) {
+      armed = setTimeout(disarm, 5000);
+      txt(b, asking);
+      b.classList.add('armed');
+      return;
+    }
+    disarm();
+    t.write(b, 'reset', 'ON');
+  });
+  return b;
+}
+
+// ---- Writes (gateway.md §7.1) -----------------------------------------------------------
+// What went wrong, in words, or null for {"result": "confirmed"} with 200. The daemon says why in
+// `error` and `result`; a proxy's answer, or one from an ioportd that takes no writes, may be no
+// JSON at all.
+async function postWrite(body) {
+  const ctl = new AbortController(), timer = setTimeout(() => ctl.abort(), WRITE_TIMEOUT_MS);
+  try {
+    const r = await fetch(apiUrl(WRITE_URL), {
+      method: 'POST', cache: 'no-store', signal: ctl.signal,
+      headers: {'Content-Type': 'application/json'}, body: JSON.stringify(body)});
+    let a = null;
+    try { a = await r.json(); } catch (e) { /* not JSON: said by its status below */ }
+    if (r.ok && a && a.result === 'confirmed') return null;
+    const why = a && typeof a.error === 'string' && a.error
+      ? a.error : `HTTP ${r.status} ${r.statusText}`.trim();
+    return a && typeof a.result === 'string' ? `${why} (${a.result})` : why;
+  } catch (e) {
+    return e.name === 'AbortError' ? `no answer from ioportd within ${WRITE_TIMEOUT_MS / 1000} s`
+                                   : 'ioportd cannot be reached';
+  } finally {
+    clearTimeout(timer);
+  }
+}
+
+// A tile's writes. A control never shows the value asked for, only what the state says the
+// device confirmed: while a write is on its way the control is marked busy, once it is
+// confirmed it stays so until a state asked for after that is shown, and a refusal is said in
+// words under the tile's values.
+function writer(t, link, module) {
+  return async (control, point, value) => {
+    if (control.getAttribute('aria-busy') === 'true') return;  // one write at a time a control
+    control.setAttribute('aria-busy', 'true');
+    t.refusal.hidden = true;
+    txt(t.refusal, '');
+    const refused = await postWrite({link, module, point, value});
+    if (refused === null) {
+      afterState(() => control.removeAttribute('aria-busy'));
+      pollSoon();
+      return;
+    }
+    control.removeAttribute('aria-busy');
+    txt(t.refusal, `${point} → ${value} not confirmed: ${refused}`);
+    t.refusal.hidden = false;
   };
 }
 
@@ -330,11 +472,17 @@ function render(s) {
   setStatus(hl, s.health.ok ? 's-ok' : 's-bad');
   txt(hl.lastChild, s.health.ok ? 'healthy' : 'unhealthy: ' + (s.health.reason || 'unknown reason'));
   txt($('updated'), 'updated ' + clock(s.time) + ' UTC');
+  // null without authentication (gateway.md §7.1); the user signed in otherwise.
+  const user = s.user || null;
+  operator = !!(user && user.operator);
+  $('user').hidden = !user;
+  txt($('user'), user ? `signed in as ${user.name}${operator ? '' : ' (read only)'}` : '');
 
-  // The tiles are built once per configuration (a reload may change it) and then only updated.
-  const shape = JSON.stringify(s.links.map(l => [l.name, l.protocol, l.device, l.baud, l.unit_id,
-    l.modules.map(m => [m.module, m.type, m.slot, m.name, m.inputs, m.outputs,
-      (m.channels || []).map(c => [c.name, c.unit, c.range])])]));
+  // The tiles are built once per configuration (a reload may change it) and for the user's
+  // rights (they may change with it), and then only updated.
+  const shape = JSON.stringify([operator, s.links.map(l => [l.name, l.protocol, l.device, l.baud,
+    l.unit_id, l.modules.map(m => [m.module, m.type, m.number, m.slot, m.name, m.inputs, m.outputs,
+      (m.channels || []).map(c => [c.name, c.unit, c.range])])])]);
   if (shape !== structure) {
     structure = shape;
     tiles = new Map();
@@ -364,7 +512,7 @@ function render(s) {
 async function getJSON(url) {
   const ctl = new AbortController(), timer = setTimeout(() => ctl.abort(), TIMEOUT_MS);
   try {
-    const r = await fetch(url, {cache: 'no-store', signal: ctl.signal});
+    const r = await fetch(apiUrl(url), {cache: 'no-store', signal: ctl.signal});
     if (!r.ok) throw new Error('HTTP ' + r.status);
     return await r.json();
   } finally {
@@ -381,10 +529,21 @@ function connection(ok, why) {
   txt($('health').lastChild, 'health unknown');
 }
 
+let polls = 0, polling = false, pollAgain = false, pollTimer = 0;
+let waiters = [];  // [the number of polls started then, fn]: run once a later poll is shown
+const afterState = fn => waiters.push([polls, fn]);
+// A confirmed write shows at once rather than at the next second's poll.
+function pollSoon() {
+  if (polling) { pollAgain = true; return; }
+  clearTimeout(pollTimer);
+  pollState();
+}
+
 // Each poll schedules the next when it is done: a slow daemon never gets requests piling up.
 // Nothing here may throw out of the loop, or the page would silently freeze.
 async function pollState() {
-  const start = Date.now();
+  polling = true;
+  const start = Date.now(), number = ++polls;
   let s = null, why = '';
   try { s = await getJSON(STATE_URL); } catch (e) {
     why = e.name === 'AbortError' ? 'no answer within 4 s' : /^HTTP/.test(e.message) ? e.message : 'no connection';
@@ -396,8 +555,13 @@ async function pollState() {
       // errors); the page keeps polling in case the next answer is fine.
       console.error('ioportd status page: cannot show the state:', e);
     }
+    const due = waiters.filter(([after]) => after < number);
+    waiters = waiters.filter(([after]) => after >= number);
+    for (const [, fn] of due) fn();
   }
-  setTimeout(pollState, Math.max(100, STATE_MS - (Date.now() - start)));
+  polling = false;
+  pollTimer = setTimeout(pollState, pollAgain ? 0 : Math.max(100, STATE_MS - (Date.now() - start)));
+  pollAgain = false;
 }
 
 async function pollTrends() {
