@@ -18,7 +18,7 @@
 //   localhost nor one of the names (letter case and one trailing dot aside); otherwise, and for
 //   HTTP/1.0 without a Host, it routes as its method and target alone do;
 // - only GET and HEAD are ever routed, and `head` says which; a route's target is a path
-//   (origin form) whose part before '?' is one of the six pages, and the page is that path's;
+//   (origin form) whose part before '?' is one of the nine pages, and the page is that path's;
 // - a refusal is 400 (not a path, or the map's format bad), 404 (a path that is no page) or 405
 //   (a page, another method), with a message; only the map reads its query, and its format is
 //   the first `format` parameter's value, decoded, or html when there is none;
@@ -55,7 +55,10 @@ namespace {
 using daemon::MapFormat;
 using daemon::Page;
 
-constexpr std::array<std::pair<std::string_view, Page>, 6> pages{{{"/", Page::status},
+constexpr std::array<std::pair<std::string_view, Page>, 9> pages{{{"/", Page::status},
+                                                                  {"/app.js", Page::script},
+                                                                  {"/app.css", Page::style},
+                                                                  {"/icon.svg", Page::icon},
                                                                   {"/api/v1/state", Page::state},
                                                                   {"/api/v1/trends", Page::trends},
                                                                   {"/metrics", Page::metrics},
@@ -239,7 +242,7 @@ void check_route(std::string_view method, std::string_view target) {
         check(get_or_head, "only GET and HEAD are routed");
         check(routed->head == (method == "HEAD"), "head says whether it was HEAD");
         check(origin_form && page && *page == routed->page,
-              "a route's path is one of the six pages, and the page is that path's");
+              "a route's path is one of the nine pages, and the page is that path's");
         if (routed->page != Page::map) {
             check(routed->format == MapFormat::html, "only the map has a format");
             return;

@@ -335,7 +335,8 @@ def http(name, method, target, rest=b"", hosts=None):
     write("http_route", name, method + b" " + target + fields + b"\n" + rest)
 
 
-for page in [b"/", b"/api/v1/state", b"/api/v1/trends", b"/metrics", b"/healthz", b"/map"]:
+for page in [b"/", b"/app.js", b"/app.css", b"/icon.svg", b"/api/v1/state", b"/api/v1/trends",
+             b"/metrics", b"/healthz", b"/map"]:
     label = page.strip(b"/").replace(b"/", b"-") or b"status"
     http(f"get-{label.decode()}", b"GET", page)
     http(f"head-{label.decode()}", b"HEAD", page)

@@ -16,7 +16,10 @@ struct Path {
     std::string_view path;
     Page page;
 };
-constexpr std::array<Path, 6> paths{{{"/", Page::status},
+constexpr std::array<Path, 9> paths{{{"/", Page::status},
+                                     {"/app.js", Page::script},
+                                     {"/app.css", Page::style},
+                                     {"/icon.svg", Page::icon},
                                      {"/api/v1/state", Page::state},
                                      {"/api/v1/trends", Page::trends},
                                      {"/metrics", Page::metrics},

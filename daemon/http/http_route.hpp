@@ -15,6 +15,9 @@ namespace ioport::daemon {
 
 enum class Page {
     status,   // GET /: the live status page
+    script,   // GET /app.js: the status page's script
+    style,    // GET /app.css: the status page's style (the map's too)
+    icon,     // GET /icon.svg: the status page's icon
     state,    // GET /api/v1/state
     trends,   // GET /api/v1/trends
     metrics,  // GET /metrics

@@ -29,6 +29,9 @@ http::response<http::string_body> make_response(unsigned version, bool keep_aliv
     // Live data: a browser or proxy must ask again, never show an old copy.
     response.set(http::field::cache_control, "no-store");
     response.set("X-Content-Type-Options", "nosniff");
+    // gateway.md §7.1: the status page keeps its script and style in files of its own for this.
+    response.set("Content-Security-Policy", "default-src 'self'; frame-ancestors 'none'");
+    response.set("Referrer-Policy", "no-referrer");
     if (page.status == 405) response.set(http::field::allow, "GET, HEAD");
     response.keep_alive(keep_alive);
     response.body() = std::move(page.body);  // a full /api/v1/trends is over a megabyte

@@ -339,15 +339,16 @@ std::string html_escaped(std::string_view text) {
     return out;
 }
 
+// Styled by the status page's style sheet: the policy every response carries (gateway.md §7.1)
+// allows no <style> of its own. The icon spares the browser a request for /favicon.ico, whose
+// 404 would land in its console.
 std::string map_html(std::span<const gateway::MapRow> rows) {
     std::string html =
         "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\">"
         "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-        "<title>ioportd register map</title><style>"
-        "body{font:14px system-ui,sans-serif;margin:1rem}table{border-collapse:collapse}"
-        "th,td{border:1px solid #bbb;padding:.2rem .5rem;text-align:left}"
-        "th{background:#eee;position:sticky;top:0}tr:nth-child(even){background:#f7f7f7}"
-        "</style></head><body><h1>Register map</h1><p><a href=\"./\">Status</a> · "
+        "<title>ioportd register map</title><link rel=\"icon\" href=\"icon.svg\" "
+        "type=\"image/svg+xml\"><link rel=\"stylesheet\" href=\"app.css\">"
+        "</head><body class=\"map\"><h1>Register map</h1><p><a href=\"./\">Status</a> · "
         "<a href=\"map?format=csv\">CSV</a> · <a href=\"map?format=md\">Markdown</a></p>"
         "<table><thead><tr><th scope=\"col\">Unit</th><th scope=\"col\">Table</th>"
         "<th scope=\"col\">Address</th><th scope=\"col\">Modicon</th><th scope=\"col\">Module"
@@ -485,6 +486,12 @@ HttpResponse render_page(const GatewayView& gateway, const Route& route) {
     switch (route.page) {
         case Page::status:
             return {200, "text/html; charset=utf-8", std::string(status_page_html)};
+        case Page::script:
+            return {200, "text/javascript; charset=utf-8", std::string(status_page_js)};
+        case Page::style:
+            return {200, "text/css; charset=utf-8", std::string(status_page_css)};
+        case Page::icon:
+            return {200, "image/svg+xml", std::string(status_page_svg)};
         case Page::state:
             return {200, "application/json", render_state(gateway)};
         case Page::trends:

@@ -25,8 +25,12 @@ struct GatewayView {
     std::chrono::system_clock::time_point started;
 };
 
-// The status page: daemon/http/status_page/index.html, embedded at build time.
+// The status page: daemon/http/status_page/index.html, app.js, app.css and icon.svg, embedded
+// at build time.
 extern const std::string_view status_page_html;
+extern const std::string_view status_page_js;
+extern const std::string_view status_page_css;
+extern const std::string_view status_page_svg;
 
 HttpResponse render_page(const GatewayView& gateway, const Route& route);
 

@@ -1,18 +1,30 @@
 #!/usr/bin/python3
 """A stand-in for ioportd's HTTP API (issue 16), so the status page can be developed and tested
-without the daemon: it serves daemon/http/status_page/index.html at / and JSON that follows
-/work/notes/state_schema.md (GET api/v1/state, GET api/v1/trends), with values that move.
+without the daemon: it serves daemon/http/status_page/ (index.html at /, app.js, app.css,
+icon.svg) under the daemon's Content-Security-Policy, and JSON that follows docs/http.md
+(GET api/v1/state, GET api/v1/trends), with values that move.
 
 Everything is also served under /ioportd/, to check that the page only uses relative URLs, as
 it must behind a reverse proxy.
 
+It also takes POST api/v1/write (gateway.md §7.1) from the page of an operator: it records
+what it got (content type, Origin, the body as sent), and answers it with the next canned answer
+if there is one, else as the daemon does once the device confirmed: 200 {"result": "confirmed"},
+the value in the state from then on.
+
 Control endpoints, for the browser self-test only (the real daemon has none of them):
-    POST /control/input?link=hub0&module=dim16%200&word=0x0008   set an input word
+    POST /control/input?link=hub0&module=dim16%200&word=0x0008   set an input (or output) word
     POST /control/fault?link=hub0&module=acm3p%200&status=2      2 no answer, 3 bad answer, 1 back
     POST /control/port?link=hub1&open=1                          port open / not open
     POST /control/comm_loss?on=1                                 the Modbus server's comm loss
     POST /control/outage?seconds=5                               the API drops every request
-Each answers the changed module or link as JSON.
+    POST /control/user?name=alice&operator=1                     the state's user (no name: null)
+    POST /control/scada?on=0                                     stop the imaginary SCADA's writes
+                                                                 to dom16 0 (every 7 s)
+    POST /control/hold?on=1                                      writes wait for hold?on=0
+    POST /control/answer?status=504&result=no_answer&error=...   the next write's answer
+    POST /control/writes?clear=1                                 the writes received, oldest first
+Each answers what changed as JSON.
 
 Python 3 standard library only. Usage: fixture_server.py [--port 8080] [--host 127.0.0.1]
 """
@@ -21,15 +33,26 @@ import datetime
 import json
 import math
 import os
+import re
 import threading
 import time
 import urllib.parse
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-PAGE = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..',
-                    'daemon', 'http', 'status_page', 'index.html')
+PAGE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..',
+                        'daemon', 'http', 'status_page')
+# The files of the page by path, as daemon/http/http_route.cpp routes them and render.cpp
+# types them.
+ASSETS = {'/': ('index.html', 'text/html; charset=utf-8'),
+          '/app.js': ('app.js', 'text/javascript; charset=utf-8'),
+          '/app.css': ('app.css', 'text/css; charset=utf-8'),
+          '/icon.svg': ('icon.svg', 'image/svg+xml')}
+# As daemon/http/http_server.cpp sends them (gateway.md §7.1): the page must work under them.
+SECURITY_HEADERS = {'Content-Security-Policy': "default-src 'self'; frame-ancestors 'none'",
+                    'Referrer-Policy': 'no-referrer', 'X-Content-Type-Options': 'nosniff'}
 PREFIX = '/ioportd'  # the same site under a path, as behind a reverse proxy
 STATUS_TEXT = {1: 'online', 2: 'no answer', 3: 'bad answer', 4: 'not polled yet'}
+SWITCH = {'ON': 1, 'on': 1, '1': 1, 'true': 1, 'OFF': 0, 'off': 0, '0': 0, 'false': 0}
 COLOURS = ['off', 'red', 'green', 'blue', 'cyan', 'magenta', 'yellow', 'white']
 FULL_SCALE = {'acm3p': (100.0, '%'), 'acm3c': (100.0, '%'), 'dccim': (6.0, 'A'),
               'dcvim': (32.0, 'V')}
@@ -60,6 +83,7 @@ class Module:
     def __init__(self, type_, number, slot, **values):
         self.type = type_
         self.number = number
+        self.id = 'id2' if type_ == 'id2' else '%s_%d' % (type_, number)  # gateway.md §6.3
         self.slot = slot
         self.name = 'ID-2' if type_ == 'id2' else '%s %d' % (type_, number)
         self.status = values.pop('status', 1)
@@ -88,8 +112,8 @@ class Module:
             c = self.values['colour']
             m['colour'] = c
             m['colour_name'] = COLOURS[c] if c is not None else None
-        else:
-            m.update(self.values)
+        else:  # what the fixture keeps for itself aside
+            m.update({k: v for k, v in self.values.items() if k not in ('step', 'reset_at')})
             if self.type in ('dim16', 'lim16', 'dom16'):
                 points = {'0': 'door open', '3': 'pump running'} if self.type == 'dim16' else {}
                 m['outputs' if self.type == 'dom16' else 'inputs'] = points
@@ -101,6 +125,12 @@ class Fixture:
 
     def __init__(self):
         self.lock = threading.Lock()
+        self.answered = threading.Condition(self.lock)  # a held write waits on it
+        self.user = None  # the state's "user": null, as without authentication
+        self.scada = True
+        self.held = False
+        self.answers = []  # canned (status, answer) for the next writes
+        self.writes = []  # what the page sent
         self.started = time.time() - 11045  # as if up for 3 h: a full 10 min of trends
         self.outage_until = 0.0
         self.seq = 0
@@ -190,7 +220,7 @@ class Fixture:
             c['requests'] += cycles * 2
         step = int(now // 7)
         dom = self.find('hub0', 'dom16 0')
-        if dom.status == 1 and dom.values.get('step') != step:
+        if self.scada and dom.status == 1 and dom.values.get('step') != step:
             dom.values['step'] = step
             dom.values['word'] = (0x0101 << (step % 8)) & 0xFFFF
             self.find('hub0')['writes']['confirmed'] += 1
@@ -200,7 +230,9 @@ class Fixture:
         if lim.status == 1:
             lim.values['word'] = 0x8001 | (0x0010 if int(now // 11) % 2 else 0)
         id2 = self.find('press', 'ID-2')
-        id2.values['count'] = 1207 + int(now - self.started) // 3
+        counted_from = id2.values.get('reset_at')
+        id2.values['count'] = (int(now - counted_from) // 3 if counted_from
+                               else 1207 + int(now - self.started) // 3)
         id2.values['stop'] = int(now // 30) % 4 == 0
         return now
 
@@ -221,6 +253,7 @@ class Fixture:
         ok = all(l['port_open'] for l in self.links if l['name'] != 'hub1')
         return {
             'version': '0.1.0', 'time': rfc3339(now), 'started': rfc3339(self.started),
+            'user': self.user,
             'health': {'ok': ok, 'reason': '' if ok else 'a link is down'},
             'warnings': [],
             'modbus': {'listen': '0.0.0.0:502', 'tls_listen': '0.0.0.0:802',
@@ -291,7 +324,87 @@ class Fixture:
         if action == 'outage':
             self.outage_until = time.time() + float(q.get('seconds', '5'))
             return {'outage_until': rfc3339(self.outage_until)}
+        if action == 'user':
+            self.user = ({'name': q['name'], 'operator': q.get('operator', '0') == '1'}
+                         if q.get('name') else None)
+            return {'user': self.user}
+        if action == 'scada':
+            self.scada = q.get('on', '1') == '1'
+            return {'scada': self.scada}
+        if action == 'hold':
+            self.held = q.get('on', '1') == '1'
+            self.answered.notify_all()
+            return {'held': self.held}
+        if action == 'answer':
+            answer = {'result': q['result']}
+            if 'error' in q:
+                answer['error'] = q['error']
+            self.answers.append((int(q['status']), answer))
+            return {'answers': len(self.answers)}
+        if action == 'writes':
+            writes = list(self.writes)
+            if q.get('clear') == '1':
+                self.writes.clear()
+            return writes
         raise KeyError('no control ' + action)
+
+    def write(self, content_type, origin, body):
+        """POST api/v1/write: recorded, then held while `held`, then answered (status, JSON)."""
+        self.writes.append({'content_type': content_type, 'origin': origin,
+                            'body': body.decode('utf-8', 'replace')})
+        if not (self.user and self.user['operator']):
+            return 403, {'result': 'forbidden', 'error': 'writes are for the users in '
+                         'http.operators: sign in as one'}
+        if content_type != 'application/json':
+            return 415, {'result': 'unsupported_media_type',
+                         'error': "a write's body is JSON: Content-Type: application/json"}
+        self.answered.wait_for(lambda: not self.held, timeout=60)
+        if self.answers:
+            return self.answers.pop(0)
+        try:
+            w = json.loads(body)
+            link, module, point, value = w['link'], w['module'], w['point'], w['value']
+        except (ValueError, KeyError, TypeError) as e:
+            return 400, {'result': 'bad_request', 'error': 'the body: %s' % e}
+        value = str(value).lower() if isinstance(value, bool) else str(value)
+        m = next((m for l in self.links if l['name'] == link for m in l['modules']
+                  if m.id == module), None)
+        if m is None:
+            return 404, {'result': 'not_found', 'error': 'no module %s on link %s'
+                         % (module, link)}
+        refused = self.apply(m, point, value)
+        if refused:
+            return refused
+        self.find(link)['writes']['confirmed'] += 1
+        self.event('write', link, m.name, 'http %s@127.0.0.1' % self.user['name'],
+                   'write by http %s@127.0.0.1 (%s): set %s/%s/%s = %s: confirmed'
+                   % (self.user['name'], link, link, module, point, value))
+        return 200, {'result': 'confirmed'}
+
+    def apply(self, m, point, value):
+        """A confirmed write's new value in the state; a refusal (status, answer) or None."""
+        bit = re.fullmatch(r'out(\d+)', point)
+        if m.type == 'dom16' and bit and int(bit.group(1)) < 16:
+            if value not in SWITCH:
+                return 400, {'result': 'invalid_value', 'error': 'send ON or OFF'}
+            mask = 1 << int(bit.group(1))
+            word = m.values['word'] or 0
+            m.values['word'] = word | mask if SWITCH[value] else word & ~mask
+        elif m.type == 'rgbdm' and point == 'colour':
+            if value not in COLOURS and value not in [str(i) for i in range(8)]:
+                return 400, {'result': 'invalid_value', 'error': 'send a colour'}
+            m.values['colour'] = COLOURS.index(value) if value in COLOURS else int(value)
+        elif m.type == 'mux8m' and point in ('pos', 'neg'):
+            if value not in [str(i) for i in range(8)]:
+                return 400, {'result': 'invalid_value', 'error': 'send 0-7'}
+            m.values[point] = int(value)
+        elif m.type == 'id2' and point == 'reset':
+            if SWITCH.get(value) != 1:
+                return 400, {'result': 'invalid_value', 'error': 'send ON'}
+            m.values['reset_at'] = time.time()
+        else:
+            return 404, {'result': 'not_found', 'error': 'no writable point %s' % point}
+        return None
 
 
 class Handler(BaseHTTPRequestHandler):
@@ -306,6 +419,8 @@ class Handler(BaseHTTPRequestHandler):
         self.send_header('Content-Type', ctype)
         self.send_header('Content-Length', str(len(data)))
         self.send_header('Cache-Control', 'no-store')
+        for name, value in SECURITY_HEADERS.items():
+            self.send_header(name, value)
         self.end_headers()
         self.wfile.write(data)
 
@@ -321,9 +436,11 @@ class Handler(BaseHTTPRequestHandler):
     def do_GET(self):
         path, _ = self.route()
         fx = self.fixture
-        if path == '/':
-            with open(PAGE, 'rb') as f:  # read each time: edits show on reload
-                return self.send(200, 'text/html; charset=utf-8', f.read())
+        if path in ASSETS:
+            name, ctype = ASSETS[path]
+            # Read each time: edits show on reload.
+            with open(os.path.join(PAGE_DIR, name), 'rb') as f:
+                return self.send(200, ctype, f.read())
         if path in ('/api/v1/state', '/api/v1/trends'):
             with fx.lock:
                 if time.time() < fx.outage_until:
@@ -346,6 +463,12 @@ class Handler(BaseHTTPRequestHandler):
 
     def do_POST(self):
         path, q = self.route()
+        if path == '/api/v1/write':
+            body = self.rfile.read(int(self.headers.get('Content-Length') or 0))
+            with self.fixture.lock:
+                status, answer = self.fixture.write(self.headers.get('Content-Type'),
+                                                    self.headers.get('Origin'), body)
+            return self.send(status, 'application/json', json.dumps(answer))
         if not path.startswith('/control/'):
             return self.send(404, 'text/plain', 'not found\n')
         try:

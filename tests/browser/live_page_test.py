@@ -4,7 +4,8 @@
 shows as not online, the Modbus clients connected show with their transport and TLS role, a
 refused TLS handshake is counted, the Sparkplug node with its broker away shows the backlog its
 store keeps (gateway.md §6.2), the plain MQTT output connected to a real Mosquitto shows what it
-published (§6.3), the console has no errors. Saves the screenshots to OUTDIR.
+published (§6.3), neither the page nor the register map meets a violation of the
+Content-Security-Policy of §7.1, the console has no errors. Saves the screenshots to OUTDIR.
 
 Usage: live_page_test.py IOPORTD IOPORT_SIM OUTDIR
 """
@@ -154,6 +155,8 @@ def main():
             tile_shows=[("hub0", "acm3p 0", "boiler 1"), ("hub0", "acm3p 0", "supply temperature"),
                         ("hub0", "acm3p 0", "14.3°C"), ("hub0", "acm3p 0", "62.9%"),
                         ("hub0", "dim16 0", "door open"), ("hub0", "dim16 0", "pump running")],
+            # The register map shares the page's style sheet and icon, under the same policy.
+            other_pages=["map"],
             screenshot_path=os.path.join(OUTDIR, "status-page.png"))
         print(f"live_page_test: passed; screenshots in {OUTDIR}")
         return 0

@@ -522,7 +522,8 @@ TEST_F(Http, UnknownPathsAre404AndOtherMethods405WithoutChangingAnything) {
     const auto before = http_get(http_port(), "/api/v1/state");
     const auto events_before = json_eval(before.body, "len(d['events'])");
     for (const auto* method : {"POST", "PUT", "DELETE", "PATCH"}) {
-        for (const auto* path : {"/metrics", "/api/v1/state", "/healthz", "/", "/map"}) {
+        for (const auto* path :
+             {"/metrics", "/api/v1/state", "/healthz", "/", "/app.js", "/app.css", "/map"}) {
             const auto reply = http_request(http_port(), method, path, 5s, "Content-Length: 0\r\n");
             EXPECT_EQ(reply.status, 405) << method << " " << path;
             EXPECT_EQ(reply.header("Allow").value_or(""), "GET, HEAD") << method << " " << path;
@@ -558,7 +559,8 @@ TEST_F(Http, UnknownPathsAre404AndOtherMethods405WithoutChangingAnything) {
 
 TEST_F(Http, HeadGivesTheHeadersWithContentLengthAndNoBody) {
     HttpConnection connection(http_port());
-    for (const auto* path : {"/metrics", "/healthz", "/api/v1/state", "/", "/map"}) {
+    for (const auto* path : {"/metrics", "/healthz", "/api/v1/state", "/", "/app.js", "/app.css",
+                             "/icon.svg", "/map"}) {
         const auto head = connection.request("HEAD", path);
         ASSERT_EQ(head.status, 200) << path << ": " << head.error;
         const auto length = head.header("Content-Length");
@@ -600,6 +602,40 @@ TEST_F(Http, TheMapIsPrintMapsAndABadFormatIs400) {
         const auto reply = http_get(http_port(), bad);
         EXPECT_EQ(reply.status, 400) << bad;
     }
+}
+
+// gateway.md §7.1: the page works under default-src 'self', which refuses inline script and
+// style; so they are files of their own (the browser test sees what the browser refuses).
+TEST_F(Http, TheStatusPageIsFilesOfItsOwnUnderAPolicyThatForbidsInlineCode) {
+    const auto page = http_get(http_port(), "/");
+    ASSERT_EQ(page.status, 200) << page.error;
+    EXPECT_EQ(page.header("Content-Security-Policy").value_or(""),
+              "default-src 'self'; frame-ancestors 'none'");
+    EXPECT_EQ(page.header("Referrer-Policy").value_or(""), "no-referrer");
+    EXPECT_NE(page.body.find(R"(<script src="app.js" defer></script>)"), std::string::npos);
+    EXPECT_NE(page.body.find(R"(<link rel="stylesheet" href="app.css">)"), std::string::npos);
+    EXPECT_NE(page.body.find(R"(<link rel="icon" href="icon.svg")"), std::string::npos);
+    for (const auto* inline_code :
+         {"<script>", "<style", "style=", " onclick=", "javascript:", "data:"})
+        EXPECT_EQ(page.body.find(inline_code), std::string::npos) << inline_code;
+    const std::vector<std::pair<std::string, std::string>> files{
+        {"/app.js", "text/javascript; charset=utf-8"},
+        {"/app.css", "text/css; charset=utf-8"},
+        {"/icon.svg", "image/svg+xml"}};
+    for (const auto& [path, type] : files) {
+        const auto reply = http_get(http_port(), path);
+        EXPECT_EQ(reply.status, 200) << path;
+        EXPECT_EQ(reply.header("Content-Type").value_or(""), type) << path;
+        EXPECT_EQ(reply.header("Content-Security-Policy").value_or(""),
+                  "default-src 'self'; frame-ancestors 'none'")
+            << path;
+    }
+    EXPECT_NE(http_get(http_port(), "/app.js").body.find("api/v1/state"), std::string::npos);
+    // The map shares the page's style sheet, under the same policy.
+    const auto map = http_get(http_port(), "/map");
+    EXPECT_NE(map.body.find(R"(<link rel="stylesheet" href="app.css">)"), std::string::npos);
+    EXPECT_NE(map.body.find(R"(<link rel="icon" href="icon.svg")"), std::string::npos);
+    EXPECT_EQ(map.body.find("<style"), std::string::npos);
 }
 
 TEST_F(Http, HeadersOver8KiBAre431AndTheServerKeepsServing) {

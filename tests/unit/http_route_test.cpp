@@ -36,6 +36,9 @@ unsigned status(std::string_view method, std::string_view target) {
 
 TEST(HttpRoute, GetAndHeadReachEveryPage) {
     const std::vector<std::pair<std::string_view, Page>> pages{{"/", Page::status},
+                                                               {"/app.js", Page::script},
+                                                               {"/app.css", Page::style},
+                                                               {"/icon.svg", Page::icon},
                                                                {"/api/v1/state", Page::state},
                                                                {"/api/v1/trends", Page::trends},
                                                                {"/metrics", Page::metrics},
@@ -49,7 +52,8 @@ TEST(HttpRoute, GetAndHeadReachEveryPage) {
 }
 
 TEST(HttpRoute, OtherMethodsAre405OnEveryPage) {
-    for (const auto path : {"/", "/api/v1/state", "/api/v1/trends", "/metrics", "/healthz", "/map"})
+    for (const auto path : {"/", "/app.js", "/app.css", "/icon.svg", "/api/v1/state",
+                            "/api/v1/trends", "/metrics", "/healthz", "/map"})
         for (const auto method : {"POST", "PUT", "DELETE", "PATCH", "OPTIONS", "get", "head"}) {
             SCOPED_TRACE(fmt::format("{} {}", method, path));
             const auto routed = route(method, path);
@@ -61,7 +65,8 @@ TEST(HttpRoute, OtherMethodsAre405OnEveryPage) {
 
 TEST(HttpRoute, UnknownPathsAre404WhateverTheMethod) {
     for (const auto path : {"/metrics/", "/Metrics", "/api/v1", "/api/v1/state/", "//metrics",
-                            "/metrics#x", "/%6detrics", "/index.html", "/map/"}) {
+                            "/metrics#x", "/%6detrics", "/index.html", "/map/", "/app.js/",
+                            "/App.js", "/status_page/app.js", "/favicon.ico"}) {
         SCOPED_TRACE(path);
         const auto routed = route("GET", path);
         ASSERT_FALSE(routed);

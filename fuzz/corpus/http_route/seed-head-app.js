@@ -1,0 +1,1 @@
+HEAD /app.js
