@@ -11,7 +11,7 @@
 namespace ioport::daemon {
 
 Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log,
-                 DiskThread& disk)
+                 WorkerThread& disk, WorkerThread& hashing)
     : executor_(executor),
       config_(std::move(config)),
       log_(log),
@@ -20,11 +20,11 @@ Gateway::Gateway(const asio::any_io_executor& executor, config::GatewayConfig co
       comm_loss_(std::make_shared<CommLossWatch>(executor, log, bus_, [this] { comm_lost(); })),
       modbus_(std::make_shared<ModbusOutput>(executor, log, bus_, comm_loss_)) {
     // The one place that knows every output; adding one is a line here (docs/design.md).
-    outputs_ = {
-        modbus_,
-        std::make_shared<HttpOutput>(executor, log, machine_host_name(), [this] { return view(); }),
-        std::make_shared<SparkplugOutput>(executor, log, bus_, disk_),
-        std::make_shared<MqttJsonOutput>(executor, log, bus_)};
+    outputs_ = {modbus_,
+                std::make_shared<HttpOutput>(executor, log, bus_, hashing, machine_host_name(),
+                                             [this] { return view(); }),
+                std::make_shared<SparkplugOutput>(executor, log, bus_, disk_),
+                std::make_shared<MqttJsonOutput>(executor, log, bus_)};
 }
 
 std::shared_ptr<LinkScheduler> Gateway::make_link(const config::LinkConfig& link) {

@@ -18,17 +18,18 @@
 #include "daemon/core/events.hpp"
 #include "daemon/core/link_scheduler.hpp"
 #include "daemon/core/output.hpp"
-#include "daemon/disk_thread.hpp"
 #include "daemon/http/http_output.hpp"
 #include "daemon/modbus/modbus_output.hpp"
+#include "daemon/worker_thread.hpp"
 
 namespace ioport::daemon {
 
 class Gateway {
   public:
-    // `disk`: the daemon's disk thread (the Sparkplug store's), which outlives the gateway.
+    // `disk`, `hashing`: the daemon's threads for the Sparkplug store's files and the HTTP side's
+    // passwords (worker_thread.hpp), which outlive the gateway.
     Gateway(const asio::any_io_executor& executor, config::GatewayConfig config, Log& log,
-            DiskThread& disk);
+            WorkerThread& disk, WorkerThread& hashing);
 
     Result<> start();
     // The orderly end: no new requests; writes in flight finish; the outputs are set as
@@ -64,7 +65,7 @@ class Gateway {
     asio::any_io_executor executor_;
     config::GatewayConfig config_;
     Log& log_;
-    DiskThread& disk_;
+    WorkerThread& disk_;
     // Before everything that tells it something, so that it outlives them.
     EventBus bus_;
     EventLog events_;                  // for the status page

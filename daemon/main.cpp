@@ -74,7 +74,7 @@ class Daemon {
     Daemon(const Options& options, ioport::config::GatewayConfig config, Log& log)
         : options_(options),
           log_(log),
-          gateway_(io_.get_executor(), std::move(config), log, disk_),
+          gateway_(io_.get_executor(), std::move(config), log, disk_, hashing_),
           service_(
               io_.get_executor(), [this] { return gateway_.summary(); },
               [this] { return gateway_.healthy(); }, log),
@@ -162,9 +162,10 @@ class Daemon {
     // answers. (Without it, such a post raced the loop: a lost handler left forwarding
     // unfinished and the loop's work count wrong, so that ioportd never exited; benchmark 7f.)
     asio::io_context io_{BOOST_ASIO_CONCURRENCY_HINT_UNSAFE_IO};
-    // Destroyed after the gateway, before the loop: it finishes the stores' last syncs
-    // (disk_thread.hpp).
-    ioport::daemon::DiskThread disk_;
+    // Destroyed after the gateway, before the loop: the disk's finishes the stores' last syncs
+    // (worker_thread.hpp).
+    ioport::daemon::WorkerThread disk_;
+    ioport::daemon::WorkerThread hashing_;
     ioport::daemon::Gateway gateway_;
     ioport::daemon::ServiceNotifier service_;
     asio::signal_set signals_;

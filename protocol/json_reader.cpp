@@ -49,4 +49,25 @@ std::optional<std::uint64_t> JsonObject::unsigned_integer(std::string_view key) 
     return member->get<std::uint64_t>();
 }
 
+std::optional<std::string> JsonObject::string(std::string_view key) const {
+    const auto* member = document_->member(key);
+    if (member == nullptr || !member->is_string()) return std::nullopt;
+    return member->get<std::string>();
+}
+
+std::optional<std::string> JsonObject::scalar_text(std::string_view key) const {
+    const auto* member = document_->member(key);
+    if (member == nullptr) return std::nullopt;
+    if (member->is_string()) return member->get<std::string>();
+    if (member->is_number() || member->is_boolean()) return member->dump();
+    return std::nullopt;
+}
+
+std::vector<std::string> JsonObject::keys() const {
+    std::vector<std::string> names;
+    for (const auto& [name, value] : document_->value.items())
+        names.push_back(name);
+    return names;
+}
+
 }  // namespace ioport

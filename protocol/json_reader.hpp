@@ -1,6 +1,6 @@
-// JSON that arrives from the network (a Sparkplug STATE today), read strictly: RFC 8259 and
-// nothing more (no comments, no trailing commas, no YAML), by nlohmann::json, whose parser keeps
-// its own stack (a deeply nested document cannot overflow ours). Its large header is included
+// JSON that arrives from the network (a Sparkplug STATE, an HTTP write), read strictly: RFC 8259
+// and nothing more (no comments, no trailing commas, no YAML), by nlohmann::json, whose parser
+// keeps its own stack (a deeply nested document cannot overflow ours). Its large header is included
 // by json_reader.cpp alone; callers see plain values. Pure: a function over text.
 //
 // The caller bounds the text before it gets here: a document is read whole, and its tree costs
@@ -10,7 +10,9 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <string>
 #include <string_view>
+#include <vector>
 
 #include "protocol/error.hpp"
 
@@ -27,6 +29,12 @@ class JsonObject {
     std::optional<bool> boolean(std::string_view key) const;
     // A number written as a whole number from 0 to 2^64 - 1 (no sign, no fraction, no exponent).
     std::optional<std::uint64_t> unsigned_integer(std::string_view key) const;
+    std::optional<std::string> string(std::string_view key) const;
+    // A string, number or boolean as text: the string itself, a number as JSON writes it ("3",
+    // "2.5"), "true" or "false"; nullopt for null, an array, an object, or when absent.
+    std::optional<std::string> scalar_text(std::string_view key) const;
+    // The members' names, sorted.
+    std::vector<std::string> keys() const;
 
   private:
     struct Document;

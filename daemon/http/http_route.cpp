@@ -7,7 +7,9 @@
 #include <fmt/format.h>
 #include <boost/asio/ip/address.hpp>
 
+#include "protocol/error.hpp"
 #include "protocol/hex.hpp"
+#include "protocol/json_reader.hpp"
 
 namespace ioport::daemon {
 namespace {
@@ -16,18 +18,20 @@ struct Path {
     std::string_view path;
     Page page;
 };
-constexpr std::array<Path, 9> paths{{{"/", Page::status},
-                                     {"/app.js", Page::script},
-                                     {"/app.css", Page::style},
-                                     {"/icon.svg", Page::icon},
+constexpr std::array<Path, 10> paths{{{"/", Page::status},
+                                      {"/app.js", Page::script},
+                                      {"/app.css", Page::style},
+                                      {"/icon.svg", Page::icon},
                                      {"/api/v1/state", Page::state},
                                      {"/api/v1/trends", Page::trends},
                                      {"/metrics", Page::metrics},
                                      {"/healthz", Page::health},
-                                     {"/map", Page::map}}};
+                                     {"/map", Page::map},
+                                     {"/api/v1/write", Page::write}}};
 
 constexpr std::string_view index_hint =
-    "pages here: / (status), /api/v1/state, /api/v1/trends, /metrics, /healthz, /map";
+    "pages here: / (status), /api/v1/state, /api/v1/trends, /metrics, /healthz, /map; "
+    "POST /api/v1/write";
 
 // Percent-decoding of a query component; nullopt for a malformed escape.
 std::optional<std::string> decoded(std::string_view text) {
@@ -84,6 +88,8 @@ constexpr std::string_view misdirected =
     "this server does not answer for that host name, which guards against DNS rebinding: use "
     "its IP address or localhost, or add the name to http.server_names";
 
+}  // namespace
+
 std::optional<Refusal> host_refusal(const Request& request, std::span<const std::string> names) {
     if (request.hosts > 1) return Refusal{400, "more than one Host header"};
     if (request.hosts == 0) {
@@ -109,7 +115,40 @@ std::optional<Refusal> host_refusal(const Request& request, std::span<const std:
     return Refusal{421, std::string(misdirected)};
 }
 
-}  // namespace
+bool same_origin(std::string_view origin, bool tls, std::string_view host) {
+    if (origin.empty()) return true;
+    const std::string_view scheme = tls ? "https://" : "http://";
+    if (origin.size() != scheme.size() + host.size()) return false;
+    return std::ranges::equal(origin.substr(0, scheme.size()), scheme, {}, lower) &&
+           same_name(origin.substr(scheme.size()), host);
+}
+
+Expected<WriteBody, std::string> parse_write_body(std::string_view body) {
+    constexpr std::string_view example =
+        R"(: {"link": "hub0", "module": "dom16_0", "point": "out3", "value": "ON"})";
+    const auto object = JsonObject::parse(body);
+    if (!object)
+        return Unexpected(fmt::format("the body is {}{}", object.error().message, example));
+    for (const auto& key : object->keys())
+        if (key != "link" && key != "module" && key != "point" && key != "value")
+            return Unexpected(
+                fmt::format("'{}' is not a member of a write{}", printable(key, 40), example));
+    WriteBody write;
+    for (auto [name, out] : {std::pair<std::string_view, std::string*>{"link", &write.link},
+                             {"module", &write.module},
+                             {"point", &write.point}}) {
+        auto text = object->string(name);
+        if (!text) return Unexpected(fmt::format("{}: a string is missing{}", name, example));
+        *out = *std::move(text);
+    }
+    auto value = object->scalar_text("value");
+    if (!value)
+        return Unexpected(fmt::format(
+            "value: a string, number or boolean is missing, as a plain MQTT set takes it{}",
+            example));
+    write.value = *std::move(value);
+    return write;
+}
 
 Expected<std::optional<std::string>, std::string> query_value(std::string_view query,
                                                               std::string_view name) {
@@ -128,7 +167,7 @@ Expected<std::optional<std::string>, std::string> query_value(std::string_view q
     return std::optional<std::string>();
 }
 
-Expected<Route, Refusal> route(std::string_view method, std::string_view target) {
+Expected<Route, Refusal> route(std::string_view method, std::string_view target, bool writes) {
     // Origin form only ("/path?query"): a proxy's absolute form or "*" is not for this server.
     if (!target.starts_with('/'))
         return Unexpected(Refusal{400, fmt::format("the request target must be a path such as "
@@ -143,9 +182,19 @@ Expected<Route, Refusal> route(std::string_view method, std::string_view target)
         if (candidate.path == path) found = &candidate;
     if (found == nullptr)
         return Unexpected(Refusal{404, fmt::format("no page at this path; {}", index_hint)});
+    if (found->page == Page::write) {
+        if (!writes)
+            return Unexpected(Refusal{405,
+                                      "this server takes no writes: an operator writes where "
+                                      "http.web_config_file is given (gateway.md §7.1)",
+                                      ""});
+        if (method != "POST")
+            return Unexpected(Refusal{405, "a write is a POST with a JSON body", "POST"});
+        return Route{Page::write, MapFormat::html, false};
+    }
     const bool head = method == "HEAD";
     if (method != "GET" && !head)
-        return Unexpected(Refusal{405, "this server is read-only: use GET (or HEAD)"});
+        return Unexpected(Refusal{405, "this page is read-only: use GET (or HEAD)", "GET, HEAD"});
     Route route{found->page, MapFormat::html, head};
     if (route.page != Page::map) return route;
     const auto value = query_value(query, "format");
@@ -165,7 +214,7 @@ Expected<Route, Refusal> route(std::string_view method, std::string_view target)
 
 Expected<Route, Refusal> route(const Request& request, std::span<const std::string> names) {
     if (auto refusal = host_refusal(request, names)) return Unexpected(*std::move(refusal));
-    return route(request.method, request.target);
+    return route(request.method, request.target, request.writes);
 }
 
 }  // namespace ioport::daemon

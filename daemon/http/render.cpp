@@ -383,7 +383,7 @@ std::string render_metrics(const GatewayView& gateway, const ProcessStats& proce
     return out.take();
 }
 
-std::string render_state(const GatewayView& gateway) {
+std::string render_state(const GatewayView& gateway, const Caller& caller) {
     const auto now = Clock::now();
     const auto health = daemon::health(gateway.links);
     Json json;
@@ -391,6 +391,15 @@ std::string render_state(const GatewayView& gateway) {
         .member("version", IOPORTD_VERSION)
         .member("time", rfc3339(SystemClock::now()))
         .member("started", rfc3339(gateway.started));
+    // Who the page is for (gateway.md §7.1): what it names and whether it offers writes.
+    json.key("user");
+    if (caller.user.empty())
+        json.null();
+    else
+        json.begin_object()
+            .member("name", caller.user)
+            .member("operator", caller.operator_)
+            .end_object();
     json.key("health").begin_object().member("ok", health.ok).member("reason", health.reason);
     json.end_object();
     json.key("warnings").begin_array();
@@ -482,7 +491,7 @@ std::string render_map(const config::GatewayConfig& config, MapFormat format) {
     return map_html(rows);
 }
 
-HttpResponse render_page(const GatewayView& gateway, const Route& route) {
+HttpResponse render_page(const GatewayView& gateway, const Route& route, const Caller& caller) {
     switch (route.page) {
         case Page::status:
             return {200, "text/html; charset=utf-8", std::string(status_page_html)};
@@ -493,7 +502,7 @@ HttpResponse render_page(const GatewayView& gateway, const Route& route) {
         case Page::icon:
             return {200, "image/svg+xml", std::string(status_page_svg)};
         case Page::state:
-            return {200, "application/json", render_state(gateway)};
+            return {200, "application/json", render_state(gateway, caller)};
         case Page::trends:
             return {200, "application/json", render_trends(gateway)};
         case Page::metrics:
@@ -510,6 +519,8 @@ HttpResponse render_page(const GatewayView& gateway, const Route& route) {
                     : route.format == MapFormat::csv ? "text/csv; charset=utf-8"
                                                      : "text/markdown; charset=utf-8",
                     render_map(gateway.config, route.format)};
+        case Page::write:  // not a page: HttpOutput answers it
+            return {405, std::string(text_plain), "a write is not a page\n"};
     }
     return {404, std::string(text_plain), "no such page\n"};
 }

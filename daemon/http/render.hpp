@@ -32,10 +32,11 @@ extern const std::string_view status_page_js;
 extern const std::string_view status_page_css;
 extern const std::string_view status_page_svg;
 
-HttpResponse render_page(const GatewayView& gateway, const Route& route);
+// A page (not Page::write) for `caller`.
+HttpResponse render_page(const GatewayView& gateway, const Route& route, const Caller& caller);
 
 std::string render_metrics(const GatewayView& gateway, const ProcessStats& process);
-std::string render_state(const GatewayView& gateway);
+std::string render_state(const GatewayView& gateway, const Caller& caller = {});
 std::string render_trends(const GatewayView& gateway);
 // The register map of the running configuration, as --print-map prints it, or as an HTML page.
 std::string render_map(const config::GatewayConfig& config, MapFormat format);

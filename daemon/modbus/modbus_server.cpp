@@ -658,9 +658,10 @@ asio::awaitable<bool> ModbusServer::handshake(Connection& c) {
     // places: refusals, logged once a minute per address and reason.
     if (!c.open || ec) {
         ++stats_.refused_tls_handshake;
-        log_refusal(c.address, !c.open ? std::string("TLS handshake not complete within 5 s")
-                                       : fmt::format("TLS handshake failed: {}",
-                                                     handshake_failure(ec, *c.tls)));
+        log_refusal(c.address, !c.open
+                                   ? std::string("TLS handshake not complete within 5 s")
+                                   : fmt::format("TLS handshake failed: {}",
+                                                 handshake_failure(ec, c.tls->native_handle())));
         co_return false;
     }
     // Handshakes in progress were not counted against max_connections: several may end together.

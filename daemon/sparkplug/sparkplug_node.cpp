@@ -67,7 +67,7 @@ std::string value_text(const std::optional<Value>& value) {
 Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_executor& executor,
                                                              const config::MqttSettings& settings,
                                                              Log& log, EventBus& bus,
-                                                             DiskThread& disk,
+                                                             WorkerThread& disk,
                                                              std::uint64_t next_bdseq) {
     std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, bus));
     node->next_bdseq_ = next_bdseq % 256;

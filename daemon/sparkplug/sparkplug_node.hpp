@@ -94,7 +94,8 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     // for the store.
     static Result<std::shared_ptr<SparkplugNode>> create(const asio::any_io_executor& executor,
                                                          const config::MqttSettings& settings,
-                                                         Log& log, EventBus& bus, DiskThread& disk,
+                                                         Log& log, EventBus& bus,
+                                                         WorkerThread& disk,
                                                          std::uint64_t next_bdseq = 0);
     ~SparkplugNode() = default;
     SparkplugNode(const SparkplugNode&) = delete;

@@ -3,7 +3,7 @@
 namespace ioport::daemon {
 
 SparkplugOutput::SparkplugOutput(const asio::any_io_executor& executor, Log& log, EventBus& bus,
-                                 DiskThread& disk)
+                                 WorkerThread& disk)
     : executor_(executor), log_(log), bus_(bus), disk_(disk) {}
 
 Result<> SparkplugOutput::start_node(const config::GatewayConfig& config, const Links& links) {

@@ -9,15 +9,15 @@
 #include <optional>
 
 #include "daemon/core/output.hpp"
-#include "daemon/disk_thread.hpp"
 #include "daemon/sparkplug/sparkplug_node.hpp"
+#include "daemon/worker_thread.hpp"
 
 namespace ioport::daemon {
 
 class SparkplugOutput final : public Output {
   public:
     SparkplugOutput(const asio::any_io_executor& executor, Log& log, EventBus& bus,
-                    DiskThread& disk);
+                    WorkerThread& disk);
 
     std::string_view name() const override { return "MQTT"; }
     Result<> start(const config::GatewayConfig& config, const Links& links) override;
@@ -34,7 +34,7 @@ class SparkplugOutput final : public Output {
     asio::any_io_executor executor_;
     Log& log_;
     EventBus& bus_;
-    DiskThread& disk_;
+    WorkerThread& disk_;
     std::optional<config::MqttSettings> settings_;
     std::shared_ptr<SparkplugNode> node_;  // null when the section is absent
     std::uint64_t next_bdseq_ = 0;         // of the next node's first CONNECT

@@ -8,7 +8,7 @@
 namespace ioport::daemon {
 
 Result<std::shared_ptr<SparkplugStore>> SparkplugStore::open(const asio::any_io_executor& loop,
-                                                             DiskThread& disk,
+                                                             WorkerThread& disk,
                                                              const config::StoreSettings& settings,
                                                              Log& log,
                                                              std::function<void()> ready) {
@@ -20,7 +20,7 @@ Result<std::shared_ptr<SparkplugStore>> SparkplugStore::open(const asio::any_io_
     return store;
 }
 
-SparkplugStore::SparkplugStore(const asio::any_io_executor& loop, DiskThread& disk,
+SparkplugStore::SparkplugStore(const asio::any_io_executor& loop, WorkerThread& disk,
                                config::StoreSettings settings, Log& log)
     : loop_(loop), disk_(disk), settings_(std::move(settings)), log_(log), sync_timer_(loop) {}
 

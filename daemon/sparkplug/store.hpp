@@ -1,7 +1,7 @@
 // The Sparkplug store on the daemon's loop (gateway.md §6.2): DDATA kept while no session can
 // publish it, read back for forwarding, deleted once the broker has it.
 //
-// Every file operation (StoreFiles) runs on the daemon's disk thread (DiskThread), in the order
+// Every file operation (StoreFiles) runs on the daemon's disk thread (WorkerThread), in the order
 // it was asked for, and its result comes back to the loop as a completion; the scan of a store
 // at opening too, so that a large store costs neither start-up nor a reload any time on the
 // loop, and closing does not wait for the last sync. The thread touches nothing but the store's
@@ -19,9 +19,9 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
-#include "daemon/disk_thread.hpp"
 #include "daemon/log.hpp"
 #include "daemon/sparkplug/store_files.hpp"
+#include "daemon/worker_thread.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {
@@ -45,7 +45,7 @@ class SparkplugStore : public std::enable_shared_from_this<SparkplugStore> {
     // journal says what was found, and `ready` is called on the loop then. Appends made meanwhile
     // wait for the scan in the disk's queue.
     static Result<std::shared_ptr<SparkplugStore>> open(const asio::any_io_executor& loop,
-                                                        DiskThread& disk,
+                                                        WorkerThread& disk,
                                                         const config::StoreSettings& settings,
                                                         Log& log, std::function<void()> ready);
     // What was given to the disk is done there, then a last sync and the files closed; this
@@ -80,7 +80,7 @@ class SparkplugStore : public std::enable_shared_from_this<SparkplugStore> {
         std::mutex mutex;     // held while a completion is posted, and while `closed` is set
         bool closed = false;  // the store is gone: nothing more is posted to the loop
     };
-    SparkplugStore(const asio::any_io_executor& loop, DiskThread& disk,
+    SparkplugStore(const asio::any_io_executor& loop, WorkerThread& disk,
                    config::StoreSettings settings, Log& log);
     void scan(std::unique_ptr<StoreDirectory> directory, std::function<void()> ready);
     void opened(const Result<StoreRecovery>& found);
@@ -92,7 +92,7 @@ class SparkplugStore : public std::enable_shared_from_this<SparkplugStore> {
     void failed(std::string_view key, const Error& error);
 
     asio::any_io_executor loop_;
-    DiskThread& disk_;
+    WorkerThread& disk_;
     config::StoreSettings settings_;
     Log& log_;
     std::shared_ptr<Shared> shared_ = std::make_shared<Shared>();

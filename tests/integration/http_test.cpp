@@ -475,9 +475,10 @@ TEST_F(Http, StateIsJsonThatFollowsTheInputsAndRecordsWritesWithTheClient) {
         << reply.header("Content-Type").value_or("none");
     EXPECT_EQ(json_eval(reply.body, "sorted(d.keys())"),
               R"(["events", "health", "links", "modbus", "mqtt_json", "sparkplug", "started", )"
-              R"("time", "version", "warnings"])")
+              R"("time", "user", "version", "warnings"])")
         << reply.body;
     EXPECT_EQ(json_eval(reply.body, "d['sparkplug']"), "null");  // no mqtt: section
+    EXPECT_EQ(json_eval(reply.body, "d['user']"), "null");       // no web_config_file
     EXPECT_EQ(json_eval(reply.body, "d['warnings']"), "[]");     // nothing weakened
     EXPECT_EQ(json_eval(reply.body, "[m['module'] for m in d['links'][0]['modules']]"),
               R"(["dim16 0", "dom16 0", "acm3p 0"])");

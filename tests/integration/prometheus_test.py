@@ -8,7 +8,6 @@ Every wait has a deadline; Prometheus, ioportd and the simulator are killed at t
 
 Usage: prometheus_test.py IOPORTD IOPORT_SIM [PROMETHEUS]
 """
-import json
 import os
 import shutil
 import struct
@@ -17,15 +16,13 @@ import sys
 import tempfile
 import time
 import unittest
-import urllib.error
-import urllib.parse
-import urllib.request
 
 IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
 PROMETHEUS = sys.argv[3] if len(sys.argv) > 3 else "/usr/bin/prometheus"
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 
-from rig import Rig, die_with_parent, eventually, free_port  # noqa: E402
+from prometheus import Prometheus  # noqa: E402
+from rig import Rig, die_with_parent, eventually  # noqa: E402
 
 CONFIG = """modbus: {{ listen: "127.0.0.1:0" }}
 http: {{ listen: "127.0.0.1:0" }}
@@ -46,69 +43,6 @@ links:
 """
 
 
-class Prometheus:
-    """Prometheus on a free loopback port scraping one target every second, its TSDB in
-    `directory`; killed with the test process."""
-
-    def __init__(self, directory, target_port):
-        self.port = free_port()
-        config = os.path.join(directory, "prometheus.yml")
-        with open(config, "w") as f:
-            f.write(f"""global:
-  scrape_interval: 1s
-  scrape_timeout: 900ms
-  evaluation_interval: 1s
-scrape_configs:
-  - job_name: ioportd
-    static_configs:
-      - targets: ["127.0.0.1:{target_port}"]
-""")
-        self.log = os.path.join(directory, "prometheus.log")
-        with open(self.log, "w") as log:
-            self.process = subprocess.Popen(
-                [PROMETHEUS, f"--config.file={config}",
-                 f"--storage.tsdb.path={os.path.join(directory, 'tsdb')}",
-                 f"--web.listen-address=127.0.0.1:{self.port}",
-                 "--log.level=warn"],
-                stdout=log, stderr=log, preexec_fn=die_with_parent)
-
-    def query(self, expression):
-        """The instant vector of a PromQL query: [(labels, value)], or None if Prometheus is
-        not answering (yet)."""
-        url = (f"http://127.0.0.1:{self.port}/api/v1/query?"
-               + urllib.parse.urlencode({"query": expression}))
-        try:
-            with urllib.request.urlopen(url, timeout=2) as response:
-                reply = json.load(response)
-        except (urllib.error.URLError, ConnectionError, TimeoutError):
-            return None
-        if reply.get("status") != "success":
-            return None
-        return [(r["metric"], float(r["value"][1])) for r in reply["data"]["result"]]
-
-    def scrape_errors(self):
-        """Prometheus' last scrape error of each target, for a failure's message."""
-        try:
-            with urllib.request.urlopen(
-                    f"http://127.0.0.1:{self.port}/api/v1/targets", timeout=2) as r:
-                targets = json.load(r)["data"]["activeTargets"]
-        except (urllib.error.URLError, ConnectionError, TimeoutError, KeyError) as e:
-            return f"targets: {e}"
-        return "; ".join(f"{t['scrapeUrl']}: health {t['health']}, last error "
-                         f"'{t['lastError']}'" for t in targets)
-
-    def stop(self, deadline=5):
-        """SIGTERM, then SIGKILL if it is still there after `deadline`."""
-        if self.process.poll() is not None:
-            return
-        self.process.terminate()
-        try:
-            self.process.wait(deadline)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait(deadline)
-
-
 class ScrapedByPrometheus(unittest.TestCase):
     def setUp(self):
         """The simulator, ioportd and Prometheus, in a temporary directory."""
@@ -119,7 +53,7 @@ class ScrapedByPrometheus(unittest.TestCase):
             self.rig.start_hub("dim16:0,dom16:0,acm3p:0")
             self.rig.write_config(CONFIG.format(hub_link=self.rig.hub_link))
             self.rig.start_daemon()
-            self.prometheus = Prometheus(self.dir, self.rig.listening_port("HTTP"))
+            self.prometheus = Prometheus(PROMETHEUS, self.dir, self.rig.listening_port("HTTP"))
         except BaseException:
             self.stop_all()
             raise

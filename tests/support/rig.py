@@ -96,8 +96,8 @@ class Rig:
 
     def listening_port(self, what, since=0):
         """The port of the daemon's "<what> on 127.0.0.1:PORT" line, e.g. what="Modbus TCP" or
-        "HTTP on http:/"."""
-        return int(self.wait_log(re.escape(what) + r" on (?:http://)?127\.0\.0\.1:(\d+)", 5,
+        "HTTP" (on http:// or https://)."""
+        return int(self.wait_log(re.escape(what) + r" on (?:https?://)?127\.0\.0\.1:(\d+)", 5,
                                  since).group(1))
 
     def http_get(self, path):

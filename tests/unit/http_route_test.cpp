@@ -27,7 +27,8 @@ using namespace std::string_literals;
 // --- route() ---------------------------------------------------------------------------------
 
 constexpr std::string_view index_hint =
-    "pages here: / (status), /api/v1/state, /api/v1/trends, /metrics, /healthz, /map";
+    "pages here: / (status), /api/v1/state, /api/v1/trends, /metrics, /healthz, /map; "
+    "POST /api/v1/write";
 
 unsigned status(std::string_view method, std::string_view target) {
     const auto routed = route(method, target);
@@ -59,8 +60,86 @@ TEST(HttpRoute, OtherMethodsAre405OnEveryPage) {
             const auto routed = route(method, path);
             ASSERT_FALSE(routed);
             EXPECT_EQ(routed.error(),
-                      (Refusal{405, "this server is read-only: use GET (or HEAD)"}));
+                      (Refusal{405, "this page is read-only: use GET (or HEAD)", "GET, HEAD"}));
+            EXPECT_EQ(route(method, path, true).error(),
+                      routed.error());  // writes: still only there
         }
+}
+
+// gateway.md §7.1: POST /api/v1/write is the one write, and only where a web configuration is
+// given; without one the path is there to say why it takes nothing (405 with an empty Allow,
+// RFC 9110 §10.2.1: no method).
+TEST(HttpRoute, TheWritePathTakesAPostOnlyWhereWritesAreServed) {
+    EXPECT_EQ(route("POST", "/api/v1/write", true), (Route{Page::write, MapFormat::html, false}));
+    EXPECT_EQ(route("POST", "/api/v1/write?x=1", true),
+              (Route{Page::write, MapFormat::html, false}));
+    for (const auto method : {"GET", "HEAD", "PUT", "post"}) {
+        SCOPED_TRACE(method);
+        EXPECT_EQ(route(method, "/api/v1/write", true).error(),
+                  (Refusal{405, "a write is a POST with a JSON body", "POST"}));
+    }
+    for (const auto method : {"POST", "GET"}) {
+        SCOPED_TRACE(method);
+        const auto refused = route(method, "/api/v1/write", false).error();
+        EXPECT_EQ(refused.status, 405U);
+        EXPECT_EQ(refused.allow, "");
+        EXPECT_NE(refused.message.find("http.web_config_file"), std::string::npos);
+    }
+    EXPECT_EQ(status("POST", "/api/v1/write/"), 404U);
+}
+
+// What a browser sends as Origin is the address bar's scheme, host and port; a page of any other
+// origin, or one opened from a file (Origin: null), is not the status page.
+TEST(HttpOrigin, OnlyThePagesOwnOriginOrNoneAtAll) {
+    EXPECT_TRUE(same_origin("", false, "127.0.0.1:8080"));  // curl, a script: no Origin
+    EXPECT_TRUE(same_origin("http://127.0.0.1:8080", false, "127.0.0.1:8080"));
+    EXPECT_TRUE(same_origin("https://box7:8443", true, "box7:8443"));
+    EXPECT_TRUE(same_origin("HTTP://Box7:8080", false, "box7:8080"));
+    EXPECT_TRUE(same_origin("http://[::1]:8080", false, "[::1]:8080"));
+    EXPECT_FALSE(same_origin("http://127.0.0.1:8080", true, "127.0.0.1:8080"));  // scheme
+    EXPECT_FALSE(same_origin("https://127.0.0.1:8080", false, "127.0.0.1:8080"));
+    EXPECT_FALSE(same_origin("http://127.0.0.1:8081", false, "127.0.0.1:8080"));  // port
+    EXPECT_FALSE(same_origin("http://127.0.0.1", false, "127.0.0.1:8080"));
+    EXPECT_FALSE(same_origin("http://evil.example", false, "127.0.0.1:8080"));
+    EXPECT_FALSE(same_origin("null", false, "127.0.0.1:8080"));
+    EXPECT_FALSE(same_origin("http://127.0.0.1:8080/", false, "127.0.0.1:8080"));
+}
+
+TEST(HttpWriteBody, TheFourMembersWithTheValueAsAPlainMqttSetTakesIt) {
+    EXPECT_EQ(parse_write_body(R"({"link": "hub0", "module": "dom16_0", "point": "out3", )"
+                               R"("value": "ON"})"),
+              (WriteBody{"hub0", "dom16_0", "out3", "ON"}));
+    EXPECT_EQ(parse_write_body(R"({"value": true, "point": "out3", "module": "m", "link": "l"})"),
+              (WriteBody{"l", "m", "out3", "true"}));
+    EXPECT_EQ(parse_write_body(R"({"link": "l", "module": "m", "point": "pos", "value": 7})"),
+              (WriteBody{"l", "m", "pos", "7"}));
+}
+
+TEST(HttpWriteBody, AnythingElseSaysWhatIsWrong) {
+    const auto error = [](std::string_view body) {
+        const auto parsed = parse_write_body(body);
+        EXPECT_FALSE(parsed) << body;
+        return parsed ? std::string() : parsed.error();
+    };
+    constexpr std::string_view example =
+        R"(: {"link": "hub0", "module": "dom16_0", "point": "out3", "value": "ON"})";
+    EXPECT_TRUE(error("").starts_with("the body is "));
+    EXPECT_TRUE(error("[1]").starts_with("the body is "));
+    EXPECT_TRUE(error(R"({"link": "l")").starts_with("the body is "));
+    EXPECT_EQ(error(R"({"module": "m", "point": "p", "value": 1})"),
+              fmt::format("link: a string is missing{}", example));
+    EXPECT_EQ(error(R"({"link": 1, "module": "m", "point": "p", "value": 1})"),
+              fmt::format("link: a string is missing{}", example));
+    EXPECT_EQ(error(R"({"link": "l", "module": "m", "point": "p"})"),
+              fmt::format("value: a string, number or boolean is missing, as a plain MQTT set "
+                          "takes it{}",
+                          example));
+    EXPECT_EQ(error(R"({"link": "l", "module": "m", "point": "p", "value": [1]})").substr(0, 6),
+              "value:");
+    EXPECT_EQ(error(R"({"link": "l", "module": "m", "point": "p", "value": null})").substr(0, 6),
+              "value:");
+    EXPECT_EQ(error(R"({"link": "l", "module": "m", "point": "p", "value": 1, "user": "x"})"),
+              fmt::format("'user' is not a member of a write{}", example));
 }
 
 TEST(HttpRoute, UnknownPathsAre404WhateverTheMethod) {
