@@ -19,6 +19,8 @@
 //   HTTP/1.0 without a Host, it routes as its method and target alone do;
 // - only GET and HEAD are ever routed, and `head` says which; a route's target is a path
 //   (origin form) whose part before '?' is one of the nine pages, and the page is that path's;
+//   with writes served (§7.1) a POST to /api/v1/write routes to the write as well, and nothing
+//   else changes; without, that path is 405 allowing nothing;
 // - a refusal is 400 (not a path, or the map's format bad), 404 (a path that is no page) or 405
 //   (a page, another method), with a message; only the map reads its query, and its format is
 //   the first `format` parameter's value, decoded, or html when there is none;
@@ -30,11 +32,15 @@
 //   to the bytes with each byte that begins no well-formed UTF-8 sequence (Unicode 15 §3.9: no
 //   overlong form, surrogate or code point past U+10FFFF) as U+FFFD; a document
 //   built with well-formed calls parses as JSON, numbers read back to the double or float
-//   written, and non-finite ones are null.
+//   written, and non-finite ones are null;
+// - a write's body (the bytes) is refused saying why, or is a JSON object of exactly link,
+//   module, point and value, taken as they are; an Origin (the bytes' first line) is the page's
+//   own only when it is the scheme and the Host, letter case aside.
 #include <arpa/inet.h>
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -48,6 +54,7 @@
 #include "fuzz/fuzz.hpp"
 #include "protocol/exposition.hpp"
 #include "protocol/json.hpp"
+#include "protocol/json_reader.hpp"
 
 namespace ioport::fuzz {
 namespace {
@@ -225,6 +232,68 @@ bool check_host(const daemon::Request& request) {
 
 // --- Routes ------------------------------------------------------------------------------
 
+// POST /api/v1/write (gateway.md §7.1): with writes served, a POST there routes to the write and
+// nothing else does; without, the path is a 405 whatever the method. Every other target routes
+// the same either way.
+void check_write_route(std::string_view method, std::string_view target) {
+    const auto with = daemon::route(method, target, true);
+    const auto without = daemon::route(method, target, false);
+    const auto path = target.substr(0, target.find('?'));
+    if (path != "/api/v1/write") {
+        check(with.has_value() == without.has_value() &&
+                  (with ? *with == *without : with.error() == without.error()),
+              "writes served change no route but the write's");
+        check(!with || with->page != Page::write, "only /api/v1/write is the write");
+        return;
+    }
+    check(!without && without.error().status == 405 && without.error().allow.empty(),
+          "without writes the write path is 405, allowing nothing");
+    check(with.has_value() == (method == "POST"), "with writes only a POST there routes");
+    if (with)
+        check(with->page == Page::write && !with->head, "and it routes to the write");
+    else
+        check(with.error().status == 405 && with.error().allow == "POST",
+              "another method there is 405, allowing POST");
+}
+
+// A write's body is taken whole or refused saying why; one taken has its four members, as the
+// JSON object gave them.
+void check_write_body(std::string_view bytes) {
+    const auto write = daemon::parse_write_body(bytes);
+    if (!write) {
+        check(!write.error().empty(), "a refused body says why");
+        return;
+    }
+    const auto object = JsonObject::parse(bytes);
+    check(object.has_value(), "a body taken is a JSON object");
+    const auto keys = object->keys();
+    check(keys == std::vector<std::string>{"link", "module", "point", "value"},
+          "a body taken has the four members and no other");
+    check(object->string("link") == write->link && object->string("module") == write->module &&
+              object->string("point") == write->point &&
+              object->scalar_text("value") == write->value,
+          "a body taken is the members' values");
+}
+
+// The Origin of a browser's POST is the page's own exactly when it is the scheme and the Host.
+void check_origin(std::string_view host, std::string_view bytes) {
+    check(daemon::same_origin("", false, host), "no Origin is no page of another site");
+    for (const bool tls : {false, true}) {
+        const auto own = std::string(tls ? "https://" : "http://") + std::string(host);
+        check(daemon::same_origin(own, tls, host), "the page's own origin is the same");
+        check(!daemon::same_origin(own, !tls, host), "the other scheme is another origin");
+        const auto lower = [](std::string_view text) {
+            std::string out(text);
+            for (auto& c : out)
+                c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+            return out;
+        };
+        if (!bytes.empty())
+            check(!daemon::same_origin(bytes, tls, host) || lower(bytes) == lower(own),
+                  "an Origin taken is the page's own, letter case aside");
+    }
+}
+
 void check_route(std::string_view method, std::string_view target) {
     const auto routed = daemon::route(method, target);
     const bool get_or_head = method == "GET" || method == "HEAD";
@@ -261,6 +330,8 @@ void check_route(std::string_view method, std::string_view target) {
     check(!refusal.message.empty(), "a refusal says why");
     if (!origin_form) {
         check(refusal.status == 400, "a target that is not a path is 400");
+    } else if (path == "/api/v1/write") {
+        check(refusal.status == 405, "the write path without writes served is 405");
     } else if (!page) {
         check(refusal.status == 404, "a path that is no page is 404");
     } else if (!get_or_head) {
@@ -710,6 +781,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     }
     fuzz::check_host(request);
     fuzz::check_route(method, target);
+    fuzz::check_write_route(method, target);
     const auto question = target.find('?');
     const auto query =
         question == std::string_view::npos ? std::string_view() : target.substr(question + 1);
@@ -717,5 +789,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     fuzz::check_query(query, bytes.substr(0, bytes.find('\n')));
     fuzz::check_exposition(bytes);
     fuzz::check_json(bytes);
+    fuzz::check_write_body(bytes);
+    fuzz::check_origin(request.host, bytes.substr(0, bytes.find('\n')));
     return 0;
 }

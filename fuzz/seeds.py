@@ -352,6 +352,13 @@ http("map-html-plus", b"HEAD", b"/map?x=a+b&format=html")
 http("map-bad", b"GET", b"/map?format=pdf")
 http("map-malformed-escape", b"GET", b"/map?format=%zz")
 http("map-truncated-escape", b"GET", b"/map?format=csv%2")
+# An operator's write (gateway.md §7.1): the body the bytes, its Origin their first line.
+http("write", b"POST", b"/api/v1/write",
+     b'{"link": "hub0", "module": "dom16_0", "point": "out3", "value": "ON"}')
+http("write-origin", b"POST", b"/api/v1/write",
+     b'http://localhost\n{"link": "l", "module": "m", "point": "p", "value": true}',
+     hosts=[b"localhost"])
+http("write-get", b"GET", b"/api/v1/write", b'{"link": 1}')
 # The Host against DNS rebinding (gateway.md §5.4): IP literals, localhost, the names; 421 for
 # others; 400 for several, none in HTTP/1.1 or a malformed one.
 http("host-ipv4-port", b"GET", b"/api/v1/state", hosts=[b"127.0.0.1:8502"])

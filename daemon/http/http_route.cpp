@@ -22,12 +22,12 @@ constexpr std::array<Path, 10> paths{{{"/", Page::status},
                                       {"/app.js", Page::script},
                                       {"/app.css", Page::style},
                                       {"/icon.svg", Page::icon},
-                                     {"/api/v1/state", Page::state},
-                                     {"/api/v1/trends", Page::trends},
-                                     {"/metrics", Page::metrics},
-                                     {"/healthz", Page::health},
-                                     {"/map", Page::map},
-                                     {"/api/v1/write", Page::write}}};
+                                      {"/api/v1/state", Page::state},
+                                      {"/api/v1/trends", Page::trends},
+                                      {"/metrics", Page::metrics},
+                                      {"/healthz", Page::health},
+                                      {"/map", Page::map},
+                                      {"/api/v1/write", Page::write}}};
 
 constexpr std::string_view index_hint =
     "pages here: / (status), /api/v1/state, /api/v1/trends, /metrics, /healthz, /map; "
