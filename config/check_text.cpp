@@ -42,6 +42,28 @@ std::string tags_text(const ModuleConfig& module) {
     return text;
 }
 
+// An output module's `initial` or `safe` as the configuration writes it: an rgbdm's colour by its
+// name, a dom16's word and a mux8m's (pos << 8) | neg in hex.
+std::string output_value_text(ModuleType type, std::uint16_t value) {
+    switch (type) {
+        case ModuleType::rgbdm:
+            // Always a colour: the loader takes 0-7 only.
+            if (value < colour_count) return std::string(name(static_cast<Colour>(value)));
+            break;
+        // A dom16's word and a mux8m's (pos << 8) | neg, in hex; input modules have no value.
+        case ModuleType::dom16:
+        case ModuleType::mux8m:
+        case ModuleType::dim16:
+        case ModuleType::acm3p:
+        case ModuleType::acm3c:
+        case ModuleType::lim16:
+        case ModuleType::dccim:
+        case ModuleType::dcvim:
+            break;
+    }
+    return fmt::format("0x{:04X}", value);
+}
+
 }  // namespace
 
 std::string check_config_text(const GatewayConfig& config) {
@@ -132,8 +154,10 @@ std::string check_config_text(const GatewayConfig& config) {
             const bool output = is_output(module.address.type);
             text += fmt::format(
                 "  {:<8} {}\n", to_string(module.address),
-                output ? fmt::format("initial 0x{:04X}, safe 0x{:04X}, refresh {}", module.initial,
-                                     module.safe, format_duration(module.refresh))
+                output ? fmt::format("initial {}, safe {}, refresh {}",
+                                     output_value_text(module.address.type, module.initial),
+                                     output_value_text(module.address.type, module.safe),
+                                     format_duration(module.refresh))
                 : module.poll.count() == 0
                     ? std::string("every cycle")
                     : fmt::format("poll every {}", format_duration(module.poll)));

@@ -223,7 +223,7 @@ def modbus(name, requests, scenario=EVERYDAY):
 modbus("readme-examples", [
     adu(1, 1, read(0x04, 0, 8)),                # input registers 0-7
     adu(2, 1, read(0x04, 200, 6)),              # acm3p 0 in %, float32
-    adu(3, 1, struct.pack(">BHH", 0x05, 4, 0xFF00)),  # coil 4: dom16 0 o4 on
+    adu(3, 1, struct.pack(">BHH", 0x05, 1, 0xFF00)),  # coil 1: dom16 0 o1 on
     adu(4, 1, struct.pack(">BHH", 0x06, 8, 3)),  # rgbdm 0 blue
     adu(5, 1, read(0x04, 1000, 10)),            # diagnostics
 ])

@@ -11,6 +11,7 @@
 
 #include <fmt/format.h>
 
+#include "config/check_text.hpp"
 #include "config/gateway_config.hpp"
 #include "tests/unit/tls_fixtures.hpp"
 
@@ -273,6 +274,28 @@ TEST(GatewayConfig, OutputModulesTakeInitialAsTheRegisterValue) {
     EXPECT_EQ(modules[3].initial, 7);
     EXPECT_EQ(modules[4].initial, 0x0102);
     EXPECT_EQ(modules[5].initial, 0x0707);
+}
+
+// --check-config prints an output module's values as the file writes them: an rgbdm's by colour.
+TEST(GatewayConfig, CheckConfigShowsOutputValuesAsTheFileWritesThem) {
+    const auto config = parse(R"(links:
+  - name: hub0
+    protocol: ioport
+    device: /dev/ttyUSB0
+    modules:
+      - { type: dom16, number: 0, initial: 0b1010 }
+      - { type: rgbdm, number: 0, initial: off }
+      - { type: rgbdm, number: 1, initial: 7, safe: red }
+      - { type: mux8m, number: 0, initial: 0x0102 }
+)");
+    ASSERT_TRUE(config) << describe(config.error());
+    const auto text = check_config_text(*config);
+    for (const auto* expected : {"  dom16 0  initial 0x000A, safe 0x000A, refresh 1s\n",
+                                 "  rgbdm 0  initial off, safe off, refresh 1s\n",
+                                 "  rgbdm 1  initial white, safe red, refresh 1s\n",
+                                 "  mux8m 0  initial 0x0102, safe 0x0102, refresh 1s\n"})
+        EXPECT_NE(text.find(expected), std::string::npos) << "missing '" << expected << "' in:\n"
+                                                          << text;
 }
 
 // §5.3: `safe` takes what `initial` takes and defaults to it; comm_loss_timeout defaults to off.
