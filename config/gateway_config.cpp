@@ -35,6 +35,16 @@ std::string resolve_device(const std::string& device) {
     return error ? device : resolved.string();
 }
 
+std::string_view protocol_name(Protocol protocol) {
+    switch (protocol) {
+        case Protocol::ioport:
+            return "ioport";
+        case Protocol::id2:
+            return "id2";
+    }
+    return "ioport";
+}
+
 namespace {
 
 bool loopback(const std::string& host) {

@@ -30,6 +30,8 @@ using namespace std::chrono_literals;
 using gateway::Stale;
 using gateway::WordOrder;
 enum class Protocol { ioport, id2 };
+// As the configuration spells it: "ioport", "id2".
+std::string_view protocol_name(Protocol protocol);
 // What happens to the outputs when the daemon stops: left as they are, or set to `initial`.
 enum class OnShutdown { keep, initial };
 // spdlog's levels and names: trace, debug, info, warn, error, critical, off (and spdlog's

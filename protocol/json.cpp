@@ -143,6 +143,12 @@ Json& Json::null() {
     return *this;
 }
 
+Json& Json::raw(std::string_view json) {
+    separate();
+    text_ += json;
+    return *this;
+}
+
 std::string rfc3339(std::chrono::system_clock::time_point at) {
     const auto ms = std::chrono::floor<std::chrono::milliseconds>(at).time_since_epoch().count();
     const std::time_t seconds = ms / 1000;

@@ -30,6 +30,8 @@ class Json {
     Json& value(std::int64_t number);
     Json& value(int number) { return value(static_cast<std::int64_t>(number)); }
     Json& null();
+    // A value that is JSON text already (a member a peer sent, as JsonObject::json gives it).
+    Json& raw(std::string_view json);
     template <class T>
     Json& member(std::string_view name, const T& v) {
         key(name);

@@ -63,6 +63,13 @@ std::optional<std::string> JsonObject::scalar_text(std::string_view key) const {
     return std::nullopt;
 }
 
+std::optional<std::string> JsonObject::json(std::string_view key) const {
+    const auto* member = document_->member(key);
+    if (member == nullptr) return std::nullopt;
+    // `replace`: no string of a parsed document is invalid UTF-8, but a dump never throws.
+    return member->dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+}
+
 std::vector<std::string> JsonObject::keys() const {
     std::vector<std::string> names;
     for (const auto& [name, value] : document_->value.items())

@@ -33,6 +33,9 @@ class JsonObject {
     // A string, number or boolean as text: the string itself, a number as JSON writes it ("3",
     // "2.5"), "true" or "false"; nullopt for null, an array, an object, or when absent.
     std::optional<std::string> scalar_text(std::string_view key) const;
+    // The member as JSON text, written anew (so valid JSON whatever the peer's spacing);
+    // nullopt when absent.
+    std::optional<std::string> json(std::string_view key) const;
     // The members' names, sorted.
     std::vector<std::string> keys() const;
 

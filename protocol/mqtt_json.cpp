@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include "protocol/json.hpp"
+#include "protocol/json_reader.hpp"
 
 namespace ioport::mqtt_json {
 namespace {}  // namespace
@@ -287,6 +288,84 @@ void component_keys(Json& json, const Entity& entity, std::optional<ModuleAddres
 
 }  // namespace
 
+std::string bridge_topic(std::string_view prefix, std::string_view leaf) {
+    return fmt::format("{}/bridge/{}", prefix, leaf);
+}
+
+std::string bridge_request_subscription(std::string_view prefix) {
+    return bridge_topic(prefix, "request/+");
+}
+
+std::optional<std::string> parse_bridge_request(std::string_view prefix, std::string_view topic) {
+    const auto head = bridge_topic(prefix, "request/");
+    if (!topic.starts_with(head)) return std::nullopt;
+    const auto name = topic.substr(head.size());
+    if (name.empty() || name.find('/') != std::string_view::npos) return std::nullopt;
+    return std::string(name);
+}
+
+std::string bridge_info_json(std::string_view version, std::span<const BridgeLink> links,
+                             bool discovery, bool read_only) {
+    Json json;
+    json.begin_object().member("version", version).key("links").begin_array();
+    for (const auto& link : links) {
+        json.begin_object()
+            .member("name", link.name)
+            .member("protocol", link.protocol)
+            .member("unit_id", link.unit_id)
+            .key("modules")
+            .begin_array();
+        for (const auto& module : link.modules)
+            json.begin_object()
+                .member("id", module.id)
+                .member("type", module.type)
+                .member("name", module.name)
+                .member("status", module.status)
+                .end_object();
+        json.end_array().end_object();
+    }
+    json.end_array().member("discovery", discovery).member("read_only", read_only).end_object();
+    return json.take();
+}
+
+BridgeRequest parse_bridge_request_payload(std::string_view payload) {
+    const auto object = JsonObject::parse(payload);
+    if (!object)
+        return {std::nullopt, fmt::format("the payload is {}: send a JSON object, {{}} "
+                                          "at least",
+                                          object.error().message)};
+    if (!object->has("transaction")) return {};
+    const auto text = object->string("transaction");
+    const bool scalar = text || object->scalar_text("transaction");
+    if (!scalar || (text && text->size() > max_transaction_bytes))
+        return {std::nullopt, fmt::format("transaction: a string of at most {} bytes, a number "
+                                          "or a boolean",
+                                          max_transaction_bytes)};
+    return {object->json("transaction"), {}};
+}
+
+std::string bridge_response_json(std::string_view data_json, std::string_view error,
+                                 const std::optional<std::string>& transaction) {
+    Json json;
+    json.begin_object().member("status", error.empty() ? "ok" : "error");
+    json.key("data").raw(error.empty() ? data_json : "{}");
+    if (!error.empty()) json.member("error", error);
+    if (transaction) json.key("transaction").raw(*transaction);
+    json.end_object();
+    return json.take();
+}
+
+std::string health_json(std::span<const std::pair<std::string, std::string>> links) {
+    const bool healthy =
+        std::ranges::all_of(links, [](const auto& link) { return link.second == "ok"; });
+    Json json;
+    json.begin_object().member("healthy", healthy).key("links").begin_object();
+    for (const auto& [name, verdict] : links)
+        json.member(name, verdict);
+    json.end_object().end_object();
+    return json.take();
+}
+
 Discovery gateway_discovery(const Node& node) {
     const auto id = node_id(node.topic_prefix);
     Json json;
@@ -316,6 +395,29 @@ Discovery gateway_discovery(const Node& node) {
         .end_object();
     json.end_object();
     return {config_topic(node, "binary_sensor", "connection"), json.take()};
+}
+
+Discovery link_discovery(const Node& node, std::string_view link) {
+    const auto id = node_id(node.topic_prefix);
+    const auto object = fmt::format("{}_connectivity", safe_id(link));
+    Json json;
+    json.begin_object();
+    json.member("name", fmt::format("link {}", link))
+        .member("unique_id", fmt::format("{}_{}", id, object))
+        .member("state_topic",
+                bridge_topic(node.topic_prefix, fmt::format("connectivity/{}", link)))
+        .member("availability_topic", status_topic(node.topic_prefix))
+        .member("device_class", "connectivity")
+        .member("entity_category", "diagnostic");
+    json.key("device").begin_object().key("identifiers").begin_array().value(id).end_array();
+    json.end_object();
+    json.key("origin")
+        .begin_object()
+        .member("name", "ioportd")
+        .member("sw_version", node.version)
+        .end_object();
+    json.end_object();
+    return {config_topic(node, "binary_sensor", object), json.take()};
 }
 
 std::vector<Discovery> module_discovery(const Node& node, std::string_view link,

@@ -51,6 +51,50 @@ std::vector<std::string> state_keys(std::optional<ModuleType> type);
 std::string state_json(std::optional<ModuleType> type,
                        std::span<const std::optional<gateway::PointValue>> values);
 
+// --- The bridge topics (gateway.md §7.3, zigbee2mqtt's conventions) ----------------------
+
+// <prefix>/bridge/<leaf>: "info", "request/<name>", "response/<name>", "connectivity/<link>".
+// No module topic is one of them, whatever a link is named: a module topic's third level is a
+// module id ("dim16_0", "id2").
+std::string bridge_topic(std::string_view prefix, std::string_view leaf);
+std::string bridge_request_subscription(std::string_view prefix);  // <prefix>/bridge/request/+
+// The name of a request's topic <prefix>/bridge/request/<name>; nullopt for any other topic.
+std::optional<std::string> parse_bridge_request(std::string_view prefix, std::string_view topic);
+
+// bridge/info: what this gateway is, retained.
+struct BridgeModule {
+    std::string id;      // as gateway::module_id writes it
+    std::string type;    // "dim16", …, "id2"
+    std::string name;    // §6.1's name, else the id
+    std::string status;  // "online", "no answer", … (the state API's status_text)
+};
+struct BridgeLink {
+    std::string name;
+    std::string protocol;  // "ioport" | "id2"
+    int unit_id = 1;
+    std::vector<BridgeModule> modules;
+};
+std::string bridge_info_json(std::string_view version, std::span<const BridgeLink> links,
+                             bool discovery, bool read_only);
+
+// The longest transaction echoed, as a string's bytes.
+inline constexpr std::size_t max_transaction_bytes = 128;
+// A request's payload: a JSON object, whose "transaction" (a string, number or boolean) is echoed
+// in the response as the request gave it. Fails saying what is wrong; the transaction is kept
+// where it could be read, so that even an error answer carries it.
+struct BridgeRequest {
+    std::optional<std::string> transaction;  // as JSON text
+    std::string error;                       // "" when the payload is as it should be
+};
+BridgeRequest parse_bridge_request_payload(std::string_view payload);
+// {"status": "ok", "data": <data>} or {"status": "error", "data": {}, "error": "…"}, with
+// "transaction" when the request had one.
+std::string bridge_response_json(std::string_view data_json, std::string_view error,
+                                 const std::optional<std::string>& transaction);
+// health_check's data: {"healthy": bool, "links": {<link>: "ok" | <reason>}}; healthy when every
+// link's verdict is "ok" (gateway.md §5.4's /healthz).
+std::string health_json(std::span<const std::pair<std::string, std::string>> links);
+
 // --- Home Assistant discovery -------------------------------------------------------------
 
 // What every discovery config of this gateway shares.
@@ -80,6 +124,9 @@ struct Discovery {
 
 // The gateway's own device: a binary sensor of its connectivity on <prefix>/status.
 Discovery gateway_discovery(const Node& node);
+// On the gateway's device, a binary sensor per link: on while its port is open and every module
+// online, from <prefix>/bridge/connectivity/<link> (ON or OFF, retained).
+Discovery link_discovery(const Node& node, std::string_view link);
 // One entity per point of a module, in one Home Assistant device named as §6.1 names the
 // module, routed via the gateway's device.
 std::vector<Discovery> module_discovery(const Node& node, std::string_view link,

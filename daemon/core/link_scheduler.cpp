@@ -581,22 +581,26 @@ const ModuleState* LinkScheduler::module_at(int slot_index) const {
     return index < 0 ? nullptr : &modules_[static_cast<std::size_t>(index)];
 }
 
+std::string link_problems(const LinkScheduler& link) {
+    const auto& name = link.config().name;
+    if (!link.port_open())
+        return fmt::format("link {}: port {} not open", name, link.config().device);
+    std::string problems;
+    for (const auto& module : link.modules())
+        if (module.status() != ModuleStatus::online)
+            problems += fmt::format("{}link {}: {} {}", problems.empty() ? "" : "; ", name,
+                                    module.name, status_text(module.status()));
+    return problems;
+}
+
 Health health(const Links& links) {
     Health health;
-    const auto add = [&](const std::string& reason) {
+    for (const auto& link : links) {
+        const auto problems = link_problems(*link);
+        if (problems.empty()) continue;
         health.ok = false;
         if (!health.reason.empty()) health.reason += "; ";
-        health.reason += reason;
-    };
-    for (const auto& link : links) {
-        const auto& name = link->config().name;
-        if (!link->port_open()) {
-            add(fmt::format("link {}: port {} not open", name, link->config().device));
-            continue;
-        }
-        for (const auto& module : link->modules())
-            if (module.status() != ModuleStatus::online)
-                add(fmt::format("link {}: {} {}", name, module.name, status_text(module.status())));
+        health.reason += problems;
     }
     return health;
 }

@@ -175,5 +175,8 @@ struct Health {
     std::string reason;  // "link hub0: port not open; link hub1: dim16 2 no answer"
 };
 Health health(const Links& links);
+// One link's part of it: "" while its port is open and every module online, else the reasons
+// ("link hub0: dim16 2 no answer").
+std::string link_problems(const LinkScheduler& link);
 
 }  // namespace ioport::daemon

@@ -14,16 +14,6 @@ using SystemClock = std::chrono::system_clock;
 
 constexpr std::string_view text_plain = "text/plain; charset=utf-8";
 
-std::string_view protocol_name(config::Protocol protocol) {
-    switch (protocol) {
-        case config::Protocol::ioport:
-            return "ioport";
-        case config::Protocol::id2:
-            return "id2";
-    }
-    return "ioport";
-}
-
 double seconds(std::chrono::microseconds duration) {
     return std::chrono::duration<double>(duration).count();
 }
@@ -277,7 +267,7 @@ void link_json(Json& json, const LinkScheduler& link, Clock::time_point now) {
     const auto& c = link.counters();
     json.begin_object()
         .member("name", config.name)
-        .member("protocol", protocol_name(config.protocol))
+        .member("protocol", config::protocol_name(config.protocol))
         .member("device", config.device)
         .member("baud", config.baud)
         .member("unit_id", config.unit_id)

@@ -59,6 +59,12 @@ void MqttJsonOutput::metrics(Exposition& out) const {
     out.family("ioportd_mqtt_json_discovery_cleared_total", "counter",
                "Home Assistant discovery configs cleared: their module is no longer configured");
     out.sample("ioportd_mqtt_json_discovery_cleared_total", {}, stats.discovery_cleared);
+    out.family("ioportd_mqtt_json_bridge_requests_total", "counter",
+               "bridge requests received (gateway.md §7.3), by result");
+    out.sample("ioportd_mqtt_json_bridge_requests_total", {{"result", "answered"}},
+               stats.requests - stats.requests_dropped);
+    out.sample("ioportd_mqtt_json_bridge_requests_total", {{"result", "dropped"}},
+               stats.requests_dropped);
 }
 
 void MqttJsonOutput::state(Json& json) const {

@@ -1,6 +1,7 @@
 #include "daemon/mqtt_json/mqtt_json_session.hpp"
 
 #include <algorithm>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -77,10 +78,13 @@ void MqttJsonSession::build(const Links& links) {
     links_ = links;
     modules_.clear();
     config_topics_.clear();
+    connectivity_.clear();
     if (settings_.discovery) config_topics_.insert(mqtt_json::gateway_discovery(node_).topic);
     const auto& prefix = settings_.topic_prefix;
     for (const auto& link : links) {
         const auto& name = link->config().name;
+        if (settings_.discovery)
+            config_topics_.insert(mqtt_json::link_discovery(node_, name).topic);
         for (const auto& view : link->modules()) {
             Module module{link,
                           view.slot,
@@ -119,8 +123,11 @@ void MqttJsonSession::set_links(const Links& links) {
     if (cleared > 0) log_.info({}, "MQTT JSON: {} discovery config(s) cleared", cleared);
     if (!client_->connected()) return;
     publish_discovery();
+    publish_bridge_info();
     for (auto& module : modules_)
         update(module);
+    for (const auto& link : links_)
+        update_connectivity(*link);
 }
 
 void MqttJsonSession::stop(std::chrono::milliseconds deadline, std::function<void()> done) {
@@ -149,6 +156,7 @@ void MqttJsonSession::connecting() {
 
 void MqttJsonSession::connected() {
     subscribe(mqtt_json::set_subscription(settings_.topic_prefix), "sets");
+    subscribe(mqtt_json::bridge_request_subscription(settings_.topic_prefix), "bridge requests");
     if (settings_.discovery) {
         subscribe(settings_.discovery_prefix + "/status", "Home Assistant's birth messages");
         // This node's configs, retained ones included: those of modules no longer configured
@@ -160,12 +168,51 @@ void MqttJsonSession::connected() {
     publish(status_topic_, online_text, 1, true);
     discovery_due_ = settings_.discovery;
     publish_discovery();
+    publish_bridge_info();
+    publish_states_again();
+}
+
+// Every module's availability and state, and every link's connectivity, as if never sent.
+void MqttJsonSession::publish_states_again() {
     for (auto& module : modules_) {
         module.online.reset();
         module.values.clear();
         module.state_due = true;
         update(module);
     }
+    connectivity_.clear();
+    for (const auto& link : links_)
+        update_connectivity(*link);
+}
+
+void MqttJsonSession::publish_bridge_info() {
+    if (stopping_) return;
+    std::vector<mqtt_json::BridgeLink> links;
+    for (const auto& link : links_) {
+        const auto& config = link->config();
+        mqtt_json::BridgeLink info{
+            config.name, std::string(config::protocol_name(config.protocol)), config.unit_id, {}};
+        for (const auto& module : link->modules())
+            info.modules.push_back({gateway::module_id(module.address),
+                                    module.address ? std::string(ioport::name(module.address->type))
+                                                   : std::string("id2"),
+                                    module.address ? module.tags->name : module.name,
+                                    std::string(status_text(module.status()))});
+        links.push_back(std::move(info));
+    }
+    publish(mqtt_json::bridge_topic(settings_.topic_prefix, "info"),
+            mqtt_json::bridge_info_json(IOPORTD_VERSION, links, settings_.discovery, read_only_), 1,
+            true);
+}
+
+void MqttJsonSession::update_connectivity(const LinkScheduler& link) {
+    if (!settings_.discovery) return;
+    const bool ok = link_problems(link).empty();
+    const auto last = connectivity_.find(&link);
+    if (last != connectivity_.end() && last->second == ok) return;
+    const auto topic = mqtt_json::bridge_topic(settings_.topic_prefix,
+                                               fmt::format("connectivity/{}", link.config().name));
+    if (publish(topic, ok ? "ON" : "OFF", 1, true)) connectivity_[&link] = ok;
 }
 
 void MqttJsonSession::subscribe(const std::string& topic, std::string_view what) {
@@ -178,6 +225,10 @@ void MqttJsonSession::publish_discovery() {
     if (!settings_.discovery || stopping_) return;
     const auto gateway = mqtt_json::gateway_discovery(node_);
     discovery_due_ = !publish(gateway.topic, gateway.payload, 1, true);
+    for (const auto& link : links_) {
+        const auto config = mqtt_json::link_discovery(node_, link->config().name);
+        if (!publish(config.topic, config.payload, 1, true)) discovery_due_ = true;
+    }
     for (const auto& module : modules_)
         for (const auto& config : module.discovery)
             if (!publish(config.topic, config.payload, 1, true)) discovery_due_ = true;
@@ -193,6 +244,7 @@ void MqttJsonSession::changed(const LinkScheduler* link, int slot) {
     if (stopping_ || !client_->connected()) return;
     for (auto& module : modules_)
         if (module.link.get() == link && (slot < 0 || module.slot == slot)) update(module);
+    update_connectivity(*link);
 }
 
 void MqttJsonSession::update(Module& module) {
@@ -200,8 +252,10 @@ void MqttJsonSession::update(Module& module) {
     if (view == nullptr) return;
     const bool online = view->status() == gateway::ModuleStatus::online;
     if (module.online != online &&
-        publish(module.availability_topic, online ? online_text : offline_text, 1, true))
+        publish(module.availability_topic, online ? online_text : offline_text, 1, true)) {
         module.online = online;
+        info_due_ = true;  // its status there too, on the next tick: at most once a second
+    }
     // Offline: the last document stays, marked unavailable; the next one comes with fresh values.
     if (!online) return;
     const auto type = type_of(module.address);
@@ -221,6 +275,8 @@ void MqttJsonSession::tick() {
         if (ec || !self || self->stopping_) return;
         if (self->client_->connected()) {
             if (self->discovery_due_) self->publish_discovery();
+            if (std::exchange(self->states_due_, false)) self->publish_states_again();
+            if (std::exchange(self->info_due_, false)) self->publish_bridge_info();
             for (auto& module : self->modules_)
                 if (module.state_due || !module.online) self->update(module);
         }
@@ -234,6 +290,10 @@ void MqttJsonSession::message(std::string_view topic, std::span<const std::uint8
     if (auto set_topic = mqtt_json::parse_set_topic(settings_.topic_prefix, topic)) {
         // Empty: a retained set being cleared from the broker, not a command.
         if (!text.empty()) set(*set_topic, text, retained);
+        return;
+    }
+    if (auto name = mqtt_json::parse_bridge_request(settings_.topic_prefix, topic)) {
+        if (!text.empty() || !retained) request(*name, text, retained);
         return;
     }
     if (!settings_.discovery) return;
@@ -260,10 +320,55 @@ void MqttJsonSession::stale_config(std::string_view topic) {
 void MqttJsonSession::home_assistant_online() {
     const auto now = std::chrono::steady_clock::now();
     if (discovery_sent_ && now - *discovery_sent_ < min_discovery_interval) {
-        discovery_due_ = true;  // the next tick serves it
+        discovery_due_ = true;  // the next tick serves both
+        states_due_ = true;
         return;
     }
     publish_discovery();
+    // A Home Assistant restarted on a broker that keeps no retained messages has no state until
+    // a value changes, and shows "unknown" meanwhile: give it every one now.
+    publish_states_again();
+}
+
+// A bridge request (gateway.md §7.3). What comes from the broker reaches the log escaped; a
+// client asking too often is answered no more this second.
+void MqttJsonSession::request(const std::string& name, std::string_view payload, bool retained) {
+    ++stats_.requests;
+    const auto now = std::chrono::steady_clock::now();
+    if (now - requests_second_ >= std::chrono::seconds(1)) {
+        requests_second_ = now;
+        requests_in_second_ = 0;
+    }
+    if (++requests_in_second_ > max_bridge_requests_per_second) {
+        ++stats_.requests_dropped;
+        if (const auto held = refusals_.admit("bridge requests", now))
+            log_.warn({},
+                      "MQTT JSON: bridge request {} dropped: more than {} a second (logged "
+                      "once a minute){}",
+                      shown(name), max_bridge_requests_per_second, held_back(*held));
+        return;
+    }
+    auto parsed = mqtt_json::parse_bridge_request_payload(payload);
+    std::string data = "{}";
+    if (retained && parsed.error.empty())
+        parsed.error =
+            "a retained request is not served: it would act at every connect; "
+            "publish requests without the retain flag";
+    if (!parsed.error.empty()) {
+    } else if (name == "health_check") {
+        std::vector<std::pair<std::string, std::string>> links;
+        for (const auto& link : links_) {
+            auto problems = link_problems(*link);
+            links.emplace_back(link->config().name, problems.empty() ? "ok" : std::move(problems));
+        }
+        data = mqtt_json::health_json(links);
+    } else if (name == "info") {
+        publish_bridge_info();
+    } else {
+        parsed.error = fmt::format("'{}' is not a request here: health_check or info", shown(name));
+    }
+    publish(mqtt_json::bridge_topic(settings_.topic_prefix, "response/" + name),
+            mqtt_json::bridge_response_json(data, parsed.error, parsed.transaction), 0, false);
 }
 
 void MqttJsonSession::refuse(std::string_view key, const LogFields& fields, std::string text) {

@@ -21,11 +21,20 @@
 // under modbus.read_only, a module or point that is not there, a payload plan_text_write does not
 // take. What comes from the broker reaches the log escaped, and refusals go through one
 // LogLimiter.
+//
+// The bridge topics (gateway.md §7.3, as zigbee2mqtt has them): `<prefix>/bridge/info` retained
+// at every connection and reload, and at the next tick after a module's status changed; requests on
+// `<prefix>/bridge/request/<name>` (health_check, info) answered on `bridge/response/<name>` with
+// the transaction echoed, at most max_bridge_requests_per_second (more are dropped, counted and
+// logged once a minute); with discovery, a connectivity sensor per link on
+// `bridge/connectivity/<link>`, and Home Assistant's birth makes every module's state and
+// availability published again, for a Home Assistant on a broker that keeps no retained messages.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <memory>
 #include <optional>
 #include <set>
@@ -43,6 +52,8 @@ namespace ioport::daemon {
 
 // Home Assistant's birth messages closer than this are served by one republication.
 inline constexpr std::chrono::seconds min_discovery_interval{1};
+// Bridge requests answered a second; a client asking more often is answered no more.
+inline constexpr int max_bridge_requests_per_second = 10;
 // The largest packet the broker may send this connection (MQTT 5's Maximum Packet Size): what
 // arrives is a set (a word), Home Assistant's birth, or a discovery config of this node's own (a
 // few KiB); a 250 MB set once took the daemon past MemoryMax=.
@@ -55,6 +66,8 @@ struct MqttJsonStats {
     std::uint64_t sets = 0;  // set messages received
     std::uint64_t sets_refused = 0;
     std::uint64_t discovery_cleared = 0;  // configs of modules no longer configured
+    std::uint64_t requests = 0;           // bridge requests received
+    std::uint64_t requests_dropped = 0;   // over max_bridge_requests_per_second
 };
 
 class MqttJsonSession : public std::enable_shared_from_this<MqttJsonSession> {
@@ -106,6 +119,10 @@ class MqttJsonSession : public std::enable_shared_from_this<MqttJsonSession> {
     void stale_config(std::string_view topic);
     void home_assistant_online();
     void set(const mqtt_json::SetTopic& topic, std::string_view payload, bool retained);
+    void request(const std::string& name, std::string_view payload, bool retained);
+    void publish_bridge_info();
+    void publish_states_again();
+    void update_connectivity(const LinkScheduler& link);
     void refuse(std::string_view key, const LogFields& fields, std::string text);
     void changed(const LinkScheduler* link, int slot);
     void update(Module& module);
@@ -127,7 +144,14 @@ class MqttJsonSession : public std::enable_shared_from_this<MqttJsonSession> {
     std::vector<Module> modules_;
     std::set<std::string> config_topics_;  // every discovery config this node publishes now
     bool discovery_due_ = false;           // not (all) published in this session yet
+    bool states_due_ = false;              // a Home Assistant birth the last tick did not serve
+    bool info_due_ = false;                // a module's status changed since bridge/info
     std::optional<std::chrono::steady_clock::time_point> discovery_sent_;
+    // Of each link, the connectivity last published in this session.
+    std::map<const LinkScheduler*, bool> connectivity_;
+    // The bridge requests of the running second.
+    std::chrono::steady_clock::time_point requests_second_{};
+    int requests_in_second_ = 0;
     bool stopping_ = false;
     bool read_only_ = false;
     MqttJsonStats stats_;

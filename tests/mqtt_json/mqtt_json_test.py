@@ -11,6 +11,7 @@ Usage: mqtt_json_test.py IOPORTD IOPORT_SIM [NODE_RED_DIR [TEST ...]]
 """
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -445,6 +446,127 @@ class OwnDaemon(JsonCase):
             return (kept.get(f"{PREFIX}/status") == "online" and state in kept
                     and json.loads(kept[state])["word"] == 0x00FF)
         eventually(republished, 10, "status online and the state changed meanwhile, retained")
+
+
+class Bridge(JsonCase):
+    """The bridge topics of gateway.md §7.3 (zigbee2mqtt's conventions), on a daemon of the
+    class's."""
+
+    @classmethod
+    def setUpClass(cls):
+        super().setUpClass()
+        cls.rig = JsonRig(tempfile.mkdtemp(dir=cls.dir), cls.broker.port)
+        cls.rig.start_daemon()
+
+    def setUp(self):
+        self.wait_online(self.rig)
+
+    def ask(self, name, payload, retain=False):
+        mark = self.sub.mark()
+        self.sub.publish(f"{PREFIX}/bridge/request/{name}", payload, retain)
+        answer = self.sub.wait(f"{PREFIX}/bridge/response/{name}", since=mark)
+        self.assertFalse(answer.retain)
+        return answer.json()
+
+    def test_info_is_retained_and_describes_the_gateway(self):
+        # Published at connect (the modules not polled yet), then again once their status is
+        # known, at most once a second.
+        def all_online():
+            kept = retained(self.broker.port, f"{PREFIX}/bridge/info")
+            info = json.loads(kept.get(f"{PREFIX}/bridge/info", "{}"))
+            modules = [m for link in info.get("links", []) for m in link["modules"]]
+            return modules and all(m["status"] == "online" for m in modules) and info
+        info = eventually(all_online, 10, "bridge/info with every module online")
+        self.assertEqual(sorted(info), ["discovery", "links", "read_only", "version"])
+        self.assertEqual((info["discovery"], info["read_only"]), (True, False))
+        hub, press = info["links"]
+        self.assertEqual((hub["name"], hub["protocol"], hub["unit_id"]), ("hub0", "ioport", 1))
+        self.assertEqual((press["name"], press["protocol"], press["unit_id"]), ("press", "id2", 2))
+        self.assertEqual([m["id"] for m in hub["modules"]],
+                         ["dim16_0", "dom16_0", "acm3p_0", "rgbdm_0", "mux8m_0"])
+        boiler = hub["modules"][2]
+        self.assertEqual((boiler["type"], boiler["name"]), ("acm3p", "boiler 1"))
+        self.assertEqual(press["modules"], [{"id": "id2", "type": "id2", "name": "ID-2",
+                                             "status": "online"}])
+        # The request "info" publishes it again, and answers ok.
+        mark = self.sub.mark()
+        self.assertEqual(self.ask("info", '{"transaction": 7}'),
+                         {"status": "ok", "data": {}, "transaction": 7})
+        self.sub.wait(f"{PREFIX}/bridge/info", since=mark)
+
+    def test_health_check_echoes_the_transaction_and_tells_each_link(self):
+        answer = self.ask("health_check", '{"transaction": "abc-1"}')
+        self.assertEqual(answer, {"status": "ok", "transaction": "abc-1", "data": {
+            "healthy": True, "links": {"hub0": "ok", "press": "ok"}}})
+        self.rig.ctl("fault dim16:0 silent")
+        try:
+            eventually(lambda: self.ask("health_check", "{}")["data"]["links"]["hub0"] != "ok",
+                       10, "hub0 unhealthy", interval=0.25)  # within the 10 a second
+            answer = self.ask("health_check", "{}")
+            self.assertFalse(answer["data"]["healthy"])
+            self.assertEqual(answer["data"]["links"]["press"], "ok")
+            self.assertIn("dim16 0 no answer", answer["data"]["links"]["hub0"])
+            self.assertNotIn("transaction", answer)
+        finally:
+            self.rig.ctl("fault dim16:0 none")
+
+    def test_anything_else_is_answered_error_with_the_reason(self):
+        for name, payload, error in (
+                ("permit_join", '{"transaction": 1}', "'permit_join' is not a request here"),
+                ("health_check", "not json", "the payload is"),
+                ("health_check", "[1]", "the payload is"),
+                ("health_check", '{"transaction": [1]}', "transaction: a string of at most"),
+                ("health_check", '{"transaction": "' + "x" * 129 + '"}', "at most 128 bytes")):
+            with self.subTest(name=name, payload=payload):
+                answer = self.ask(name, payload)
+                self.assertEqual((answer["status"], answer["data"]), ("error", {}))
+                self.assertIn(error, answer["error"])
+        self.assertEqual(self.ask("nope", '{"transaction": "t"}')["transaction"], "t")
+
+    def test_requests_are_rate_limited(self):
+        def dropped():
+            return int(re.search(r'(?m)^ioportd_mqtt_json_bridge_requests_total'
+                                 r'\{result="dropped"\} (\d+)$', self.rig.metrics()).group(1))
+        before = dropped()
+        mark = self.sub.mark()
+        for i in range(30):
+            self.sub.client.publish(f"{PREFIX}/bridge/request/health_check",
+                                    f'{{"transaction": {i}}}', qos=1)
+
+        def answered():
+            return len(self.sub.since(mark, f"{PREFIX}/bridge/response/health_check"))
+        eventually(lambda: answered() + dropped() - before == 30, 10,
+                   lambda: f"{answered()} answered, {dropped() - before} dropped")
+        # 10 a second: what the tests before left of this second, and perhaps the next's.
+        self.assertLessEqual(answered(), 20)
+        self.assertGreater(dropped() - before, 0)
+        self.rig.wait_log(r"bridge request health_check dropped: more than 10 a second")
+
+    def test_connectivity_per_link_on_the_gateways_device(self):
+        configs = retained(self.broker.port, f"{HA}/binary_sensor/{NODE}/+/config")
+        hub = json.loads(configs[f"{HA}/binary_sensor/{NODE}/hub0_connectivity/config"])
+        self.assertEqual((hub["state_topic"], hub["device_class"], hub["device"]["identifiers"]),
+                         (f"{PREFIX}/bridge/connectivity/hub0", "connectivity", [NODE]))
+        state = f"{PREFIX}/bridge/connectivity/hub0"
+        self.assertEqual(retained(self.broker.port, state)[state], "ON")
+        mark = self.sub.mark()
+        self.rig.ctl("fault mux8m:0 silent")
+        try:
+            self.sub.wait(state, lambda m: m.payload == "OFF", mark)
+        finally:
+            self.rig.ctl("fault mux8m:0 none")
+        self.sub.wait(state, lambda m: m.payload == "ON", mark)
+
+    def test_home_assistants_birth_publishes_every_state_again(self):
+        # A broker without persistence, restarted: the states are gone.
+        for module in ("hub0/dim16_0", "press/id2"):
+            self.sub.publish(topic(module, "state"), "", retain=True)
+        mark = self.sub.mark()
+        self.sub.publish(f"{HA}/status", "online")
+        for module in ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "hub0/rgbdm_0",
+                       "hub0/mux8m_0", "press/id2"):
+            self.sub.wait(topic(module, "state"), lambda m: m.payload != "", mark)
+            self.sub.wait(topic(module, "availability"), lambda m: m.payload == "online", mark)
 
 
 class Mqtt311Broker(threading.Thread):

@@ -1,6 +1,7 @@
 // Plain MQTT with JSON and Home Assistant discovery (gateway.md §6.3) as pure functions.
 #include "protocol/mqtt_json.hpp"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -196,6 +197,84 @@ TEST(MqttJsonDiscovery, EveryModuleTypeHasItsComponents) {
             ids.push_back(d.topic);
     std::ranges::sort(ids);
     EXPECT_EQ(std::ranges::adjacent_find(ids), ids.end());
+}
+
+// --- The bridge topics (gateway.md §7.3) ------------------------------------------------------
+
+TEST(MqttJsonBridge, TopicsAndRequestNames) {
+    EXPECT_EQ(bridge_topic("ioportd/box7", "info"), "ioportd/box7/bridge/info");
+    EXPECT_EQ(bridge_request_subscription("p"), "p/bridge/request/+");
+    EXPECT_EQ(parse_bridge_request("p", "p/bridge/request/health_check"), "health_check");
+    for (const auto topic :
+         {"p/bridge/request/", "p/bridge/request/a/b", "p/bridge/response/x", "p/bridge/info",
+          "q/bridge/request/x", "p/hub0/dom16_0/out3/set", "pp/bridge/request/x"})
+        EXPECT_FALSE(parse_bridge_request("p", topic)) << topic;
+    // A link named "bridge" keeps its module topics apart: their third level is a module id.
+    EXPECT_EQ(parse_set_topic("p", "p/bridge/request/x"), std::nullopt);
+}
+
+TEST(MqttJsonBridge, InfoDescribesTheLinksAndModules) {
+    const std::vector<BridgeLink> links{
+        {"hub0", "ioport", 1, {{"dim16_0", "dim16", "inputs", "online"}}},
+        {"press", "id2", 2, {{"id2", "id2", "ID-2", "no answer"}}}};
+    EXPECT_EQ(bridge_info_json("0.1.0", links, true, false),
+              R"({"version":"0.1.0","links":[{"name":"hub0","protocol":"ioport","unit_id":1,)"
+              R"("modules":[{"id":"dim16_0","type":"dim16","name":"inputs","status":"online"}]},)"
+              R"({"name":"press","protocol":"id2","unit_id":2,"modules":[{"id":"id2",)"
+              R"("type":"id2","name":"ID-2","status":"no answer"}]}],"discovery":true,)"
+              R"("read_only":false})");
+}
+
+TEST(MqttJsonBridge, ARequestIsAJsonObjectWhoseTransactionIsEchoedAsItCame) {
+    EXPECT_EQ(parse_bridge_request_payload("{}").transaction, std::nullopt);
+    EXPECT_EQ(parse_bridge_request_payload("{}").error, "");
+    EXPECT_EQ(parse_bridge_request_payload(R"({"transaction": "a\"b"})").transaction, R"("a\"b")");
+    EXPECT_EQ(parse_bridge_request_payload(R"({"transaction":12, "x": [1]})").transaction, "12");
+    EXPECT_EQ(parse_bridge_request_payload(R"({"transaction": 1.5})").transaction, "1.5");
+    EXPECT_EQ(parse_bridge_request_payload(R"({"transaction": true})").transaction, "true");
+    for (const auto payload : {"", "x", "[1]", "1", R"({"transaction": 1)"}) {
+        const auto request = parse_bridge_request_payload(payload);
+        EXPECT_TRUE(request.error.starts_with("the payload is "))
+            << payload << ": " << request.error;
+        EXPECT_EQ(request.transaction, std::nullopt);
+    }
+    const std::vector<std::string> refused{"null", "[1]", "{}",
+                                           "\"" + std::string(129, 'x') + "\""};
+    for (const auto& transaction : refused) {
+        const auto request =
+            parse_bridge_request_payload(fmt::format(R"({{"transaction": {}}})", transaction));
+        EXPECT_EQ(request.error,
+                  "transaction: a string of at most 128 bytes, a number or a boolean")
+            << transaction;
+    }
+    EXPECT_EQ(parse_bridge_request_payload(
+                  fmt::format(R"({{"transaction": "{}"}})", std::string(128, 'x')))
+                  .error,
+              "");
+}
+
+TEST(MqttJsonBridge, ResponsesAndTheHealthCheck) {
+    EXPECT_EQ(bridge_response_json(R"({"a":1})", "", std::nullopt),
+              R"({"status":"ok","data":{"a":1}})");
+    EXPECT_EQ(bridge_response_json(R"({"a":1})", "no such request", std::string("\"t\"")),
+              R"({"status":"error","data":{},"error":"no such request","transaction":"t"})");
+    const std::vector<std::pair<std::string, std::string>> fine{{"hub0", "ok"}, {"press", "ok"}};
+    EXPECT_EQ(health_json(fine), R"({"healthy":true,"links":{"hub0":"ok","press":"ok"}})");
+    const std::vector<std::pair<std::string, std::string>> not_fine{
+        {"hub0", "ok"}, {"press", "link press: port /dev/ttyS0 not open"}};
+    EXPECT_EQ(health_json(not_fine), R"({"healthy":false,"links":{"hub0":"ok",)"
+                                     R"("press":"link press: port /dev/ttyS0 not open"}})");
+}
+
+TEST(MqttJsonBridge, ALinksConnectivityIsASensorOfTheGatewaysDevice) {
+    const auto config = link_discovery(node, "hub.0");  // the file's node, ioportd/box7
+    EXPECT_EQ(config.topic, "homeassistant/binary_sensor/ioportd_box7/hub_0_connectivity/config");
+    EXPECT_EQ(config.payload,
+              R"({"name":"link hub.0","unique_id":"ioportd_box7_hub_0_connectivity",)"
+              R"("state_topic":"ioportd/box7/bridge/connectivity/hub.0",)"
+              R"("availability_topic":"ioportd/box7/status","device_class":"connectivity",)"
+              R"("entity_category":"diagnostic","device":{"identifiers":["ioportd_box7"]},)"
+              R"("origin":{"name":"ioportd","sw_version":"0.1.0"}})");
 }
 
 }  // namespace
