@@ -40,7 +40,7 @@ class WorkerThread {
     asio::awaitable<Result> run(const asio::any_io_executor& loop, Job job) {
         return asio::async_initiate<const asio::use_awaitable_t<>&, void(Result)>(
             [this, loop](auto handler, Job work) {
-                post([loop, work = std::move(work), handler = std::move(handler)]() mutable {
+                this->post([loop, work = std::move(work), handler = std::move(handler)]() mutable {
                     asio::post(loop, [handler = std::move(handler), result = work()]() mutable {
                         std::move(handler)(std::move(result));
                     });

@@ -183,8 +183,9 @@ asio::awaitable<HttpResponse> HttpOutput::write(HttpCall call) {
         .address = address,
         .value = value,
         .request = fmt::format("write {} = {}", address, value)};
-    // The link, not the view: a reload may replace the gateway's list while this waits.
-    const auto target = *link;
+    // The link, not the view: a reload may replace the gateway's list while this waits, and the
+    // copy of the pointer keeps the link alive until the write's outcome is known.
+    const auto target = *link;  // NOLINT(performance-unnecessary-copy-initialization)
     const auto result = co_await target->write(*std::move(plan), std::move(origin));
     co_return write_outcome(result, target->config());
 }

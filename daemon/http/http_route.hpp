@@ -27,6 +27,9 @@ enum class Page {
 };
 enum class MapFormat { html, csv, markdown };
 
+// The content type of every plain-text answer: health, refusals, errors.
+inline constexpr std::string_view text_plain = "text/plain; charset=utf-8";
+
 struct Route {
     Page page = Page::status;
     MapFormat format = MapFormat::html;  // of Page::map

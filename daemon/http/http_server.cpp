@@ -27,7 +27,6 @@ using PlainStream = beast::tcp_stream;
 using SecureStream = beast::ssl_stream<beast::tcp_stream>;
 
 constexpr auto accept_error_pause = 100ms;
-constexpr std::string_view text_plain = "text/plain; charset=utf-8";
 
 // Every response's, before the web configuration's headers (which may replace them): no
 // sniffing of a type, no address of this server in another site's logs, no script or frame but

@@ -12,8 +12,6 @@ namespace {
 
 using SystemClock = std::chrono::system_clock;
 
-constexpr std::string_view text_plain = "text/plain; charset=utf-8";
-
 double seconds(std::chrono::microseconds duration) {
     return std::chrono::duration<double>(duration).count();
 }
