@@ -160,8 +160,8 @@ function digital(t, m) {
     lamps.push(lamp);
     ul.append(h('li', {}, lamp));
   }
-  t.body.append(h('div', {class: 'row'},
-    h('span', {class: 'k'}, kind + 's' + (write ? ' · press one to switch it' : '')), word), ul);
+  t.body.append(h('div', {class: 'row'}, h('span', {class: 'k'}, kind + 's'), word), ul);
+  if (write) t.body.append(h('p', {class: 'hint'}, 'press an output to switch it'));
   const named = Object.keys(names);
   if (named.length)
     t.body.append(h('ul', {class: 'points muted'},
