@@ -20,6 +20,7 @@
 #include <fmt/format.h>
 
 #include "bench/perf/benchmarks.hpp"
+#include "bench/perf/certificates.hpp"
 #include "bench/perf/load.hpp"
 #include "bench/perf/tls_client.hpp"
 #include "config/gateway_config.hpp"
@@ -27,67 +28,6 @@
 
 namespace ioport::bench {
 namespace {
-
-// The role extension of gateway.md §5.6.
-constexpr std::string_view role_oid = "1.3.6.1.4.1.50316.802.1";
-
-// A CA, the server's certificate (for 127.0.0.1) and an operator's client certificate, made
-// with the openssl command (tests/tls/modbus_tls_test.py makes its own the same way).
-class Certificates {
-  public:
-    Certificates(const Environment& env, const TempDir& dir) : env_(env), dir_(dir) {
-        ok_ = key("ca") &&
-              openssl({"req", "-x509", "-new", "-key", path("ca.key"), "-subj",
-                       "/CN=Bench Modbus CA", "-days", "3650", "-out", path("ca.pem")}) &&
-              signed_by_ca("server", "/CN=gateway1",
-                           "subjectAltName=IP:127.0.0.1\nextendedKeyUsage=serverAuth\n") &&
-              signed_by_ca("operator", "/CN=hmi-1/O=Plant",
-                           fmt::format("extendedKeyUsage=clientAuth\n{}=ASN1:UTF8String:operator\n",
-                                       role_oid));
-        // ioportd refuses a key file that others may read.
-        std::error_code ec;
-        for (const auto* name : {"ca.key", "server.key", "operator.key"})
-            std::filesystem::permissions(path(name), std::filesystem::perms(0640), ec);
-    }
-    bool ok() const { return ok_; }
-    std::string path(std::string_view name) const { return dir_ / name; }
-    std::string log() const { return read_file(path("openssl.log")); }
-    TlsClientSettings client(int version = 0, bool no_tickets = false) const {
-        return {path("ca.pem"), path("operator.pem"), path("operator.key"), version, no_tickets};
-    }
-    // The modbus.tls section.
-    std::string yaml() const {
-        return fmt::format(
-            "  tls:\n    listen: \"127.0.0.1:0\"\n    certificate: {}\n    key: {}\n"
-            "    client_ca: {}\n    roles:\n      operator: {{ units: all, access: read_write }}\n",
-            path("server.pem"), path("server.key"), path("ca.pem"));
-    }
-
-  private:
-    bool openssl(std::vector<std::string> args) const {
-        args.insert(args.begin(), env_.binaries.openssl);
-        Process command(args, env_.placement.client_cpu, path("openssl.log"));
-        return command.wait(30s) == 0;
-    }
-    bool key(const std::string& name) const {
-        return openssl({"genpkey", "-algorithm", "EC", "-pkeyopt", "ec_paramgen_curve:P-256",
-                        "-out", path(name + ".key")});
-    }
-    bool signed_by_ca(const std::string& name, const std::string& subject,
-                      const std::string& extensions) const {
-        std::ofstream(path(name + ".ext")) << extensions;
-        return key(name) &&
-               openssl({"req", "-new", "-key", path(name + ".key"), "-subj", subject, "-out",
-                        path(name + ".csr")}) &&
-               openssl({"x509", "-req", "-in", path(name + ".csr"), "-CA", path("ca.pem"), "-CAkey",
-                        path("ca.key"), "-CAcreateserial", "-days", "825", "-extfile",
-                        path(name + ".ext"), "-out", path(name + ".pem")});
-    }
-
-    const Environment& env_;
-    const TempDir& dir_;
-    bool ok_ = false;
-};
 
 // The full bus and dom16 0–7 of benchmark 4, at 115200 baud with line timing.
 std::vector<ModuleAddress> bus() {
