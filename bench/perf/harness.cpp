@@ -332,11 +332,15 @@ std::string tags_yaml(ModuleAddress module) {
 }
 
 std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections, bool http,
-                         std::string_view more, std::string_view modbus_more) {
+                         std::string_view more, std::string_view modbus_more,
+                         std::string_view http_more) {
     std::string yaml =
         fmt::format("modbus:\n  listen: \"127.0.0.1:0\"\n  max_connections: {}\n", max_connections);
     yaml += modbus_more;
-    if (http) yaml += "http:\n  listen: \"127.0.0.1:0\"\n";
+    if (http) {
+        yaml += "http:\n  listen: \"127.0.0.1:0\"\n";
+        yaml += http_more;
+    }
     yaml += "links:\n";
     for (std::size_t i = 0; i < links.size(); ++i) {
         yaml += fmt::format(
@@ -411,7 +415,11 @@ std::uint16_t Gateway::http_port() const {
     std::uint16_t port = 0;
     wait_for(
         [&] {
-            port = port_after(process_.output(), "HTTP on http://127.0.0.1:").value_or(0);
+            // With a web configuration's tls_server_config the port speaks HTTPS only, and the
+            // log says so.
+            const auto log = process_.output();
+            port = port_after(log, "HTTP on http://127.0.0.1:")
+                       .value_or(port_after(log, "HTTP on https://127.0.0.1:").value_or(0));
             return port != 0 || !process_.running();
         },
         5s);

@@ -38,6 +38,8 @@ struct Binaries {
     std::string mosquitto = "/usr/sbin/mosquitto";
     // Benchmark 8 makes its certificates with it, as docs/tls.md tells an operator to.
     std::string openssl = "/usr/bin/openssl";
+    // Benchmark 6d-e hashes its password with it, as docs/http.md tells an operator to.
+    std::string htpasswd = "/usr/bin/htpasswd";
 };
 
 // Where things run. The server under test (ioportd or the plain server) gets a CPU to itself;
@@ -203,10 +205,11 @@ struct LinkSpec {
 // `http`: the HTTP side on as well (gateway.md §5.4), on a port of its own choosing. `more`:
 // further top-level sections, YAML as it goes into the file (the `mqtt:` of benchmark 7).
 // `modbus_more`: further keys of the `modbus:` section, indented by two (the `tls:` of
-// benchmark 8).
+// benchmark 8); `http_more` the same of the `http:` section (the web_config_file and operators of
+// benchmark 6d-e).
 std::string gateway_yaml(const std::vector<LinkSpec>& links, int max_connections = 32,
                          bool http = false, std::string_view more = {},
-                         std::string_view modbus_more = {});
+                         std::string_view modbus_more = {}, std::string_view http_more = {});
 
 // --- Modbus ---------------------------------------------------------------------------------
 
@@ -247,7 +250,7 @@ class Gateway {
   public:
     Gateway(const Environment& env, const TempDir& dir, const std::string& yaml);
     std::uint16_t port() const { return port_; }
-    // The HTTP side's port, from the log (0: not started, or no http: section).
+    // The HTTP side's port, plain or HTTPS, from the log (0: not started, or no http: section).
     std::uint16_t http_port() const;
     // The Modbus/TCP Security listener's port, from the log (0: not started, or no modbus.tls).
     std::uint16_t tls_port() const;

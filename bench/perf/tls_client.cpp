@@ -113,8 +113,9 @@ TlsClientContext::TlsClientContext(const TlsClientSettings& settings) {
     SSL_CTX_set_verify(c, SSL_VERIFY_PEER, nullptr);
     // The server's certificate names 127.0.0.1 (subjectAltName), as docs/tls.md's does.
     X509_VERIFY_PARAM_set1_ip_asc(SSL_CTX_get0_param(c), "127.0.0.1");
-    if (SSL_CTX_use_certificate_chain_file(c, settings.certificate.c_str()) != 1 ||
-        SSL_CTX_use_PrivateKey_file(c, settings.key.c_str(), SSL_FILETYPE_PEM) != 1) {
+    if (!settings.certificate.empty() &&
+        (SSL_CTX_use_certificate_chain_file(c, settings.certificate.c_str()) != 1 ||
+         SSL_CTX_use_PrivateKey_file(c, settings.key.c_str(), SSL_FILETYPE_PEM) != 1)) {
         failure_ = openssl_error("loading the client certificate " + settings.certificate);
         return;
     }

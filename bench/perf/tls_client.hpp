@@ -18,8 +18,10 @@
 namespace ioport::bench {
 
 struct TlsClientSettings {
-    std::string ca;           // PEM file: the CA that signed the server's certificate
-    std::string certificate;  // PEM files: the client's certificate and key
+    std::string ca;  // PEM file: the CA that signed the server's certificate
+    // PEM files: the client's certificate and key; none (empty) for a server that asks for
+    // none (benchmark 6d's HTTPS without client certificates).
+    std::string certificate;
     std::string key;
     // TLS1_2_VERSION or TLS1_3_VERSION: only that version; 0: what the server prefers (1.3).
     int version = 0;
