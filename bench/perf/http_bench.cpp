@@ -16,14 +16,19 @@
 #include <cctype>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <memory>
+#include <numeric>
 #include <random>
 #include <sstream>
 
 #include <fmt/format.h>
+#include <openssl/err.h>
+#include <openssl/ssl.h>
 
 #include "bench/perf/benchmarks.hpp"
 #include "bench/perf/load.hpp"
+#include "bench/perf/tls_client.hpp"
 #include "daemon/core/trend.hpp"
 #include "sim/control_client.hpp"
 
@@ -57,19 +62,41 @@ struct HttpReply {
 };
 
 // A blocking HTTP/1.1 client on one kept-alive connection, as a scraper or a page uses it; it
-// reconnects once when the server closed the connection in between.
+// reconnects once when the server closed the connection in between. With `tls`, HTTPS: OpenSSL on
+// the same socket, the server's certificate verified against the CA as Prometheus' tls_config
+// does. With `connection_per_request`, a new connection (and, over TLS, a full handshake: no
+// session is offered) for every request, as a scraper without keep-alive; its latency is then
+// all of it.
 class HttpClient {
   public:
-    HttpClient(std::uint16_t port, std::string_view headers) : port_(port), headers_(headers) {}
+    HttpClient(std::uint16_t port, std::string_view headers, const TlsClientContext* tls = nullptr,
+               bool connection_per_request = false)
+        : port_(port),
+          headers_(headers),
+          tls_(tls),
+          connection_per_request_(connection_per_request) {}
     ~HttpClient() { close(); }
     HttpClient(const HttpClient&) = delete;
     HttpClient& operator=(const HttpClient&) = delete;
 
-    std::optional<HttpReply> get(std::string_view path) {
+    std::optional<HttpReply> get(std::string_view path) { return request("GET", path, {}); }
+    // A POST of a JSON body, as curl --json sends it (an operator's write). A retry after the
+    // server closed the connection may send it twice: the writes of 6e set a value, which a
+    // second time leaves as it was.
+    std::optional<HttpReply> post_json(std::string_view path, std::string_view body) {
+        return request("POST", path, body);
+    }
+    // Connections made so far (TCP connects, and handshakes over TLS).
+    int connections() const { return connections_; }
+
+  private:
+    std::optional<HttpReply> request(std::string_view method, std::string_view path,
+                                     std::string_view json_body) {
         const auto start = Clock::now();
         for (int attempt = 0; attempt < 2; ++attempt) {
             if (fd_ < 0 && !connect()) return std::nullopt;
-            if (auto reply = exchange(path)) {
+            if (auto reply = exchange(method, path, json_body)) {
+                if (connection_per_request_) close();
                 reply->took = Clock::now() - start;
                 return reply;
             }
@@ -78,7 +105,6 @@ class HttpClient {
         return std::nullopt;
     }
 
-  private:
     bool connect() {
         fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
         if (fd_ < 0) return false;
@@ -90,23 +116,43 @@ class HttpClient {
         ::setsockopt(fd_, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
         const timeval timeout{5, 0};
         ::setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &timeout, sizeof timeout);
+        ::setsockopt(fd_, SOL_SOCKET, SO_SNDTIMEO, &timeout, sizeof timeout);
         if (::connect(fd_, reinterpret_cast<const sockaddr*>(&address), sizeof address) != 0) {
             close();
             return false;
         }
+        if (tls_ != nullptr) {
+            ssl_ = SSL_new(tls_->get());
+            if (ssl_ == nullptr || SSL_set_fd(ssl_, fd_) != 1 || SSL_connect(ssl_) != 1) {
+                close();
+                return false;
+            }
+        }
+        ++connections_;
         return true;
     }
     void close() {
+        if (ssl_ != nullptr) {
+            // close_notify, as a well-behaved client says goodbye; the server's is not awaited.
+            (void)SSL_shutdown(ssl_);
+            SSL_free(ssl_);
+            ssl_ = nullptr;
+        }
+        ERR_clear_error();
         if (fd_ >= 0) ::close(fd_);
         fd_ = -1;
     }
 
-    std::optional<HttpReply> exchange(std::string_view path) {
-        const auto request =
-            fmt::format("GET {} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\n{}\r\n", path, port_, headers_);
-        if (::send(fd_, request.data(), request.size(), MSG_NOSIGNAL) !=
-            static_cast<ssize_t>(request.size()))
-            return std::nullopt;
+    std::optional<HttpReply> exchange(std::string_view method, std::string_view path,
+                                      std::string_view json_body) {
+        auto request = fmt::format("{} {} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\n{}", method, path,
+                                   port_, headers_);
+        if (method == "POST")
+            request += fmt::format("Content-Type: application/json\r\nContent-Length: {}\r\n",
+                                   json_body.size());
+        request += "\r\n";
+        request += json_body;
+        if (!send_all(request)) return std::nullopt;
         std::string received;
         std::size_t header_end = std::string::npos;
         while ((header_end = received.find("\r\n\r\n")) == std::string::npos)
@@ -128,8 +174,29 @@ class HttpClient {
         return reply;
     }
 
+    bool send_all(std::string_view data) {
+        if (ssl_ != nullptr) {
+            // Blocking, without SSL_MODE_ENABLE_PARTIAL_WRITE: all of it or a failure.
+            std::size_t written = 0;
+            if (SSL_write_ex(ssl_, data.data(), data.size(), &written) == 1) return true;
+            ERR_clear_error();
+            return false;
+        }
+        return ::send(fd_, data.data(), data.size(), MSG_NOSIGNAL) ==
+               static_cast<ssize_t>(data.size());
+    }
+
     bool receive(std::string& into) {
         std::array<char, std::size_t{64} * 1024> buffer;
+        if (ssl_ != nullptr) {
+            std::size_t n = 0;
+            if (SSL_read_ex(ssl_, buffer.data(), buffer.size(), &n) != 1) {
+                ERR_clear_error();
+                return false;
+            }
+            into.append(buffer.data(), n);
+            return true;
+        }
         const auto n = ::recv(fd_, buffer.data(), buffer.size(), 0);
         if (n <= 0) return false;
         into.append(buffer.data(), static_cast<std::size_t>(n));
@@ -138,7 +205,11 @@ class HttpClient {
 
     std::uint16_t port_;
     std::string headers_;
+    const TlsClientContext* tls_;
+    bool connection_per_request_;
     int fd_ = -1;
+    SSL* ssl_ = nullptr;
+    int connections_ = 0;
 };
 
 std::string kib_text(std::size_t bytes) {
@@ -226,6 +297,126 @@ struct Side {
     }
 };
 
+// One kind of round of 6a and 6e: what runs beside the Modbus load, on a thread of its own from
+// the window's start to its end (none: a quiet round), and how the tables name it.
+struct RoundKind {
+    std::string_view label;  // in the rounds' table: "yes"
+    std::string_view row;    // in the table of all rounds: "scraped"
+    std::string_view ratio;  // its ratio to the quiet rounds: "scraped ÷ not"
+    std::function<void(Clock::time_point)> beside{};
+};
+
+struct BesideRounds {
+    std::vector<Side> sides;  // per kind, kind 0 the quiet one
+    // Per kind, ÷ the quiet rounds: per round (the two or three run back to back), and of all
+    // rounds together; the median of the former.
+    std::vector<std::vector<double>> cpu_ratios, p99_ratios;
+    std::vector<double> cpu, p99, rate, cpu_median, p99_median;
+};
+
+std::string ratios_text(const std::vector<double>& ratios) {
+    std::string text;
+    for (const double r : ratios)
+        text += fmt::format("{}{:.3f}", text.empty() ? "" : " ", r);
+    return text;
+}
+
+// The reads of benchmark 4 at `connections` against `gateway` in `rounds` rounds of each kind,
+// kind 0 quiet, the order rotated every round so that the machine's drift falls on every kind
+// alike; `count` tells how many things the kinds' `beside` did so far (the rounds' table says
+// how many in each round, in the column `events`). Prints each round and the totals.
+BesideRounds rounds_beside(const Environment& env, const Gateway& gateway, int connections,
+                           int rounds, std::chrono::milliseconds window, std::string_view column,
+                           std::string_view events, const std::vector<RoundKind>& kinds,
+                           const std::function<int()>& count) {
+    const auto n = kinds.size();
+    BesideRounds out{std::vector<Side>(n),
+                     std::vector<std::vector<double>>(n),
+                     std::vector<std::vector<double>>(n),
+                     std::vector<double>(n),
+                     std::vector<double>(n),
+                     std::vector<double>(n),
+                     std::vector<double>(n),
+                     std::vector<double>(n)};
+    std::vector<std::size_t> order(n);
+    std::iota(order.begin(), order.end(), std::size_t{0});
+    // Each round on its own too: on this shared guest a disturbance from outside shows as one
+    // round out of line, which the totals alone would hide. The verdicts take the median of
+    // the rounds' ratios (a kind ÷ the quiet round, run back to back), which one such round
+    // cannot move, besides the ratio of the totals that benchmark 4 uses.
+    const Table rounds_table({"round", std::string(column), "req/s", "p99 µs", "server CPU µs/req",
+                              "errors (of which exceptions)", std::string(events)});
+    for (int round = 0; round < rounds; ++round) {
+        std::vector<double> cpu_us(n), p99_us(n);
+        for (const auto kind : order) {
+            LoadSpec spec{gateway.port(),
+                          gateway.pid(),
+                          connections,
+                          Mix::reads,
+                          1,
+                          env.quick ? 100ms : 500ms,
+                          window,
+                          {},
+                          kinds[kind].beside};
+            const int before = count();
+            auto result = run_load(spec);
+            const auto latency =
+                summarize(std::vector<double>(result.latency_us.begin(), result.latency_us.end()));
+            rounds_table.row({fmt::format("{}", round + 1), std::string(kinds[kind].label),
+                              fmt::format("{:.0f}", result.per_second()),
+                              fmt::format("{:.0f}", latency.p99),
+                              fmt::format("{:.2f}", result.cpu_us_per_request()),
+                              fmt::format("{} ({})", result.errors, result.exceptions),
+                              fmt::format("{}", count() - before)});
+            cpu_us[kind] = result.cpu_us_per_request();
+            p99_us[kind] = latency.p99;
+            out.sides[kind].add(std::move(result));
+        }
+        for (std::size_t k = 1; k < n; ++k) {
+            out.cpu_ratios[k].push_back(cpu_us[k] / cpu_us[0]);
+            out.p99_ratios[k].push_back(p99_us[k] / p99_us[0]);
+        }
+        std::rotate(order.begin(), order.begin() + 1, order.end());
+    }
+    for (auto& side : out.sides)
+        side.summarize_latency();
+
+    fmt::print("\nAll rounds together:\n");
+    Table table({"rounds", "req/s", "p50 µs", "p99 µs", "p99.9 µs", "server CPU µs/req",
+                 "server CPU", "errors"});
+    for (std::size_t k = 0; k < n; ++k) {
+        const auto& side = out.sides[k];
+        table.row({std::string(kinds[k].row), fmt::format("{:.0f}", side.load->per_second()),
+                   fmt::format("{:.0f}", side.latency.p50), fmt::format("{:.0f}", side.latency.p99),
+                   fmt::format("{:.0f}", side.latency.p999),
+                   fmt::format("{:.2f}", side.load->cpu_us_per_request()),
+                   fmt::format("{:.0f} %", side.load->cpu_percent()),
+                   fmt::format("{}", side.load->errors)});
+    }
+    const auto& quiet = out.sides[0];
+    for (std::size_t k = 1; k < n; ++k) {
+        const auto& busy = out.sides[k];
+        out.cpu[k] = busy.load->cpu_us_per_request() / quiet.load->cpu_us_per_request();
+        out.p99[k] = busy.latency.p99 / quiet.latency.p99;
+        out.rate[k] = busy.load->per_second() / quiet.load->per_second();
+        table.row({fmt::format("**{} / none**", kinds[k].row), fmt::format("{:.3f}", out.rate[k]),
+                   fmt::format("{:.2f}", busy.latency.p50 / quiet.latency.p50),
+                   fmt::format("**{:.3f}**", out.p99[k]),
+                   fmt::format("{:.2f}", busy.latency.p999 / quiet.latency.p999),
+                   fmt::format("**{:.3f}**", out.cpu[k]), "", ""});
+    }
+    for (std::size_t k = 1; k < n; ++k) {
+        out.cpu_median[k] = summarize(out.cpu_ratios[k]).p50;
+        out.p99_median[k] = summarize(out.p99_ratios[k]).p50;
+        fmt::print(
+            "\nRounds' ratios, {}: CPU per request {}, median **{:.3f}**; p99 {}, median "
+            "**{:.3f}**.\n",
+            kinds[k].ratio, ratios_text(out.cpu_ratios[k]), out.cpu_median[k],
+            ratios_text(out.p99_ratios[k]), out.p99_median[k]);
+    }
+    return out;
+}
+
 std::vector<Verdict> beside_modbus(const Environment& env) {
     constexpr int connections = 64;
     const int rounds = env.quick ? 1 : 7;  // odd: the median of the rounds' ratios is one of them
@@ -251,84 +442,15 @@ std::vector<Verdict> beside_modbus(const Environment& env) {
 
     Scrapers scrapers(http_port, env.quick);
     ScrapeLog scrapes;
-    Side quiet, scraped;
-    std::vector<bool> order{false, true};  // scraped?
-    // Each round on its own too: on this shared guest a disturbance from outside shows as one
-    // round out of line, which the totals alone would hide. The verdicts take the median of
-    // the rounds' ratios (scraped ÷ not, the two run back to back), which one such round cannot
-    // move, besides the ratio of the totals that benchmark 4 uses.
-    std::vector<double> cpu_ratios, p99_ratios;
-    const Table rounds_table({"round", "scrapers", "req/s", "p99 µs", "server CPU µs/req",
-                              "errors (of which exceptions)", "scrapes"});
-    for (int round = 0; round < rounds; ++round) {
-        std::array<double, 2> cpu_us{}, p99_us{};  // [scraped?]
-        for (const bool with_scrapers : order) {
-            LoadSpec spec{gateway.port(),
-                          gateway.pid(),
-                          connections,
-                          Mix::reads,
-                          1,
-                          env.quick ? 100ms : 500ms,
-                          window,
-                          {},
-                          {}};
-            const int scrapes_before = scrapes.metrics + scrapes.state + scrapes.trends;
-            if (with_scrapers)
-                spec.beside = [&](Clock::time_point to) { scrapers.run(to, scrapes); };
-            auto result = run_load(spec);
-            const auto latency =
-                summarize(std::vector<double>(result.latency_us.begin(), result.latency_us.end()));
-            rounds_table.row({fmt::format("{}", round + 1), with_scrapers ? "yes" : "no",
-                              fmt::format("{:.0f}", result.per_second()),
-                              fmt::format("{:.0f}", latency.p99),
-                              fmt::format("{:.2f}", result.cpu_us_per_request()),
-                              fmt::format("{} ({})", result.errors, result.exceptions),
-                              fmt::format("{}", scrapes.metrics + scrapes.state + scrapes.trends -
-                                                    scrapes_before)});
-            cpu_us[with_scrapers] = result.cpu_us_per_request();
-            p99_us[with_scrapers] = latency.p99;
-            (with_scrapers ? scraped : quiet).add(std::move(result));
-        }
-        cpu_ratios.push_back(cpu_us[1] / cpu_us[0]);
-        p99_ratios.push_back(p99_us[1] / p99_us[0]);
-        std::rotate(order.begin(), order.begin() + 1, order.end());
-    }
-    quiet.summarize_latency();
-    scraped.summarize_latency();
-
-    fmt::print("\nAll rounds together:\n");
-    Table table({"rounds", "req/s", "p50 µs", "p99 µs", "p99.9 µs", "server CPU µs/req",
-                 "server CPU", "errors"});
-    const auto print = [&](std::string_view name, const Side& side) {
-        table.row({std::string(name), fmt::format("{:.0f}", side.load->per_second()),
-                   fmt::format("{:.0f}", side.latency.p50), fmt::format("{:.0f}", side.latency.p99),
-                   fmt::format("{:.0f}", side.latency.p999),
-                   fmt::format("{:.2f}", side.load->cpu_us_per_request()),
-                   fmt::format("{:.0f} %", side.load->cpu_percent()),
-                   fmt::format("{}", side.load->errors)});
-    };
-    print("no scrapers", quiet);
-    print("scraped", scraped);
-    const double cpu = scraped.load->cpu_us_per_request() / quiet.load->cpu_us_per_request();
-    const double p99 = scraped.latency.p99 / quiet.latency.p99;
-    const double rate = scraped.load->per_second() / quiet.load->per_second();
-    table.row({"**scraped / none**", fmt::format("{:.3f}", rate),
-               fmt::format("{:.2f}", scraped.latency.p50 / quiet.latency.p50),
-               fmt::format("**{:.3f}**", p99),
-               fmt::format("{:.2f}", scraped.latency.p999 / quiet.latency.p999),
-               fmt::format("**{:.3f}**", cpu), "", ""});
-    const double cpu_median = summarize(cpu_ratios).p50;
-    const double p99_median = summarize(p99_ratios).p50;
-    const auto listed = [](const std::vector<double>& ratios) {
-        std::string text;
-        for (const double r : ratios)
-            text += fmt::format("{}{:.3f}", text.empty() ? "" : " ", r);
-        return text;
-    };
-    fmt::print(
-        "\nRounds' ratios, scraped ÷ not: CPU per request {}, median **{:.3f}**; p99 {}, median "
-        "**{:.3f}**.\n",
-        listed(cpu_ratios), cpu_median, listed(p99_ratios), p99_median);
+    const auto r = rounds_beside(env, gateway, connections, rounds, window, "scrapers", "scrapes",
+                                 {{"no", "no scrapers", ""},
+                                  {"yes", "scraped", "scraped ÷ not",
+                                   [&](Clock::time_point to) { scrapers.run(to, scrapes); }}},
+                                 [&] { return scrapes.metrics + scrapes.state + scrapes.trends; });
+    const auto& quiet = r.sides[0];
+    const auto& scraped = r.sides[1];
+    const double cpu = r.cpu[1], p99 = r.p99[1];
+    const double cpu_median = r.cpu_median[1], p99_median = r.p99_median[1];
     const auto http = summarize(scrapes.latency_us);
     fmt::print(
         "\nIn the scraped rounds: {} × /metrics ({}), {} × /api/v1/state ({}), {} × "
@@ -693,7 +815,8 @@ std::vector<Verdict> http_cost(const Environment& env) {
     fmt::print(
         "\n## 6. HTTP side\n\nWhat the HTTP side (issue 16) costs the Modbus side while it is "
         "scraped, what one scrape costs with a large configuration, and the memory of the trend "
-        "rings.\n");
+        "rings; what a password and HTTPS add to a scrape, and what an operator's writes from the "
+        "web cost the Modbus side (issue 39).\n");
     auto verdicts = beside_modbus(env);
     const auto more = eight_links(env);
     verdicts.insert(verdicts.end(), more.begin(), more.end());
