@@ -5,7 +5,11 @@
 // b. ioportd's CPU time per scrape of /metrics, /api/v1/state and /api/v1/trends with 8 links of
 //    72 modules, and the responses' sizes;
 // c. its memory there with every analog module's trend ring, measured after start-up and, as the
-//    rings take 10 minutes to fill, computed for full rings (or measured, with --fill-trends).
+//    rings take 10 minutes to fill, computed for full rings (or measured, with --fill-trends);
+// d. (issue 39) ioportd's CPU per scrape of /metrics with a password (bcrypt, remembered after the
+//    first request) and with HTTPS and a password, against the same scrape with neither, in
+//    alternating rounds on four daemons of the same binary (two with neither, one a control);
+//    the first request apart; a new TLS connection per scrape for information.
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
@@ -15,6 +19,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <memory>
@@ -24,9 +29,11 @@
 
 #include <fmt/format.h>
 #include <openssl/err.h>
+#include <openssl/evp.h>
 #include <openssl/ssl.h>
 
 #include "bench/perf/benchmarks.hpp"
+#include "bench/perf/certificates.hpp"
 #include "bench/perf/load.hpp"
 #include "bench/perf/tls_client.hpp"
 #include "daemon/core/trend.hpp"
@@ -211,6 +218,18 @@ class HttpClient {
     SSL* ssl_ = nullptr;
     int connections_ = 0;
 };
+
+// The header a client sends with HTTP Basic credentials (RFC 7617), as curl -u and Prometheus'
+// basic_auth make it.
+std::string basic_authorization(std::string_view user, std::string_view password) {
+    const auto plain = fmt::format("{}:{}", user, password);
+    std::string encoded((plain.size() + 2) / 3 * 4 + 1, '\0');
+    const int n = EVP_EncodeBlock(reinterpret_cast<unsigned char*>(encoded.data()),
+                                  reinterpret_cast<const unsigned char*>(plain.data()),
+                                  static_cast<int>(plain.size()));
+    encoded.resize(static_cast<std::size_t>(std::max(n, 0)));
+    return fmt::format("Authorization: Basic {}\r\n", encoded);
+}
 
 std::string kib_text(std::size_t bytes) {
     return fmt::format("{:.1f} KiB", static_cast<double>(bytes) / 1024.0);
@@ -809,6 +828,287 @@ std::vector<Verdict> eight_links(const Environment& env) {
     return verdicts;
 }
 
+// --- d and e. Passwords, HTTPS and operators' writes (issue 39) ------------------------------
+
+// `user`'s bcrypt hash of `password` as docs/http.md makes one: htpasswd -nbBC 10 (cost 10).
+std::optional<std::string> htpasswd_hash(const Environment& env, const TempDir& dir,
+                                         std::string_view user, std::string_view password) {
+    const auto out = dir / fmt::format("htpasswd-{}.out", user);
+    Process command(
+        {env.binaries.htpasswd, "-nbBC", "10", std::string(user), std::string(password)},
+        env.placement.client_cpu, out);
+    if (command.wait(30s) != 0) return std::nullopt;
+    const auto text = read_file(out);
+    const auto prefix = fmt::format("{}:", user);
+    const auto at = text.find(prefix);
+    if (at == std::string::npos) return std::nullopt;
+    auto hash = text.substr(at + prefix.size());
+    hash.resize(std::min(hash.find_first_of("\r\n"), hash.size()));
+    if (!hash.starts_with("$2")) return std::nullopt;
+    return hash;
+}
+
+// An ioportd on the bus of 6a (the full bus and dom16 0–7 at 115200 baud) on a simulator of its
+// own, with `web` as its http.web_config_file ("": none) and `operators` as http.operators.
+// `poll`: the input modules' poll interval (0: as fast as the line).
+struct WebGateway {
+    WebGateway(const Environment& env, std::string_view web, std::string_view operators,
+               std::chrono::milliseconds poll)
+        : sim(env, dir / "tty", modules, {"--baud", "115200", "--turnaround", "0"}),
+          gateway(env, dir,
+                  gateway_yaml({{dir / "tty", 115200, modules, poll}}, 300, true, {}, {},
+                               http_keys(web, operators))),
+          http_port(gateway.started() ? gateway.http_port() : std::uint16_t{0}) {}
+    bool ready() const {
+        return sim.ready() && gateway.started() && http_port != 0 && gateway.wait_until_polling();
+    }
+
+    // The web configuration goes in a file of its own, which only its owner may read: it grants
+    // rights, and ioportd refuses one that others can read (docs/http.md).
+    std::string http_keys(std::string_view web, std::string_view operators) const {
+        if (web.empty()) return {};
+        const auto path = dir / "web.yml";
+        std::ofstream(path) << web;
+        std::error_code ec;
+        std::filesystem::permissions(
+            path, std::filesystem::perms::owner_read | std::filesystem::perms::owner_write, ec);
+        auto keys = fmt::format("  web_config_file: {}\n", path);
+        if (!operators.empty()) keys += fmt::format("  operators: [{}]\n", operators);
+        return keys;
+    }
+
+    TempDir dir;
+    std::vector<ModuleAddress> modules = [] {
+        auto bus = full_bus();
+        const auto outputs = modules_of(ModuleType::dom16);
+        bus.insert(bus.end(), outputs.begin(), outputs.end());
+        return bus;
+    }();
+    SimProcess sim;
+    Gateway gateway;
+    std::uint16_t http_port;
+};
+
+// The first request with a user and password: a bcrypt on ioportd's hashing thread (and, over
+// TLS, the connection's handshake), whose CPU counts with the rest of ioportd's.
+struct FirstRequest {
+    unsigned status = 0;
+    double latency_ms = 0;
+    double cpu_ms = 0;
+};
+FirstRequest first_request(const Gateway& gateway, HttpClient& client) {
+    const auto cpu_before = cpu_time(gateway.pid());
+    const auto reply = client.get("/metrics");
+    const auto cpu = cpu_time(gateway.pid()) - cpu_before;
+    if (!reply) return {};
+    return {reply->status, microseconds(reply->took) / 1000.0, microseconds(cpu) / 1000.0};
+}
+
+std::vector<Verdict> scrape_security(const Environment& env) {
+    // Many short rounds: the machine's drift moves every side of a round alike, and the median
+    // of many rounds' ratios is what one disturbed round cannot move. Odd: the median is one.
+    const int rounds = env.quick ? 1 : 41;
+    const int n = env.quick ? 3 : static_cast<int>(50 * env.scale);
+    fmt::print(
+        "\n### 6d. CPU per scrape with a password and with HTTPS ({} rounds of {} scrapes a side, "
+        "alternating)\n\nFour ioportd, the same binary, each on the bus of 6a (full bus and "
+        "dom16 0–7, 115200 baud) on a simulator of its own, the input modules polled once a "
+        "second so that polling is a small part of what is measured: two without a web "
+        "configuration (\"none\", and the second as a control: what two daemons of the same "
+        "configuration differ by); \"Basic auth\" with basic_auth_users (a bcrypt hash made by "
+        "`htpasswd -nbBC 10`, the documented cost); \"TLS + Basic auth\" with that and "
+        "tls_server_config (an EC P-256 certificate made by openssl, no client certificates). "
+        "GET /metrics with Prometheus' headers, with the right password where one is needed, "
+        "back to back on one kept-alive connection per daemon (after 3 warm-up scrapes a "
+        "round); over TLS also on a new connection for every scrape (a full TLS 1.3 handshake "
+        "each, no session offered), for information. ioportd's CPU time over a side's scrapes "
+        "(schedstat; /proc/PID/stat's 10 ms ticks as a check) ÷ their number; the sides in "
+        "turn, the order rotated every round; ratios to \"none\" in the same round. The first "
+        "request with the password, the one that costs a bcrypt, is measured apart, before the "
+        "rounds.\n",
+        rounds, n);
+    const TempDir dir;
+    constexpr std::string_view user = "prometheus";
+    constexpr std::string_view password = "scrape-pw-39";
+    const auto hash = htpasswd_hash(env, dir, user, password);
+    if (!hash) return {{"6d. scrape with a password", "htpasswd failed", "", false}};
+    const Certificates certificates(env, dir);
+    if (!certificates.ok()) {
+        fmt::print(stderr, "making the certificates failed: {}\n", certificates.log());
+        return {{"6d. scrape over HTTPS", "the certificates could not be made", "", false}};
+    }
+    const auto users = fmt::format("basic_auth_users:\n  {}: {}\n", user, *hash);
+    WebGateway none(env, "", "", 1s);
+    WebGateway control(env, "", "", 1s);
+    WebGateway basic(env, users, "", 1s);
+    WebGateway secure(
+        env,
+        fmt::format("tls_server_config:\n  cert_file: {}\n  key_file: {}\n{}",
+                    certificates.path("server.pem"), certificates.path("server.key"), users),
+        "", 1s);
+    const std::array<const WebGateway*, 4> daemons{&none, &control, &basic, &secure};
+    if (!std::ranges::all_of(daemons, [](const WebGateway* d) { return d->ready(); }))
+        return {{"6d. scrape with a password", "ioportd did not start", "", false}};
+    const TlsClientContext tls({certificates.path("ca.pem"), {}, {}});
+    if (!tls.ok()) return {{"6d. scrape over HTTPS", tls.failure(), "", false}};
+
+    const auto with_password =
+        fmt::format("{}{}", prometheus_headers, basic_authorization(user, password));
+    struct Scraped {
+        std::string_view name;
+        std::size_t daemon;  // of `daemons`
+        HttpClient client;
+        std::vector<ScrapeCost> rounds{};
+        FirstRequest first{};
+    };
+    std::array<Scraped, 5> sides{
+        Scraped{"none", 0, HttpClient(none.http_port, prometheus_headers)},
+        Scraped{"none, a second daemon (control)", 1,
+                HttpClient(control.http_port, prometheus_headers)},
+        Scraped{"Basic auth", 2, HttpClient(basic.http_port, with_password)},
+        Scraped{"TLS + Basic auth", 3, HttpClient(secure.http_port, with_password, &tls)},
+        Scraped{"TLS + Basic auth, new connection per scrape", 3,
+                HttpClient(secure.http_port, with_password, &tls, true)}};
+    constexpr std::size_t basic_side = 2, tls_side = 3, reconnect_side = 4;
+
+    // Authentication is on where it should be: without credentials, 401 (which neither counts
+    // as a failure nor costs a bcrypt).
+    bool refused_without = true;
+    {
+        HttpClient plain(basic.http_port, prometheus_headers);
+        HttpClient over_tls(secure.http_port, prometheus_headers, &tls);
+        const auto a = plain.get("/metrics");
+        const auto b = over_tls.get("/metrics");
+        refused_without = a && a->status == 401 && b && b->status == 401;
+    }
+    for (std::size_t s = 0; s < reconnect_side; ++s)
+        sides[s].first = first_request(daemons[sides[s].daemon]->gateway, sides[s].client);
+
+    // What polling costs each daemon with no client, to take off for the "net" column.
+    std::vector<pid_t> pids;
+    for (const auto* d : daemons)
+        pids.push_back(d->gateway.pid());
+    const auto idle = cpu_windows(
+        pids, 1, env.window(3s), [](int) {}, [](int, const auto&, double) {});
+
+    std::array<std::size_t, sides.size()> order{};
+    std::iota(order.begin(), order.end(), std::size_t{0});
+    std::array<std::vector<double>, sides.size()> ratios;  // CPU per scrape ÷ none's, per round
+    for (int round = 0; round < rounds; ++round) {
+        for (const auto s : order) {
+            auto& side = sides[s];
+            side.rounds.push_back(scrape_cost(daemons[side.daemon]->gateway, side.client,
+                                              "/metrics", n, idle.percent(side.daemon) / 100.0));
+        }
+        for (std::size_t s = 0; s < sides.size(); ++s)
+            ratios[s].push_back(sides[s].rounds.back().gross_ms / sides[0].rounds.back().gross_ms);
+        std::rotate(order.begin(), order.begin() + 1, order.end());
+    }
+
+    struct Totals {
+        double gross_ms = 0, net_ms = 0, stat_ms = 0, p50_us = 0, max_us = 0;
+        int count = 0, failed = 0;
+        std::size_t bytes = 0;
+        double median_ratio = 0, total_ratio = 0;
+    };
+    std::array<Totals, sides.size()> totals;
+    for (std::size_t s = 0; s < sides.size(); ++s) {
+        auto& t = totals[s];
+        std::vector<double> p50s;
+        for (const auto& c : sides[s].rounds) {
+            t.gross_ms += c.gross_ms * c.count;
+            t.net_ms += c.net_ms * c.count;
+            t.stat_ms += c.stat_ms * c.count;
+            t.count += c.count;
+            t.failed += c.failed;
+            t.bytes = c.bytes;
+            t.max_us = std::max(t.max_us, c.latency.max);
+            p50s.push_back(c.latency.p50);
+        }
+        const double count = std::max(t.count, 1);
+        t.gross_ms /= count;
+        t.net_ms /= count;
+        t.stat_ms /= count;
+        t.p50_us = median(p50s);
+        t.median_ratio = summarize(ratios[s]).p50;
+    }
+    for (auto& t : totals)
+        t.total_ratio = t.gross_ms / totals[0].gross_ms;
+
+    fmt::print(
+        "\nThe first request with the password, before the rounds (without one on the "
+        "first two):\n");
+    const Table first_table({"daemon", "status", "latency at the client ms", "ioportd CPU ms"});
+    for (std::size_t s = 0; s < reconnect_side; ++s)
+        first_table.row({std::string(sides[s].name), fmt::format("{}", sides[s].first.status),
+                         fmt::format("{:.1f}", sides[s].first.latency_ms),
+                         fmt::format("{:.2f}", sides[s].first.cpu_ms)});
+    fmt::print("\nAfter the first, {} rounds:\n", rounds);
+    const Table table({"scrapes of /metrics", "count", "response", "ioportd CPU ms/scrape",
+                       "net of polling", "from /proc/PID/stat", "÷ none, median of rounds",
+                       "÷ none, all rounds", "latency p50 / max µs"});
+    for (std::size_t s = 0; s < sides.size(); ++s) {
+        const auto& t = totals[s];
+        table.row({std::string(sides[s].name),
+                   fmt::format("{}{}", t.count,
+                               t.failed ? fmt::format(" ({} failed)", t.failed) : std::string()),
+                   kib_text(t.bytes), fmt::format("{:.3f}", t.gross_ms),
+                   fmt::format("{:.3f}", t.net_ms), fmt::format("{:.3f}", t.stat_ms),
+                   s == 0 ? std::string() : fmt::format("**{:.3f}**", t.median_ratio),
+                   s == 0 ? std::string() : fmt::format("{:.3f}", t.total_ratio),
+                   fmt::format("{:.0f} / {:.0f}", t.p50_us, t.max_us)});
+    }
+    for (std::size_t s = 1; s < sides.size(); ++s) {
+        const auto spread = summarize(ratios[s]);
+        fmt::print("\nRounds' ratios, {} ÷ none: min {:.3f}, median {:.3f}, max {:.3f}.\n",
+                   sides[s].name, spread.min, spread.p50, spread.max);
+    }
+    fmt::print(
+        "\nPolling with no client: {:.2f} %, {:.2f} %, {:.2f} % and {:.2f} % of a core. "
+        "Connections made: {} by the new-connection side, 1 by each kept-alive one ({}). Without "
+        "credentials the two daemons with passwords answered {}.\n",
+        idle.percent(0), idle.percent(1), idle.percent(2), idle.percent(3),
+        sides[reconnect_side].client.connections(),
+        std::ranges::all_of(sides.begin(), sides.begin() + reconnect_side,
+                            [](const Scraped& side) { return side.client.connections() == 1; })
+            ? "as meant"
+            : "**not so: a connection was lost**",
+        refused_without ? "401" : "**not 401**");
+
+    std::string sides_json;
+    for (std::size_t s = 0; s < sides.size(); ++s) {
+        const auto& t = totals[s];
+        sides_json += fmt::format(
+            R"({}{{"name":"{}","scrapes":{},"failed":{},"bytes":{},"cpu_ms":{:.4f},"cpu_ms_net":{:.4f},"cpu_ms_stat":{:.4f},"ratio_median":{:.4f},"ratio_total":{:.4f},"latency_p50_us":{:.0f},"first_status":{},"first_latency_ms":{:.2f},"first_cpu_ms":{:.3f}}})",
+            s == 0 ? "" : ",", sides[s].name, t.count, t.failed, t.bytes, t.gross_ms, t.net_ms,
+            t.stat_ms, t.median_ratio, t.total_ratio, t.p50_us, sides[s].first.status,
+            sides[s].first.latency_ms, sides[s].first.cpu_ms);
+    }
+    machine_line(
+        fmt::format(R"({{"bench":"http_auth_scrape","rounds":{},"per_round":{},"sides":[{}]}})",
+                    rounds, n, sides_json));
+    const auto served = [&](std::size_t s) {
+        return totals[s].failed == 0 && totals[s].count > 0 &&
+               (s == reconnect_side || sides[s].first.status == 200);
+    };
+    const bool ok = refused_without && served(0);
+    const auto& b = totals[basic_side];
+    const auto& t = totals[tls_side];
+    return {{"6d. CPU per scrape, Basic auth ÷ none (after the first)",
+             fmt::format("median of {} rounds {:.3f}× (all: {:.3f} vs {:.3f} ms = {:.3f}×; control "
+                         "{:.3f}×); first request {:.0f} ms, {:.1f} ms CPU",
+                         rounds, b.median_ratio, b.gross_ms, totals[0].gross_ms, b.total_ratio,
+                         totals[1].median_ratio, sides[basic_side].first.latency_ms,
+                         sides[basic_side].first.cpu_ms),
+             "<= 1.10×", ok && served(basic_side) && b.median_ratio <= 1.10},
+            {"6d. CPU per scrape, TLS + Basic auth ÷ none, kept alive",
+             fmt::format("median of {} rounds {:.3f}× (all: {:.3f} vs {:.3f} ms = {:.3f}×); a new "
+                         "connection each: {:.3f}×",
+                         rounds, t.median_ratio, t.gross_ms, totals[0].gross_ms, t.total_ratio,
+                         totals[reconnect_side].median_ratio),
+             "<= 1.5×", ok && served(tls_side) && served(reconnect_side) && t.median_ratio <= 1.5}};
+}
+
 }  // namespace
 
 std::vector<Verdict> http_cost(const Environment& env) {
@@ -818,8 +1118,8 @@ std::vector<Verdict> http_cost(const Environment& env) {
         "rings; what a password and HTTPS add to a scrape, and what an operator's writes from the "
         "web cost the Modbus side (issue 39).\n");
     auto verdicts = beside_modbus(env);
-    const auto more = eight_links(env);
-    verdicts.insert(verdicts.end(), more.begin(), more.end());
+    for (const auto& more : {eight_links(env), scrape_security(env)})
+        verdicts.insert(verdicts.end(), more.begin(), more.end());
     return verdicts;
 }
 
