@@ -20,7 +20,8 @@ std::vector<Verdict> modbus_throughput(const Environment& env);
 // 5. Peak memory with 8 links and 256 clients; CPU while polling with no clients.
 std::vector<Verdict> footprint(const Environment& env);
 // 6. The HTTP side: its cost to Modbus while scraped, one scrape's CPU with 8 links, the memory
-// of the trend rings; a scrape's CPU with a password and with HTTPS (issue 39).
+// of the trend rings; a scrape's CPU with a password and with HTTPS, and Modbus while an operator
+// writes over HTTP (issue 39).
 std::vector<Verdict> http_cost(const Environment& env);
 // 7. The Sparkplug B edge node (issue 17): input change → DDATA latency against the poll cycle,
 // ioportd's CPU with MQTT on and off and Modbus beside it, with every analog value changing.

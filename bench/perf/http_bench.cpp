@@ -9,7 +9,10 @@
 // d. (issue 39) ioportd's CPU per scrape of /metrics with a password (bcrypt, remembered after the
 //    first request) and with HTTPS and a password, against the same scrape with neither, in
 //    alternating rounds on four daemons of the same binary (two with neither, one a control);
-//    the first request apart; a new TLS connection per scrape for information.
+//    the first request apart; a new TLS connection per scrape for information;
+// e. (issue 39) the Modbus load of a while an operator writes a dom16 output over HTTP every
+//    100 ms, in rotated rounds without writes, with them and with the same writes over Modbus
+//    (FC 05) for comparison, and the writes' latency at the client.
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
@@ -18,6 +21,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -26,6 +30,7 @@
 #include <numeric>
 #include <random>
 #include <sstream>
+#include <tuple>
 
 #include <fmt/format.h>
 #include <openssl/err.h>
@@ -1109,6 +1114,208 @@ std::vector<Verdict> scrape_security(const Environment& env) {
              "<= 1.5×", ok && served(tls_side) && served(reconnect_side) && t.median_ratio <= 1.5}};
 }
 
+// The writes of 6e: a dom16 0 output 3 switched on and off, every 100 ms on the clock of the
+// written rounds alone (as 6a's scrapers), so that over the rounds they come as often as an
+// operator pressing a switch ten times a second would.
+struct WriteLog {
+    int sent = 0;
+    int confirmed = 0;    // answered as confirmed by the device
+    int failed = 0;       // no answer, or another one
+    std::string refusal;  // the last answer that was not a confirmation
+    std::vector<double> latency_us;
+};
+
+class Pacer {
+  public:
+    // Calls `act` every 100 ms from now until `to`.
+    template <class Act>
+    void run(Clock::time_point to, Act act) {
+        const auto start = Clock::now();
+        for (;;) {
+            const auto at = start + std::chrono::duration_cast<Clock::duration>(
+                                        std::chrono::duration<double>(next_ - elapsed_));
+            if (at >= to) break;
+            std::this_thread::sleep_until(at);
+            act();
+            next_ += 0.1;
+        }
+        elapsed_ += seconds(to - start);
+    }
+
+  private:
+    double elapsed_ = 0;  // seconds of written rounds so far
+    double next_ = 0;
+};
+
+// The operator: POST /api/v1/write with a user and password and a JSON body as curl --json
+// sends them, on a kept-alive connection.
+class OperatorWriter {
+  public:
+    OperatorWriter(std::uint16_t port, std::string_view headers) : client_(port, headers) {}
+
+    // One write; the first costs a bcrypt.
+    std::optional<HttpReply> write(WriteLog& log) {
+        on_ = !on_;
+        auto reply = client_.post_json(
+            "/api/v1/write",
+            fmt::format(R"({{"link":"hub0","module":"dom16_0","point":"out3","value":"{}"}})",
+                        on_ ? "ON" : "OFF"));
+        ++log.sent;
+        if (reply && reply->status == 200 &&
+            reply->body.find(R"("result":"confirmed")") != std::string::npos) {
+            ++log.confirmed;
+            log.latency_us.push_back(microseconds(reply->took));
+        } else {
+            ++log.failed;
+            log.refusal = reply ? fmt::format("{} {}", reply->status, reply->body) : "no answer";
+        }
+        return reply;
+    }
+    void run(Clock::time_point to, WriteLog& log) {
+        pacer_.run(to, [&] { (void)write(log); });
+    }
+    HttpClient& client() { return client_; }
+
+  private:
+    HttpClient client_;
+    Pacer pacer_;
+    bool on_ = false;
+};
+
+// The same write over Modbus, for comparison: FC 05 to coil 3 (dom16 0 output 3, docs/modbus.md),
+// which ioportd answers once the device confirmed it.
+class ModbusWriter {
+  public:
+    explicit ModbusWriter(std::uint16_t port) : connection_(port) {}
+    void run(Clock::time_point to, WriteLog& log) {
+        pacer_.run(to, [&] {
+            on_ = !on_;
+            const auto sent = Clock::now();
+            const bool ok =
+                connection_.connected() && modbus_write_bit(connection_.get(), 3, on_ ? 1 : 0) == 1;
+            ++log.sent;
+            if (ok) {
+                ++log.confirmed;
+                log.latency_us.push_back(microseconds(Clock::now() - sent));
+            } else {
+                ++log.failed;
+                log.refusal = connection_.connected() ? modbus_strerror(errno) : "not connected";
+            }
+        });
+    }
+
+  private:
+    ModbusConnection connection_;
+    Pacer pacer_;
+    bool on_ = false;
+};
+
+// The confirmed writes ioportd counted on link hub0 (ioportd_writes_total), from /metrics.
+std::optional<long long> confirmed_writes(const std::string& metrics) {
+    std::istringstream lines(metrics);
+    std::string line;
+    while (std::getline(lines, line))
+        if (line.starts_with("ioportd_writes_total{") &&
+            line.find(R"(link="hub0")") != std::string::npos &&
+            line.find(R"(result="confirmed")") != std::string::npos)
+            return std::atoll(line.c_str() + line.rfind(' ') + 1);
+    return std::nullopt;
+}
+
+std::vector<Verdict> beside_writes(const Environment& env) {
+    constexpr int connections = 64;
+    // More rounds than 6a's 7: a p99 of 64 connections is what this guest's neighbours move
+    // most, and a median of more rounds is harder for them to move. Odd: the median is one.
+    const int rounds = env.quick ? 1 : 11;
+    const auto window = env.window(3s);
+    fmt::print(
+        "\n### 6e. Modbus at {} connections while an operator writes from the web ({} rounds of "
+        "each kind, {} ms each, the order rotated)\n\nThe reads of benchmark 4 against ioportd "
+        "polling the bus of 6a as fast as the line goes, with a web configuration "
+        "(basic_auth_users, the hash made by `htpasswd -nbBC 10`) and the user in "
+        "http.operators, plain HTTP. HTTP rounds: `POST /api/v1/write` every 100 ms, "
+        "`{{\"link\":\"hub0\",\"module\":\"dom16_0\",\"point\":\"out3\",\"value\":\"ON\"}}` and "
+        "then `\"OFF\"`, with `Content-Type: application/json` and the operator's password on a "
+        "kept-alive connection, each answered once the device confirmed it. For comparison, "
+        "Modbus rounds: the same switch as FC 05 to coil 3 every 100 ms, on a connection of "
+        "its own. The 100 ms count the rounds of that kind alone. The first HTTP write (a "
+        "bcrypt) is made before the rounds. Server CPU per request counts everything ioportd did "
+        "in the window, the writes included.\n",
+        connections, rounds, window.count());
+    const TempDir dir;
+    constexpr std::string_view user = "operator";
+    constexpr std::string_view password = "write-pw-39";
+    const auto hash = htpasswd_hash(env, dir, user, password);
+    if (!hash) return {{"6e. writes beside Modbus", "htpasswd failed", "", false}};
+    WebGateway daemon(env, fmt::format("basic_auth_users:\n  {}: {}\n", user, *hash), user, 0ms);
+    if (!daemon.ready()) return {{"6e. writes beside Modbus", "ioportd did not start", "", false}};
+    const auto& gateway = daemon.gateway;
+
+    OperatorWriter http_writer(daemon.http_port,
+                               fmt::format("User-Agent: curl/7.88.1\r\nAccept: */*\r\n{}",
+                                           basic_authorization(user, password)));
+    ModbusWriter modbus_writer(gateway.port());
+    WriteLog first;
+    const auto first_reply = http_writer.write(first);
+    const double first_ms = first_reply ? microseconds(first_reply->took) / 1000.0 : 0.0;
+    WriteLog http_writes, modbus_writes;
+    const auto r =
+        rounds_beside(env, gateway, connections, rounds, window, "writer", "writes",
+                      {{"none", "no writes", ""},
+                       {"HTTP", "HTTP writes", "HTTP writes ÷ none",
+                        [&](Clock::time_point to) { http_writer.run(to, http_writes); }},
+                       {"Modbus", "Modbus writes", "Modbus writes ÷ none",
+                        [&](Clock::time_point to) { modbus_writer.run(to, modbus_writes); }}},
+                      [&] { return http_writes.sent + modbus_writes.sent; });
+    const auto metrics = http_writer.client().get("/metrics");
+    const auto counted =
+        metrics && metrics->status == 200 ? confirmed_writes(metrics->body) : std::nullopt;
+    const auto http_latency = summarize(http_writes.latency_us);
+    const auto modbus_latency = summarize(modbus_writes.latency_us);
+    fmt::print(
+        "\nThe first HTTP write (a bcrypt): {}, {:.1f} ms. ioportd counted {} confirmed writes on "
+        "hub0 (the first included; {} confirmed at the clients).\n",
+        first.confirmed == 1 ? "confirmed" : fmt::format("**not confirmed** ({})", first.refusal),
+        first_ms, counted ? fmt::format("{}", *counted) : std::string("an unknown number of"),
+        first.confirmed + http_writes.confirmed + modbus_writes.confirmed);
+    const Table writes_table({"writes beside the load", "sent", "confirmed", "not (the last)",
+                              "latency at the client p50 µs", "p99 µs", "max µs"});
+    for (const auto& [name, log, latency] :
+         {std::tuple{"HTTP POST /api/v1/write", &http_writes, &http_latency},
+          std::tuple{"Modbus FC 05", &modbus_writes, &modbus_latency}})
+        writes_table.row(
+            {name, fmt::format("{}", log->sent), fmt::format("{}", log->confirmed),
+             log->failed > 0 ? fmt::format("{} ({})", log->failed, log->refusal) : std::string("0"),
+             fmt::format("{:.0f}", latency->p50), fmt::format("{:.0f}", latency->p99),
+             fmt::format("{:.0f}", latency->max)});
+    const auto& quiet = r.sides[0];
+    const auto& http = r.sides[1];
+    const auto& modbus = r.sides[2];
+    const bool ok = std::ranges::all_of(r.sides,
+                                        [](const Side& side) {
+                                            return side.load->connected && side.load->errors == 0;
+                                        }) &&
+                    first.confirmed == 1 && http_writes.failed == 0 && http_writes.sent > 0;
+    machine_line(fmt::format(
+        R"({{"bench":"http_writes_beside_modbus","connections":{},"rounds":{},"quiet_rps":{:.0f},"http_rps":{:.0f},"modbus_rps":{:.0f},"quiet_cpu_us":{:.3f},"http_cpu_us":{:.3f},"modbus_cpu_us":{:.3f},"quiet_p99_us":{:.0f},"http_p99_us":{:.0f},"modbus_p99_us":{:.0f},"http_p99_ratio":{:.3f},"http_p99_ratio_median":{:.3f},"http_cpu_ratio_median":{:.3f},"modbus_p99_ratio":{:.3f},"modbus_p99_ratio_median":{:.3f},"modbus_cpu_ratio_median":{:.3f},"http_writes":{},"http_confirmed":{},"http_write_p50_us":{:.0f},"http_write_p99_us":{:.0f},"http_write_max_us":{:.0f},"modbus_writes":{},"modbus_confirmed":{},"modbus_write_p50_us":{:.0f},"modbus_write_p99_us":{:.0f},"modbus_write_max_us":{:.0f},"first_write_ms":{:.1f},"counted_confirmed":{},"modbus_errors":{}}})",
+        connections, rounds, quiet.load->per_second(), http.load->per_second(),
+        modbus.load->per_second(), quiet.load->cpu_us_per_request(),
+        http.load->cpu_us_per_request(), modbus.load->cpu_us_per_request(), quiet.latency.p99,
+        http.latency.p99, modbus.latency.p99, r.p99[1], r.p99_median[1], r.cpu_median[1], r.p99[2],
+        r.p99_median[2], r.cpu_median[2], http_writes.sent, http_writes.confirmed, http_latency.p50,
+        http_latency.p99, http_latency.max, modbus_writes.sent, modbus_writes.confirmed,
+        modbus_latency.p50, modbus_latency.p99, modbus_latency.max, first_ms,
+        counted ? fmt::format("{}", *counted) : "null",
+        quiet.load->errors + http.load->errors + modbus.load->errors));
+    return {{"6e. p99 latency, 64 conn., operator writing over HTTP ÷ not",
+             fmt::format("median of {} rounds {:.3f}× (all rounds: {:.0f} vs {:.0f} µs = {:.3f}×; "
+                         "Modbus FC 05 writes instead: {:.3f}×; HTTP writes p50 {:.1f} ms, p99 "
+                         "{:.1f} ms)",
+                         rounds, r.p99_median[1], http.latency.p99, quiet.latency.p99, r.p99[1],
+                         r.p99_median[2], http_latency.p50 / 1000.0, http_latency.p99 / 1000.0),
+             "<= 1.05×", ok && r.p99_median[1] <= 1.05}};
+}
+
 }  // namespace
 
 std::vector<Verdict> http_cost(const Environment& env) {
@@ -1118,7 +1325,7 @@ std::vector<Verdict> http_cost(const Environment& env) {
         "rings; what a password and HTTPS add to a scrape, and what an operator's writes from the "
         "web cost the Modbus side (issue 39).\n");
     auto verdicts = beside_modbus(env);
-    for (const auto& more : {eight_links(env), scrape_security(env)})
+    for (const auto& more : {eight_links(env), scrape_security(env), beside_writes(env)})
         verdicts.insert(verdicts.end(), more.begin(), more.end());
     return verdicts;
 }
