@@ -206,6 +206,18 @@ std::chrono::nanoseconds stat_cpu_time(pid_t pid) {
     return std::chrono::nanoseconds(ticks * 1'000'000'000LL / ::sysconf(_SC_CLK_TCK));
 }
 
+std::uint64_t minor_faults(pid_t pid) {
+    // Field 10; the command name (field 2) may hold spaces.
+    const auto stat = read_file(fmt::format("/proc/{}/stat", pid));
+    const auto close = stat.rfind(')');
+    if (close == std::string::npos) return 0;
+    std::istringstream fields(stat.substr(close + 2));
+    std::string field;
+    for (int i = 3; i <= 10 && fields >> field; ++i)
+        if (i == 10) return std::stoull(field);
+    return 0;
+}
+
 double core_percent(std::chrono::nanoseconds cpu, double seconds) {
     return microseconds(cpu) / 1e4 / seconds;
 }

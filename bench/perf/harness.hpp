@@ -139,6 +139,11 @@ std::uint64_t sleeps(pid_t pid);
 // figure `top` and process_cpu_seconds_total use, as a check on the schedstat figures.
 std::chrono::nanoseconds stat_cpu_time(pid_t pid);
 
+// Minor page faults of a process (/proc/PID/stat field 10): pages it touched for the first time
+// since they were mapped. On this guest each costs microseconds, so a buffer that goes back to the
+// kernel after every request and is faulted in again shows here and in the CPU time.
+std::uint64_t minor_faults(pid_t pid);
+
 // `cpu` used in `seconds`, in percent of one core.
 double core_percent(std::chrono::nanoseconds cpu, double seconds);
 

@@ -547,6 +547,7 @@ struct ScrapeCost {
     double gross_ms = 0;  // ioportd's CPU over the scrapes ÷ their number (schedstat)
     double net_ms = 0;    // less what polling cost meanwhile, at the rate measured idle
     double stat_ms = 0;   // the same as gross, from /proc/PID/stat's ticks
+    double faults = 0;    // ioportd's minor page faults ÷ the scrapes
     std::size_t bytes = 0;
     Summary latency;  // at the client, µs
     int count = 0;
@@ -562,6 +563,7 @@ ScrapeCost scrape_cost(const Gateway& gateway, HttpClient& client, std::string_v
     std::vector<double> latency;
     const auto cpu_before = cpu_time(gateway.pid());
     const auto stat_before = stat_cpu_time(gateway.pid());
+    const auto faults_before = minor_faults(gateway.pid());
     const auto start = Clock::now();
     for (int i = 0; i < count; ++i) {
         auto reply = client.get(path);
@@ -577,7 +579,9 @@ ScrapeCost scrape_cost(const Gateway& gateway, HttpClient& client, std::string_v
     const auto elapsed = Clock::now() - start;
     const auto cpu = cpu_time(gateway.pid()) - cpu_before;
     const auto stat = stat_cpu_time(gateway.pid()) - stat_before;
+    const auto faults = minor_faults(gateway.pid()) - faults_before;
     const double n = std::max(cost.count, 1);
+    cost.faults = static_cast<double>(faults) / n;
     cost.gross_ms = microseconds(cpu) / 1000.0 / n;
     cost.net_ms = (microseconds(cpu) / 1000.0 - idle_cpu_fraction * seconds(elapsed) * 1000.0) / n;
     cost.stat_ms = microseconds(stat) / 1000.0 / n;
@@ -733,17 +737,19 @@ std::vector<Verdict> eight_links(const Environment& env) {
     const auto after_scrapes = memory(gateway.pid());
 
     Table table({"page", "scrapes", "response", "ioportd CPU ms/scrape", "net of polling",
-                 "from /proc/PID/stat", "latency p50 / max µs"});
+                 "from /proc/PID/stat", "minor faults/scrape", "latency p50 / max µs"});
     const auto row = [&](std::string_view page, const ScrapeCost& c) {
         table.row({std::string(page),
                    fmt::format("{}{}", c.count,
                                c.failed ? fmt::format(" ({} failed)", c.failed) : std::string()),
                    kib_text(c.bytes), fmt::format("**{:.3f}**", c.gross_ms),
                    fmt::format("{:.3f}", c.net_ms), fmt::format("{:.2f}", c.stat_ms),
+                   fmt::format("{:.1f}", c.faults),
                    fmt::format("{:.0f} / {:.0f}", c.latency.p50, c.latency.max)});
         machine_line(fmt::format(
-            R"({{"bench":"http_scrape","page":"{}","links":8,"modules_per_link":72,"scrapes":{},"failed":{},"bytes":{},"cpu_ms":{:.4f},"cpu_ms_net":{:.4f},"cpu_ms_stat":{:.3f},"latency_p50_us":{:.0f}}})",
-            page, c.count, c.failed, c.bytes, c.gross_ms, c.net_ms, c.stat_ms, c.latency.p50));
+            R"({{"bench":"http_scrape","page":"{}","links":8,"modules_per_link":72,"scrapes":{},"failed":{},"bytes":{},"cpu_ms":{:.4f},"cpu_ms_net":{:.4f},"cpu_ms_stat":{:.3f},"minor_faults":{:.1f},"latency_p50_us":{:.0f}}})",
+            page, c.count, c.failed, c.bytes, c.gross_ms, c.net_ms, c.stat_ms, c.faults,
+            c.latency.p50));
     };
     row("/metrics", metrics);
     row("/api/v1/state", state);
@@ -1011,7 +1017,7 @@ std::vector<Verdict> scrape_security(const Environment& env) {
     }
 
     struct Totals {
-        double gross_ms = 0, net_ms = 0, stat_ms = 0, p50_us = 0, max_us = 0;
+        double gross_ms = 0, net_ms = 0, stat_ms = 0, faults = 0, p50_us = 0, max_us = 0;
         int count = 0, failed = 0;
         std::size_t bytes = 0;
         double median_ratio = 0, total_ratio = 0;
@@ -1024,6 +1030,7 @@ std::vector<Verdict> scrape_security(const Environment& env) {
             t.gross_ms += c.gross_ms * c.count;
             t.net_ms += c.net_ms * c.count;
             t.stat_ms += c.stat_ms * c.count;
+            t.faults += c.faults * c.count;
             t.count += c.count;
             t.failed += c.failed;
             t.bytes = c.bytes;
@@ -1034,6 +1041,7 @@ std::vector<Verdict> scrape_security(const Environment& env) {
         t.gross_ms /= count;
         t.net_ms /= count;
         t.stat_ms /= count;
+        t.faults /= count;
         t.p50_us = median(p50s);
         t.median_ratio = summarize(ratios[s]).p50;
     }
@@ -1050,8 +1058,8 @@ std::vector<Verdict> scrape_security(const Environment& env) {
                          fmt::format("{:.2f}", sides[s].first.cpu_ms)});
     fmt::print("\nAfter the first, {} rounds:\n", rounds);
     const Table table({"scrapes of /metrics", "count", "response", "ioportd CPU ms/scrape",
-                       "net of polling", "from /proc/PID/stat", "÷ none, median of rounds",
-                       "÷ none, all rounds", "latency p50 / max µs"});
+                       "net of polling", "from /proc/PID/stat", "minor faults/scrape",
+                       "÷ none, median of rounds", "÷ none, all rounds", "latency p50 / max µs"});
     for (std::size_t s = 0; s < sides.size(); ++s) {
         const auto& t = totals[s];
         table.row({std::string(sides[s].name),
@@ -1059,6 +1067,7 @@ std::vector<Verdict> scrape_security(const Environment& env) {
                                t.failed ? fmt::format(" ({} failed)", t.failed) : std::string()),
                    kib_text(t.bytes), fmt::format("{:.3f}", t.gross_ms),
                    fmt::format("{:.3f}", t.net_ms), fmt::format("{:.3f}", t.stat_ms),
+                   fmt::format("{:.1f}", t.faults),
                    s == 0 ? std::string() : fmt::format("**{:.3f}**", t.median_ratio),
                    s == 0 ? std::string() : fmt::format("{:.3f}", t.total_ratio),
                    fmt::format("{:.0f} / {:.0f}", t.p50_us, t.max_us)});
@@ -1084,9 +1093,9 @@ std::vector<Verdict> scrape_security(const Environment& env) {
     for (std::size_t s = 0; s < sides.size(); ++s) {
         const auto& t = totals[s];
         sides_json += fmt::format(
-            R"({}{{"name":"{}","scrapes":{},"failed":{},"bytes":{},"cpu_ms":{:.4f},"cpu_ms_net":{:.4f},"cpu_ms_stat":{:.4f},"ratio_median":{:.4f},"ratio_total":{:.4f},"latency_p50_us":{:.0f},"first_status":{},"first_latency_ms":{:.2f},"first_cpu_ms":{:.3f}}})",
+            R"({}{{"name":"{}","scrapes":{},"failed":{},"bytes":{},"cpu_ms":{:.4f},"cpu_ms_net":{:.4f},"cpu_ms_stat":{:.4f},"minor_faults":{:.1f},"ratio_median":{:.4f},"ratio_total":{:.4f},"latency_p50_us":{:.0f},"first_status":{},"first_latency_ms":{:.2f},"first_cpu_ms":{:.3f}}})",
             s == 0 ? "" : ",", sides[s].name, t.count, t.failed, t.bytes, t.gross_ms, t.net_ms,
-            t.stat_ms, t.median_ratio, t.total_ratio, t.p50_us, sides[s].first.status,
+            t.stat_ms, t.faults, t.median_ratio, t.total_ratio, t.p50_us, sides[s].first.status,
             sides[s].first.latency_ms, sides[s].first.cpu_ms);
     }
     machine_line(
