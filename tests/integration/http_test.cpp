@@ -521,7 +521,10 @@ TEST_F(Http, UnknownPathsAre404AndOtherMethods405WithoutChangingAnything) {
 
     ASSERT_TRUE(client.write_register(0, 0x0003));
     const auto before = http_get(http_port(), "/api/v1/state");
-    const auto events_before = json_eval(before.body, "len(d['events'])");
+    // The writes among the events: a module that misses a poll on a busy machine adds events of
+    // its own, which are not what this test is about.
+    const auto* writes_in_events = "len([e for e in d['events'] if e['kind'] == 'write'])";
+    const auto events_before = json_eval(before.body, writes_in_events);
     for (const auto* method : {"POST", "PUT", "DELETE", "PATCH"}) {
         for (const auto* path :
              {"/metrics", "/api/v1/state", "/healthz", "/", "/app.js", "/app.css", "/map"}) {
@@ -552,7 +555,7 @@ TEST_F(Http, UnknownPathsAre404AndOtherMethods405WithoutChangingAnything) {
 
     EXPECT_EQ(hub.ctl("get dom16:0"), "3\n");
     const auto after = http_get(http_port(), "/api/v1/state");
-    EXPECT_EQ(json_eval(after.body, "len(d['events'])"), events_before);
+    EXPECT_EQ(json_eval(after.body, writes_in_events), events_before);
     EXPECT_EQ(json_eval(after.body, "d['links'][0]['writes']"),
               json_eval(before.body, "d['links'][0]['writes']"));
     EXPECT_EQ(sample(http_port(), R"(ioportd_writes_total{link="hub0",result="confirmed"})"), 1);

@@ -830,6 +830,8 @@ class Revocation(unittest.TestCase):
         self.rig.write_config(self.config())
         self.rig.start_daemon()
         self.tls_port = self.rig.listening_port("Modbus/TCP Security (TLS)")
+        # The reads below answer from the image: 0x0B until the input module was polled once.
+        self.rig.wait_log(r"link hub0: dim16 0 online", 10)
 
     def config(self):
         return config(self.rig, self.certs, plain="",
