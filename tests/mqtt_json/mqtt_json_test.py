@@ -3,7 +3,8 @@
 end: a real mosquitto broker on a free loopback port, the real simulators on ptys, the real
 daemon, and a subscriber (paho-mqtt) that records every message with its retain flag. Node-RED,
 when it has been installed (tests/mqtt_json/node_red.py), runs a flow of its own against the
-same broker: it reads a state topic and publishes a set.
+same broker: it reads a state topic and publishes a set, and asks bridge/request/health_check
+with a transaction and takes the answer that echoes it.
 
 Usage: mqtt_json_test.py IOPORTD IOPORT_SIM [NODE_RED_DIR [TEST ...]]
   NODE_RED_DIR: where Node-RED is (or is first installed, npm ci of tests/mqtt_json/node-red/);
@@ -708,26 +709,76 @@ class FromOutside(unittest.TestCase):
 
 @unittest.skipUnless(NODE_RED_DIR, "Node-RED is not installed (tests/mqtt_json/node_red.py)")
 class NodeRed(JsonCase):
-    """A real consumer: a Node-RED flow subscribes to dim16_0's state and, when in0 is on, sets
-    dom16_0's out7 (an interlock a plant would wire the same way)."""
+    """A real consumer, one Node-RED for the class with two flows: one subscribes to dim16_0's
+    state and, when in0 is on, sets dom16_0's out7 (an interlock a plant would wire the same way);
+    the other asks bridge/request/health_check with a transaction and takes the answer that
+    echoes it (gateway.md §7.3), as a flow made for zigbee2mqtt does."""
+
+    @classmethod
+    def setUpClass(cls):
+        super().setUpClass()
+        cls.red = None
+        try:
+            cls.rig = JsonRig(tempfile.mkdtemp(dir=cls.dir), cls.broker.port)
+            cls.rig.ctl("set dim16:0 0x0000")
+            cls.rig.start_daemon()
+            cls.sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online", timeout=20)
+            cls.red = node_red.NodeRed(NODE_RED_DIR, cls.dir, cls.broker.port,
+                                       topic("hub0/dim16_0", "state"),
+                                       topic("hub0/dom16_0", "out7/set"), f"{PREFIX}/bridge")
+            cls.red.__enter__()
+        except BaseException:
+            cls.tearDownClass()
+            raise
+
+    @classmethod
+    def tearDownClass(cls):
+        if cls.red:
+            cls.red.__exit__()
+        super().tearDownClass()
+
+    def setUp(self):
+        self.wait_online(self.rig)
 
     def test_a_flow_reads_a_state_and_sets_an_output(self):
-        self.rig = self.new_rig()
-        self.rig.ctl("set dim16:0 0x0000")
         mark = self.sub.mark()
-        self.rig.start_daemon()
-        self.wait_online(self.rig, mark)
-        with node_red.NodeRed(NODE_RED_DIR, self.dir, self.broker.port,
-                              topic("hub0/dim16_0", "state"),
-                              topic("hub0/dom16_0", "out7/set")):
-            self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 0)
-            self.rig.ctl("set dim16:0 0x0001")
-            eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 20,
-                       "Node-RED set out7")
-            self.sub.wait(topic("hub0/dom16_0", "state"), lambda m: m.json()["out7"], mark)
-            self.rig.wait_log(r"write by mqtt_json to unit 1 \(hub0\): set hub0/dom16_0/out7 = "
-                              r"ON: confirmed")
-        self.rig.close()
+        self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 0)
+        self.rig.ctl("set dim16:0 0x0001")
+        eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 20, "Node-RED set out7")
+        self.sub.wait(topic("hub0/dom16_0", "state"), lambda m: m.json()["out7"], mark)
+        self.rig.wait_log(r"write by mqtt_json to unit 1 \(hub0\): set hub0/dom16_0/out7 = "
+                          r"ON: confirmed")
+
+    def test_a_flow_asks_health_check_with_a_transaction_and_gets_its_answer(self):
+        transaction = f"node-red-{time.monotonic_ns()}"
+        request = f"{PREFIX}/bridge/request/health_check"
+        response = f"{PREFIX}/bridge/response/health_check"
+        mark = self.sub.mark()
+        # Node-RED drops what its mqtt out nodes get before its connection is up, and the ask
+        # topic's subscription may follow "Connected to broker": asked again every second until
+        # the answer is there.
+        asked = [time.monotonic() - 1]
+
+        def answered():
+            if time.monotonic() - asked[-1] >= 1:
+                self.sub.publish(node_red.ASK, transaction)
+                asked.append(time.monotonic())
+            relayed = self.sub.since(mark, node_red.ANSWER)
+            return relayed[0] if relayed else None
+        relayed = eventually(answered, 30, lambda: "Node-RED's answer:\n" + repr(
+            [(m.topic, m.payload) for m in self.sub.since(mark)][-10:]) + "\n" +
+            self.red.log_text()[-3000:], interval=0.05)
+        self.assertEqual(relayed.json(), {"answer": {
+            "status": "ok", "transaction": transaction,
+            "data": {"healthy": True, "links": {"hub0": "ok", "press": "ok"}}}})
+        # What went over the broker: Node-RED's request (the test never publishes one), the
+        # gateway's answer, not retained.
+        self.assertIn({"transaction": transaction},
+                      [m.json() for m in self.sub.since(mark, request)])
+        answer = self.sub.wait(response, lambda m: m.json().get("transaction") == transaction,
+                               mark)
+        self.assertFalse(answer.retain)
+        self.assertLess(answer.index, relayed.index)
 
 
 def read(path):
