@@ -191,6 +191,14 @@ class JsonCase(unittest.TestCase):
         for module in ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "press/id2"):
             self.sub.wait(topic(module, "state"), since=since)
 
+    def ask(self, name, payload, retain=False):
+        """A bridge request (gateway.md §7.3) and its answer, which is not retained."""
+        mark = self.sub.mark()
+        self.sub.publish(f"{PREFIX}/bridge/request/{name}", payload, retain)
+        answer = self.sub.wait(f"{PREFIX}/bridge/response/{name}", since=mark)
+        self.assertFalse(answer.retain)
+        return answer.json()
+
 
 class Output(JsonCase):
     """One daemon for the class."""
@@ -421,6 +429,53 @@ class OwnDaemon(JsonCase):
         self.assertIn(f"{HA}/switch/{NODE}/hub0_dom16_0_out0/config",
                       retained(self.broker.port, f"{HA}/#"))
 
+    def test_a_reload_publishes_bridge_info_again_and_a_link_without_its_port_is_off(self):
+        self.start()
+        config = read(self.rig.config).replace("mqtt_json:\n", f"""  - name: spare
+    protocol: ioport
+    device: {self.rig.dir}/no-such-port
+    unit_id: 3
+    modules:
+      - {{ type: dim16, number: 1 }}
+mqtt_json:
+""")
+        mark = self.sub.mark()
+        self.assertIn("SIGHUP: reloaded", self.rig.reload(config))
+        info = self.sub.wait(f"{PREFIX}/bridge/info", lambda m: [
+            link["name"] for link in m.json()["links"]] == ["hub0", "press", "spare"], mark)
+        spare = info.json()["links"][2]
+        self.assertEqual((spare["protocol"], spare["unit_id"], spare["modules"][0]["id"]),
+                         ("ioport", 3, "dim16_1"))
+        self.assertEqual(retained(self.broker.port, f"{PREFIX}/bridge/info")[
+            f"{PREFIX}/bridge/info"], info.payload)
+        # The new link's connectivity sensor, off: its port is not open.
+        self.assertIn(f"{HA}/binary_sensor/{NODE}/spare_connectivity/config",
+                      retained(self.broker.port, f"{HA}/binary_sensor/{NODE}/+/config"))
+        self.sub.wait(f"{PREFIX}/bridge/connectivity/spare", lambda m: m.payload == "OFF", mark)
+        answer = self.ask("health_check", '{"transaction": false}')
+        self.assertEqual((answer["status"], answer["transaction"]), ("ok", False))
+        self.assertEqual(answer["data"], {"healthy": False, "links": {
+            "hub0": "ok", "press": "ok",
+            "spare": f"link spare: port {self.rig.dir}/no-such-port not open"}})
+
+    def test_a_retained_request_left_on_the_broker_is_answered_error_at_connect(self):
+        request = f"{PREFIX}/bridge/request/health_check"
+        self.sub.publish(request, '{"transaction": "left"}', retain=True)
+        try:
+            mark = self.sub.mark()
+            self.start()
+            answer = self.sub.wait(f"{PREFIX}/bridge/response/health_check",
+                                   lambda m: m.json().get("transaction") == "left", mark)
+            self.assertEqual((answer.json()["status"], answer.json()["data"]), ("error", {}))
+            self.assertIn("a retained request is not served", answer.json()["error"])
+        finally:
+            self.sub.publish(request, "", retain=True)  # cleared
+        # A live one is served.
+        self.sub.publish(request, '{"transaction": "live"}')
+        live = self.sub.wait(f"{PREFIX}/bridge/response/health_check",
+                             lambda m: m.json().get("transaction") == "live", mark)
+        self.assertEqual(live.json()["status"], "ok")
+
     def test_a_reload_renames_live(self):
         self.start()
         config = read(self.rig.config).replace("supply temperature", "flow temperature")
@@ -461,13 +516,6 @@ class Bridge(JsonCase):
 
     def setUp(self):
         self.wait_online(self.rig)
-
-    def ask(self, name, payload, retain=False):
-        mark = self.sub.mark()
-        self.sub.publish(f"{PREFIX}/bridge/request/{name}", payload, retain)
-        answer = self.sub.wait(f"{PREFIX}/bridge/response/{name}", since=mark)
-        self.assertFalse(answer.retain)
-        return answer.json()
 
     def test_info_is_retained_and_describes_the_gateway(self):
         # Published at connect (the modules not polled yet), then again once their status is
@@ -559,15 +607,33 @@ class Bridge(JsonCase):
         self.sub.wait(state, lambda m: m.payload == "ON", mark)
 
     def test_home_assistants_birth_publishes_every_state_again(self):
-        # A broker without persistence, restarted: the states are gone.
-        for module in ("hub0/dim16_0", "press/id2"):
-            self.sub.publish(topic(module, "state"), "", retain=True)
+        # A broker without persistence, restarted: what the gateway published is gone (Home
+        # Assistant shows "unknown"), the discovery configs aside.
+        modules = ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "hub0/rgbdm_0",
+                   "hub0/mux8m_0", "press/id2")
+        topics = [topic(m, leaf) for m in modules for leaf in ("state", "availability")] + [
+            f"{PREFIX}/bridge/connectivity/{link}" for link in ("hub0", "press")]
+        for name in topics:
+            self.sub.publish(name, "", retain=True)
+        eventually(lambda: not set(topics) & set(retained(self.broker.port, f"{PREFIX}/#")), 5,
+                   "the states cleared from the broker")
         mark = self.sub.mark()
         self.sub.publish(f"{HA}/status", "online")
-        for module in ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "hub0/rgbdm_0",
-                       "hub0/mux8m_0", "press/id2"):
-            self.sub.wait(topic(module, "state"), lambda m: m.payload != "", mark)
-            self.sub.wait(topic(module, "availability"), lambda m: m.payload == "online", mark)
+
+        def back():
+            kept = retained(self.broker.port, f"{PREFIX}/#")
+            return set(topics) <= set(kept) and kept
+        kept = eventually(back, 10, lambda: "every state, availability and connectivity "
+                          "retained again; missing: " + repr(
+                              set(topics) - set(retained(self.broker.port, f"{PREFIX}/#"))))
+        for module in modules:
+            self.assertEqual(kept[topic(module, "availability")], "online", module)
+            self.assertEqual(sorted(json.loads(kept[topic(module, "state")])),
+                             sorted(json.loads(self.sub.since(0, topic(module, "state"))[0]
+                                               .payload)), module)
+        self.assertEqual([kept[f"{PREFIX}/bridge/connectivity/{link}"]
+                          for link in ("hub0", "press")], ["ON", "ON"])
+        self.assertTrue(self.sub.since(mark, topic("hub0/dim16_0", "availability")))
 
 
 class Mqtt311Broker(threading.Thread):
