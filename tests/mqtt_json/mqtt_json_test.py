@@ -757,6 +757,41 @@ class FromOutside(unittest.TestCase):
         self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="accepted"\} 1$')
         self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="refused"\} 0$')
 
+    def test_hostile_bridge_requests_are_answered_in_a_few_bytes_and_the_daemon_lives(self):
+        # Before: a number beyond a double's range anywhere in a request made the JSON parser
+        # throw what nobody caught, and the daemon ended; an unterminated 60 KB string came back
+        # whole in the error, as the parser quoted it.
+        self.rig.start_daemon()
+        sub = Subscriber(self.broker.port, (f"{PREFIX}/status", f"{PREFIX}/bridge/response/#"),
+                         client_id="hostile-watch")
+        try:
+            sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online")
+            for name, payload, error in (
+                    ("health_check", '{"transaction": 1e400}', "number overflow"),
+                    ("health_check", '{"x": [-1e999], "transaction": "t"}', "number overflow"),
+                    ("health_check", '{"transaction": "' + "x" * 60000, "missing closing quote"),
+                    ("health_check", '{"transaction": 1' + "0" * 60000 + "}", "number overflow"),
+                    ("info", '{"transaction": "\\u0000\\u001b[2J"}', None),
+                    ("n" * 300, '{"transaction": 1}', "is not a request here")):
+                with self.subTest(name=name[:20], payload=payload[:40]):
+                    mark = sub.mark()
+                    sub.publish(f"{PREFIX}/bridge/request/{name}", payload)
+                    answer = sub.wait(f"{PREFIX}/bridge/response/{name}", since=mark)
+                    self.assertLess(len(answer.payload), 512)
+                    if error:
+                        self.assertEqual(answer.json()["status"], "error")
+                        self.assertIn(error, answer.json()["error"])
+                    else:
+                        self.assertEqual(answer.json(), {"status": "ok", "data": {},
+                                                         "transaction": "\u0000\u001b[2J"})
+            self.assertIsNone(self.rig.daemon.poll(), "ioportd is running")
+            mark = sub.mark()
+            sub.publish(f"{PREFIX}/bridge/request/health_check", '{"transaction": 2}')
+            self.assertEqual(sub.wait(f"{PREFIX}/bridge/response/health_check",
+                                      since=mark).json()["transaction"], 2)
+        finally:
+            sub.close()
+
     def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
         old = Mqtt311Broker()
         old.start()
