@@ -1,10 +1,30 @@
 #include "protocol/json_reader.hpp"
 
+#include <algorithm>
+
 #include <nlohmann/json.hpp>
 
 #include <fmt/format.h>
 
 namespace ioport {
+namespace {
+
+// Of the parser's message, at most this much: it quotes what it read last, which may be a whole
+// string or number of the peer's (tens of KiB), and the message is answered or logged.
+constexpr std::size_t max_error_bytes = 160;
+
+std::string bounded(std::string_view text) {
+    if (text.size() <= max_error_bytes) return std::string(text);
+    std::size_t end = 0;
+    while (end < text.size()) {
+        const auto length = std::max<std::size_t>(utf8_sequence(text.substr(end)), 1);
+        if (end + length > max_error_bytes) break;
+        end += length;
+    }
+    return fmt::format("{}...", text.substr(0, end));
+}
+
+}  // namespace
 
 struct JsonObject::Document {
     nlohmann::json value;
@@ -21,13 +41,15 @@ Result<JsonObject> JsonObject::parse(std::string_view text) {
     nlohmann::json value;
     try {
         value = nlohmann::json::parse(text);
-    } catch (const nlohmann::json::parse_error& error) {
+    } catch (const nlohmann::json::exception& error) {
         // "[json.exception.parse_error.101] parse error at line 1, column 5: …": where reading
-        // stopped and what was expected there, without the library's tag.
+        // stopped and what was expected there, without the library's tag. Not only parse_error:
+        // a number beyond a double's range (1e400) is out_of_range.406 "number overflow", which
+        // took the daemon down from any client of the broker (a bridge request, a STATE).
         std::string_view what = error.what();
         if (const auto tag = what.find("] "); tag != std::string_view::npos)
             what.remove_prefix(tag + 2);
-        return fail(Errc::malformed, fmt::format("not JSON: {}", what));
+        return fail(Errc::malformed, fmt::format("not JSON: {}", bounded(what)));
     }
     if (!value.is_object()) return fail(Errc::malformed, "not a JSON object");
     return JsonObject(std::make_shared<const Document>(Document{std::move(value)}));

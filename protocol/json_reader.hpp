@@ -21,7 +21,9 @@ namespace ioport {
 // A JSON object's members, looked up by name; a name given twice means its last value.
 class JsonObject {
   public:
-    // Fails with malformed, saying where, for text that is not JSON or not an object.
+    // Fails with malformed, saying where, for text that is not JSON or not an object; a number
+    // beyond a double's range (1e400) is refused too. The message quotes at most ~160 bytes of
+    // the parser's (which quotes what it read last, perhaps all the peer sent).
     static Result<JsonObject> parse(std::string_view text);
 
     bool has(std::string_view key) const;

@@ -3,7 +3,8 @@
 end: a real mosquitto broker on a free loopback port, the real simulators on ptys, the real
 daemon, and a subscriber (paho-mqtt) that records every message with its retain flag. Node-RED,
 when it has been installed (tests/mqtt_json/node_red.py), runs a flow of its own against the
-same broker: it reads a state topic and publishes a set.
+same broker: it reads a state topic and publishes a set, and asks bridge/request/health_check
+with a transaction and takes the answer that echoes it.
 
 Usage: mqtt_json_test.py IOPORTD IOPORT_SIM [NODE_RED_DIR [TEST ...]]
   NODE_RED_DIR: where Node-RED is (or is first installed, npm ci of tests/mqtt_json/node-red/);
@@ -189,6 +190,14 @@ class JsonCase(unittest.TestCase):
         self.sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online", since)
         for module in ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "press/id2"):
             self.sub.wait(topic(module, "state"), since=since)
+
+    def ask(self, name, payload, retain=False):
+        """A bridge request (gateway.md §7.3) and its answer, which is not retained."""
+        mark = self.sub.mark()
+        self.sub.publish(f"{PREFIX}/bridge/request/{name}", payload, retain)
+        answer = self.sub.wait(f"{PREFIX}/bridge/response/{name}", since=mark)
+        self.assertFalse(answer.retain)
+        return answer.json()
 
 
 class Output(JsonCase):
@@ -420,6 +429,53 @@ class OwnDaemon(JsonCase):
         self.assertIn(f"{HA}/switch/{NODE}/hub0_dom16_0_out0/config",
                       retained(self.broker.port, f"{HA}/#"))
 
+    def test_a_reload_publishes_bridge_info_again_and_a_link_without_its_port_is_off(self):
+        self.start()
+        config = read(self.rig.config).replace("mqtt_json:\n", f"""  - name: spare
+    protocol: ioport
+    device: {self.rig.dir}/no-such-port
+    unit_id: 3
+    modules:
+      - {{ type: dim16, number: 1 }}
+mqtt_json:
+""")
+        mark = self.sub.mark()
+        self.assertIn("SIGHUP: reloaded", self.rig.reload(config))
+        info = self.sub.wait(f"{PREFIX}/bridge/info", lambda m: [
+            link["name"] for link in m.json()["links"]] == ["hub0", "press", "spare"], mark)
+        spare = info.json()["links"][2]
+        self.assertEqual((spare["protocol"], spare["unit_id"], spare["modules"][0]["id"]),
+                         ("ioport", 3, "dim16_1"))
+        self.assertEqual(retained(self.broker.port, f"{PREFIX}/bridge/info")[
+            f"{PREFIX}/bridge/info"], info.payload)
+        # The new link's connectivity sensor, off: its port is not open.
+        self.assertIn(f"{HA}/binary_sensor/{NODE}/spare_connectivity/config",
+                      retained(self.broker.port, f"{HA}/binary_sensor/{NODE}/+/config"))
+        self.sub.wait(f"{PREFIX}/bridge/connectivity/spare", lambda m: m.payload == "OFF", mark)
+        answer = self.ask("health_check", '{"transaction": false}')
+        self.assertEqual((answer["status"], answer["transaction"]), ("ok", False))
+        self.assertEqual(answer["data"], {"healthy": False, "links": {
+            "hub0": "ok", "press": "ok",
+            "spare": f"link spare: port {self.rig.dir}/no-such-port not open"}})
+
+    def test_a_retained_request_left_on_the_broker_is_answered_error_at_connect(self):
+        request = f"{PREFIX}/bridge/request/health_check"
+        self.sub.publish(request, '{"transaction": "left"}', retain=True)
+        try:
+            mark = self.sub.mark()
+            self.start()
+            answer = self.sub.wait(f"{PREFIX}/bridge/response/health_check",
+                                   lambda m: m.json().get("transaction") == "left", mark)
+            self.assertEqual((answer.json()["status"], answer.json()["data"]), ("error", {}))
+            self.assertIn("a retained request is not served", answer.json()["error"])
+        finally:
+            self.sub.publish(request, "", retain=True)  # cleared
+        # A live one is served.
+        self.sub.publish(request, '{"transaction": "live"}')
+        live = self.sub.wait(f"{PREFIX}/bridge/response/health_check",
+                             lambda m: m.json().get("transaction") == "live", mark)
+        self.assertEqual(live.json()["status"], "ok")
+
     def test_a_reload_renames_live(self):
         self.start()
         config = read(self.rig.config).replace("supply temperature", "flow temperature")
@@ -460,13 +516,6 @@ class Bridge(JsonCase):
 
     def setUp(self):
         self.wait_online(self.rig)
-
-    def ask(self, name, payload, retain=False):
-        mark = self.sub.mark()
-        self.sub.publish(f"{PREFIX}/bridge/request/{name}", payload, retain)
-        answer = self.sub.wait(f"{PREFIX}/bridge/response/{name}", since=mark)
-        self.assertFalse(answer.retain)
-        return answer.json()
 
     def test_info_is_retained_and_describes_the_gateway(self):
         # Published at connect (the modules not polled yet), then again once their status is
@@ -558,15 +607,33 @@ class Bridge(JsonCase):
         self.sub.wait(state, lambda m: m.payload == "ON", mark)
 
     def test_home_assistants_birth_publishes_every_state_again(self):
-        # A broker without persistence, restarted: the states are gone.
-        for module in ("hub0/dim16_0", "press/id2"):
-            self.sub.publish(topic(module, "state"), "", retain=True)
+        # A broker without persistence, restarted: what the gateway published is gone (Home
+        # Assistant shows "unknown"), the discovery configs aside.
+        modules = ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "hub0/rgbdm_0",
+                   "hub0/mux8m_0", "press/id2")
+        topics = [topic(m, leaf) for m in modules for leaf in ("state", "availability")] + [
+            f"{PREFIX}/bridge/connectivity/{link}" for link in ("hub0", "press")]
+        for name in topics:
+            self.sub.publish(name, "", retain=True)
+        eventually(lambda: not set(topics) & set(retained(self.broker.port, f"{PREFIX}/#")), 5,
+                   "the states cleared from the broker")
         mark = self.sub.mark()
         self.sub.publish(f"{HA}/status", "online")
-        for module in ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "hub0/rgbdm_0",
-                       "hub0/mux8m_0", "press/id2"):
-            self.sub.wait(topic(module, "state"), lambda m: m.payload != "", mark)
-            self.sub.wait(topic(module, "availability"), lambda m: m.payload == "online", mark)
+
+        def back():
+            kept = retained(self.broker.port, f"{PREFIX}/#")
+            return set(topics) <= set(kept) and kept
+        kept = eventually(back, 10, lambda: "every state, availability and connectivity "
+                          "retained again; missing: " + repr(
+                              set(topics) - set(retained(self.broker.port, f"{PREFIX}/#"))))
+        for module in modules:
+            self.assertEqual(kept[topic(module, "availability")], "online", module)
+            self.assertEqual(sorted(json.loads(kept[topic(module, "state")])),
+                             sorted(json.loads(self.sub.since(0, topic(module, "state"))[0]
+                                               .payload)), module)
+        self.assertEqual([kept[f"{PREFIX}/bridge/connectivity/{link}"]
+                          for link in ("hub0", "press")], ["ON", "ON"])
+        self.assertTrue(self.sub.since(mark, topic("hub0/dim16_0", "availability")))
 
 
 class Mqtt311Broker(threading.Thread):
@@ -690,6 +757,41 @@ class FromOutside(unittest.TestCase):
         self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="accepted"\} 1$')
         self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="refused"\} 0$')
 
+    def test_hostile_bridge_requests_are_answered_in_a_few_bytes_and_the_daemon_lives(self):
+        # Before: a number beyond a double's range anywhere in a request made the JSON parser
+        # throw what nobody caught, and the daemon ended; an unterminated 60 KB string came back
+        # whole in the error, as the parser quoted it.
+        self.rig.start_daemon()
+        sub = Subscriber(self.broker.port, (f"{PREFIX}/status", f"{PREFIX}/bridge/response/#"),
+                         client_id="hostile-watch")
+        try:
+            sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online")
+            for name, payload, error in (
+                    ("health_check", '{"transaction": 1e400}', "number overflow"),
+                    ("health_check", '{"x": [-1e999], "transaction": "t"}', "number overflow"),
+                    ("health_check", '{"transaction": "' + "x" * 60000, "missing closing quote"),
+                    ("health_check", '{"transaction": 1' + "0" * 60000 + "}", "number overflow"),
+                    ("info", '{"transaction": "\\u0000\\u001b[2J"}', None),
+                    ("n" * 300, '{"transaction": 1}', "is not a request here")):
+                with self.subTest(name=name[:20], payload=payload[:40]):
+                    mark = sub.mark()
+                    sub.publish(f"{PREFIX}/bridge/request/{name}", payload)
+                    answer = sub.wait(f"{PREFIX}/bridge/response/{name}", since=mark)
+                    self.assertLess(len(answer.payload), 512)
+                    if error:
+                        self.assertEqual(answer.json()["status"], "error")
+                        self.assertIn(error, answer.json()["error"])
+                    else:
+                        self.assertEqual(answer.json(), {"status": "ok", "data": {},
+                                                         "transaction": "\u0000\u001b[2J"})
+            self.assertIsNone(self.rig.daemon.poll(), "ioportd is running")
+            mark = sub.mark()
+            sub.publish(f"{PREFIX}/bridge/request/health_check", '{"transaction": 2}')
+            self.assertEqual(sub.wait(f"{PREFIX}/bridge/response/health_check",
+                                      since=mark).json()["transaction"], 2)
+        finally:
+            sub.close()
+
     def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
         old = Mqtt311Broker()
         old.start()
@@ -708,26 +810,76 @@ class FromOutside(unittest.TestCase):
 
 @unittest.skipUnless(NODE_RED_DIR, "Node-RED is not installed (tests/mqtt_json/node_red.py)")
 class NodeRed(JsonCase):
-    """A real consumer: a Node-RED flow subscribes to dim16_0's state and, when in0 is on, sets
-    dom16_0's out7 (an interlock a plant would wire the same way)."""
+    """A real consumer, one Node-RED for the class with two flows: one subscribes to dim16_0's
+    state and, when in0 is on, sets dom16_0's out7 (an interlock a plant would wire the same way);
+    the other asks bridge/request/health_check with a transaction and takes the answer that
+    echoes it (gateway.md §7.3), as a flow made for zigbee2mqtt does."""
+
+    @classmethod
+    def setUpClass(cls):
+        super().setUpClass()
+        cls.red = None
+        try:
+            cls.rig = JsonRig(tempfile.mkdtemp(dir=cls.dir), cls.broker.port)
+            cls.rig.ctl("set dim16:0 0x0000")
+            cls.rig.start_daemon()
+            cls.sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online", timeout=20)
+            cls.red = node_red.NodeRed(NODE_RED_DIR, cls.dir, cls.broker.port,
+                                       topic("hub0/dim16_0", "state"),
+                                       topic("hub0/dom16_0", "out7/set"), f"{PREFIX}/bridge")
+            cls.red.__enter__()
+        except BaseException:
+            cls.tearDownClass()
+            raise
+
+    @classmethod
+    def tearDownClass(cls):
+        if cls.red:
+            cls.red.__exit__()
+        super().tearDownClass()
+
+    def setUp(self):
+        self.wait_online(self.rig)
 
     def test_a_flow_reads_a_state_and_sets_an_output(self):
-        self.rig = self.new_rig()
-        self.rig.ctl("set dim16:0 0x0000")
         mark = self.sub.mark()
-        self.rig.start_daemon()
-        self.wait_online(self.rig, mark)
-        with node_red.NodeRed(NODE_RED_DIR, self.dir, self.broker.port,
-                              topic("hub0/dim16_0", "state"),
-                              topic("hub0/dom16_0", "out7/set")):
-            self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 0)
-            self.rig.ctl("set dim16:0 0x0001")
-            eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 20,
-                       "Node-RED set out7")
-            self.sub.wait(topic("hub0/dom16_0", "state"), lambda m: m.json()["out7"], mark)
-            self.rig.wait_log(r"write by mqtt_json to unit 1 \(hub0\): set hub0/dom16_0/out7 = "
-                              r"ON: confirmed")
-        self.rig.close()
+        self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 0)
+        self.rig.ctl("set dim16:0 0x0001")
+        eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0080, 20, "Node-RED set out7")
+        self.sub.wait(topic("hub0/dom16_0", "state"), lambda m: m.json()["out7"], mark)
+        self.rig.wait_log(r"write by mqtt_json to unit 1 \(hub0\): set hub0/dom16_0/out7 = "
+                          r"ON: confirmed")
+
+    def test_a_flow_asks_health_check_with_a_transaction_and_gets_its_answer(self):
+        transaction = f"node-red-{time.monotonic_ns()}"
+        request = f"{PREFIX}/bridge/request/health_check"
+        response = f"{PREFIX}/bridge/response/health_check"
+        mark = self.sub.mark()
+        # Node-RED drops what its mqtt out nodes get before its connection is up, and the ask
+        # topic's subscription may follow "Connected to broker": asked again every second until
+        # the answer is there.
+        asked = [time.monotonic() - 1]
+
+        def answered():
+            if time.monotonic() - asked[-1] >= 1:
+                self.sub.publish(node_red.ASK, transaction)
+                asked.append(time.monotonic())
+            relayed = self.sub.since(mark, node_red.ANSWER)
+            return relayed[0] if relayed else None
+        relayed = eventually(answered, 30, lambda: "Node-RED's answer:\n" + repr(
+            [(m.topic, m.payload) for m in self.sub.since(mark)][-10:]) + "\n" +
+            self.red.log_text()[-3000:], interval=0.05)
+        self.assertEqual(relayed.json(), {"answer": {
+            "status": "ok", "transaction": transaction,
+            "data": {"healthy": True, "links": {"hub0": "ok", "press": "ok"}}}})
+        # What went over the broker: Node-RED's request (the test never publishes one), the
+        # gateway's answer, not retained.
+        self.assertIn({"transaction": transaction},
+                      [m.json() for m in self.sub.since(mark, request)])
+        answer = self.sub.wait(response, lambda m: m.json().get("transaction") == transaction,
+                               mark)
+        self.assertFalse(answer.retain)
+        self.assertLess(answer.index, relayed.index)
 
 
 def read(path):

@@ -2,8 +2,11 @@
 
     python3 node_red.py install DIR   # npm ci of tests/mqtt_json/node-red/ into DIR (once per
                                       # lock file: DIR keeps a copy and is left alone after)
-    with NodeRed(DIR, workdir, broker_port, state_topic, set_topic):
-        ...                           # a flow: state_topic's in0 drives set_topic (ON/OFF)
+    with NodeRed(DIR, workdir, broker_port, state_topic, set_topic, bridge):
+        ...                           # a flow: state_topic's in0 drives set_topic (ON/OFF);
+                                      # another: a transaction published on ASK is asked as
+                                      # bridge/request/health_check, and the answer that echoes
+                                      # it comes out on ANSWER (`bridge`: <prefix>/bridge)
 """
 import filecmp
 import json
@@ -17,6 +20,11 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
 
 from rig import die_with_parent, eventually, free_port  # noqa: E402
+
+# The test's side of the health check flow: a transaction to ask with, the answer Node-RED
+# matched to it.
+ASK = "test/node-red/ask"
+ANSWER = "test/node-red/answer"
 
 
 def install(directory):
@@ -38,8 +46,10 @@ def install(directory):
           f"{time.monotonic() - started:.0f} s")
 
 
-def flow(broker_port, state_topic, set_topic):
-    """An interlock as a plant would wire it: in0 of a dim16 drives out7 of a dom16."""
+def flow(broker_port, state_topic, set_topic, bridge):
+    """An interlock as a plant would wire it: in0 of a dim16 drives out7 of a dom16. And a
+    health check as a zigbee2mqtt flow makes one: a request with a transaction, and the response
+    that carries it back matched to the question (an answer to anybody else's is not taken)."""
     return [
         {"id": "tab", "type": "tab", "label": "ioportd"},
         {"id": "broker", "type": "mqtt-broker", "name": "ioportd's broker",
@@ -55,17 +65,40 @@ def flow(broker_port, state_topic, set_topic):
          "outputs": 1, "wires": [["set"]]},
         {"id": "set", "type": "mqtt out", "z": "tab", "name": "dom16_0 out7 set",
          "topic": set_topic, "qos": "1", "retain": "false", "broker": "broker", "wires": []},
+        {"id": "ask", "type": "mqtt in", "z": "tab", "name": "the test's transaction",
+         "topic": ASK, "qos": "1", "datatype": "utf8", "broker": "broker",
+         "nl": False, "rap": False, "rh": 0, "inputs": 0, "wires": [["question"]]},
+        {"id": "question", "type": "function", "z": "tab", "name": "ask with a transaction",
+         "func": "const asked = flow.get('asked') || [];\n"
+                 "asked.push(msg.payload);\n"
+                 "flow.set('asked', asked.slice(-20));\n"
+                 "return { payload: { transaction: msg.payload } };",
+         "outputs": 1, "wires": [["request"]]},
+        {"id": "request", "type": "mqtt out", "z": "tab", "name": "health_check request",
+         "topic": f"{bridge}/request/health_check", "qos": "1", "retain": "false",
+         "broker": "broker", "wires": []},
+        {"id": "response", "type": "mqtt in", "z": "tab", "name": "health_check response",
+         "topic": f"{bridge}/response/health_check", "qos": "1", "datatype": "json",
+         "broker": "broker", "nl": False, "rap": False, "rh": 0, "inputs": 0,
+         "wires": [["match"]]},
+        {"id": "match", "type": "function", "z": "tab", "name": "the answer to our question",
+         "func": "const asked = flow.get('asked') || [];\n"
+                 "if (!msg.payload || !asked.includes(msg.payload.transaction)) return null;\n"
+                 "return { payload: { answer: msg.payload } };",
+         "outputs": 1, "wires": [["answer"]]},
+        {"id": "answer", "type": "mqtt out", "z": "tab", "name": "to the test",
+         "topic": ANSWER, "qos": "1", "retain": "false", "broker": "broker", "wires": []},
     ]
 
 
 class NodeRed:
-    def __init__(self, directory, workdir, broker_port, state_topic, set_topic):
+    def __init__(self, directory, workdir, broker_port, state_topic, set_topic, bridge):
         self.red = os.path.join(directory, "node_modules", "node-red", "red.js")
         self.user_dir = os.path.join(workdir, "node-red-user")
         os.makedirs(self.user_dir, exist_ok=True)
         self.flows = os.path.join(self.user_dir, "flows.json")
         with open(self.flows, "w") as f:
-            json.dump(flow(broker_port, state_topic, set_topic), f)
+            json.dump(flow(broker_port, state_topic, set_topic, bridge), f)
         self.port = free_port()
         self.log = os.path.join(workdir, "node-red.log")
         self.process = None

@@ -126,6 +126,9 @@ TEST(HttpWriteBody, AnythingElseSaysWhatIsWrong) {
     EXPECT_TRUE(error("").starts_with("the body is "));
     EXPECT_TRUE(error("[1]").starts_with("the body is "));
     EXPECT_TRUE(error(R"({"link": "l")").starts_with("the body is "));
+    // Beyond a double's range: refused, not thrown (it ended the daemon).
+    EXPECT_TRUE(error(R"({"link": "l", "module": "m", "point": "p", "value": 1e400})")
+                    .starts_with("the body is not JSON: number overflow parsing '1e400'"));
     EXPECT_EQ(error(R"({"module": "m", "point": "p", "value": 1})"),
               fmt::format("link: a string is missing{}", example));
     EXPECT_EQ(error(R"({"link": 1, "module": "m", "point": "p", "value": 1})"),

@@ -232,7 +232,8 @@ TEST(MqttJsonBridge, ARequestIsAJsonObjectWhoseTransactionIsEchoedAsItCame) {
     EXPECT_EQ(parse_bridge_request_payload(R"({"transaction":12, "x": [1]})").transaction, "12");
     EXPECT_EQ(parse_bridge_request_payload(R"({"transaction": 1.5})").transaction, "1.5");
     EXPECT_EQ(parse_bridge_request_payload(R"({"transaction": true})").transaction, "true");
-    for (const auto payload : {"", "x", "[1]", "1", R"({"transaction": 1)"}) {
+    for (const auto payload : {"", "x", "[1]", "1", R"({"transaction": 1)",
+                               R"({"transaction": 1e400})", R"({"x": -1e999, "transaction": 1})"}) {
         const auto request = parse_bridge_request_payload(payload);
         EXPECT_TRUE(request.error.starts_with("the payload is "))
             << payload << ": " << request.error;
@@ -251,6 +252,17 @@ TEST(MqttJsonBridge, ARequestIsAJsonObjectWhoseTransactionIsEchoedAsItCame) {
                   fmt::format(R"({{"transaction": "{}"}})", std::string(128, 'x')))
                   .error,
               "");
+    // The parser quotes what it read last: of a 60 KB string or number, a bounded part goes in
+    // the answer, cut where a UTF-8 sequence ends.
+    for (const auto& payload :
+         {R"({"transaction": ")" + std::string(60000, 'x'),
+          R"({"transaction": 1)" + std::string(60000, '0') + "}",
+          R"({"transaction": ")" + std::string(100, 'x') + std::string(20000, '\xC3') + "\xA9"}) {
+        const auto error = parse_bridge_request_payload(payload).error;
+        EXPECT_TRUE(error.starts_with("the payload is not JSON: ")) << error;
+        EXPECT_LE(error.size(), 300U) << error;
+        EXPECT_NE(error.find("...: send a JSON object"), std::string::npos) << error;
+    }
 }
 
 TEST(MqttJsonBridge, ResponsesAndTheHealthCheck) {

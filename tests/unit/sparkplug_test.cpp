@@ -224,6 +224,12 @@ TEST(SparkplugState, JsonAndNothingElse) {
         EXPECT_EQ(refused(json), Errc::malformed) << json;
     // Nesting a parser with a stack of its own reads without overflowing ours.
     EXPECT_EQ(refused(std::string(max_state_bytes, '[')), Errc::malformed);
+    // A number beyond a double's range: the parser threw out_of_range, not parse_error, and
+    // any client of the broker that published it as the host's STATE ended the daemon.
+    EXPECT_EQ(refused(R"({"online": true, "timestamp": 1e400})"), Errc::malformed);
+    EXPECT_EQ(refused(R"({"online": true, "x": -1e309})"), Errc::malformed);
+    EXPECT_EQ(parse_state(R"({"online": true, "x": 1e400})").error().message,
+              "not JSON: number overflow parsing '1e400'");
 }
 
 TEST(SparkplugState, ALargeStateIsRefusedUnread) {
