@@ -19,8 +19,9 @@ namespace {
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, sparkplug (7a-g), fleet (7c alone), outage (7d alone), crash
-(7e alone), backlog (7f alone), store (7g alone), tls, mqtt_json (9), or all (the default).
+write, modbus, footprint, http, scrape (6b-c alone), sparkplug (7a-g), fleet (7c alone),
+outage (7d alone), crash (7e alone), backlog (7f alone), store (7g alone), tls, mqtt_json (9),
+curve (10: 1 to 16 links with every path on), or all (the default).
 Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
 its target. Asserts nothing: exit status 0 unless a program could not be started.
 
@@ -144,9 +145,9 @@ int main(int argc, char** argv) {
             std::cout << usage;
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
-                   arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "fleet" ||
+                   arg == "footprint" || arg == "http" || arg == "scrape" || arg == "sparkplug" || arg == "fleet" ||
                    arg == "outage" || arg == "crash" || arg == "backlog" || arg == "store" ||
-                   arg == "tls" || arg == "mqtt_json" || arg == "all") {
+                   arg == "tls" || arg == "mqtt_json" || arg == "curve" || arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -182,6 +183,9 @@ int main(int argc, char** argv) {
         // Its Modbus part is benchmark 4's load, so under the same conditions; its scrapes'
         // CPU is not an idle figure.
         if (wanted("http")) add(http_cost(env));
+        // 6b-c alone (`all` runs them within http).
+        if (std::find(chosen.begin(), chosen.end(), "scrape") != chosen.end())
+            add(http_scrape_cost(env));
         // Latency and the Modbus load of benchmark 4 again, under the same conditions.
         if (wanted("sparkplug")) add(sparkplug_cost(env));
         // Benchmark 4's load again, over TLS and plain.
@@ -190,6 +194,9 @@ int main(int argc, char** argv) {
         if (wanted("mqtt_json")) add(mqtt_json_cost(env));
     }
     if (wanted("footprint")) add(footprint(env));
+    // Every path at once, 1 to 16 links: a deployment's CPU, measured as benchmark 5's, with the
+    // CPUs free to halt.
+    if (wanted("curve")) add(cost_curve(env));
     // The fleet's CPU is the CPU of nodes that mostly wait, as benchmark 5's idle figure.
     if (wanted("sparkplug") || wanted("fleet")) add(sparkplug_fleet(env));
     // A broker outage and the forwarding after it (issue 26).
