@@ -33,6 +33,7 @@ its target. Asserts nothing: exit status 0 unless a program could not be started
                     the same run: 4 in the same alternating rounds (CPU per request and rate
                     against it), 6b its CPU per scrape right after, 7b its CPU with MQTT on over
                     the same windows
+  --links N,M,...   benchmark 10's sizes, a row each (default 1,2,4,8,16; --quick: 1,2)
   --no-pin          do not pin servers and clients to CPUs 1 and 0
   --no-latency-hold let idle CPUs halt during benchmarks 1-4 as well (see WakeupLatencyHold
                     in harness.hpp): their figures then include the hypervisor's wake-ups
@@ -133,6 +134,18 @@ int main(int argc, char** argv) {
             env.fill_trends = true;
         } else if (arg == "--fleet" && i + 1 < argc) {
             env.fleet = std::atoi(argv[++i]);
+        } else if (arg == "--links" && i + 1 < argc) {
+            env.curve_links.clear();
+            for (std::string_view list = argv[++i]; !list.empty();) {
+                const auto comma = list.find(',');
+                const int links = std::atoi(std::string(list.substr(0, comma)).c_str());
+                if (links < 1 || links > 247) {
+                    std::cerr << "ioportd-bench: --links takes numbers of links 1-247, as 1,4,16\n";
+                    return 2;
+                }
+                env.curve_links.push_back(links);
+                list = comma == std::string_view::npos ? std::string_view{} : list.substr(comma + 1);
+            }
         } else if (arg == "--mosquitto" && i + 1 < argc) {
             env.binaries.mosquitto = argv[++i];
         } else if (arg == "--scale" && i + 1 < argc) {
