@@ -108,8 +108,8 @@ CpuTicks cpu_ticks(std::optional<int> cpu) {
         for (auto& x : v)
             fields >> x;
         // user nice system idle iowait irq softirq steal
-        return {v[0] + v[1] + v[2] + v[5] + v[6] + v[7], v[0] + v[1] + v[2] + v[3] + v[4] + v[5] +
-                                                             v[6] + v[7]};
+        return {v[0] + v[1] + v[2] + v[5] + v[6] + v[7],
+                v[0] + v[1] + v[2] + v[3] + v[4] + v[5] + v[6] + v[7]};
     }
     return {};
 }
@@ -201,12 +201,11 @@ class Northbound {
                 if (metric.name == "word") word_alias_[found->second] = metric.alias;
         for (const auto& metric : payload->metrics) {
             const auto alias = word_alias_.find(found->second);
-            const bool word = metric.name == "word" ||
-                              (alias != word_alias_.end() && alias->second &&
-                               metric.alias == alias->second);
+            const bool word =
+                metric.name == "word" ||
+                (alias != word_alias_.end() && alias->second && metric.alias == alias->second);
             const auto* value = metric.value ? std::get_if<std::uint64_t>(&*metric.value) : nullptr;
-            if (word && value != nullptr)
-                arrived_.try_emplace({found->second, *value}, message.at);
+            if (word && value != nullptr) arrived_.try_emplace({found->second, *value}, message.at);
         }
     }
     std::uint64_t ddata() const { return ddata_; }
@@ -296,8 +295,8 @@ ModbusSide modbus_side(std::uint16_t port, int links, Clock::time_point from,
             auto& connection = *connections[static_cast<std::size_t>(i % links)];
             const auto sent = Clock::now();
             const bool ok =
-                connection.connected() && modbus_write_bits(connection.get(), 0, write_coils,
-                                                            coils.data()) == write_coils;
+                connection.connected() &&
+                modbus_write_bits(connection.get(), 0, write_coils, coils.data()) == write_coils;
             if (ok)
                 latency.push_back(microseconds(Clock::now() - sent));
             else
@@ -331,10 +330,10 @@ Row measure(const Environment& env, int links, std::chrono::milliseconds window)
         controls.push_back(dir / fmt::format("ctl{}", l));
         sims.push_back(std::make_unique<SimProcess>(
             env, link, bus,
-            std::vector<std::string>{"--baud", "115200", "--turnaround", "0", "--control",
-                                     controls.back(), "--wander",
-                                     fmt::format("{}us", std::chrono::microseconds(wander_period).count()),
-                                     "--still", fmt::format("{}:{}", name(probe.type), probe.number)}));
+            std::vector<std::string>{
+                "--baud", "115200", "--turnaround", "0", "--control", controls.back(), "--wander",
+                fmt::format("{}us", std::chrono::microseconds(wander_period).count()), "--still",
+                fmt::format("{}:{}", name(probe.type), probe.number)}));
         if (!sims.back()->ready()) {
             row.why = "ioport-sim did not start";
             return row;
@@ -412,8 +411,7 @@ Row measure(const Environment& env, int links, std::chrono::milliseconds window)
     // Apart by more than a cycle (register 1001), so that a read sees each change before the
     // next replaces it: a probe without its DDATA is then one lost, not one never read.
     int cycle_us = 0;
-    if (const auto d = read_diagnostics(*diagnostics.front()))
-        cycle_us = d->last_cycle_100us * 100;
+    if (const auto d = read_diagnostics(*diagnostics.front())) cycle_us = d->last_cycle_100us * 100;
     const int least_us = std::max(60'000, cycle_us * 3 / 2);
     std::mt19937 random(42);
     std::uniform_int_distribution<int> pause_us(least_us, least_us + 80'000);
@@ -443,10 +441,12 @@ Row measure(const Environment& env, int links, std::chrono::milliseconds window)
 
     // The last probe's DDATA may still be on its way.
     if (!changes.empty())
-        wait_for([&] {
-            return northbound.arrived(std::get<0>(changes.back()), std::get<1>(changes.back()))
-                .has_value();
-        }, 1s);
+        wait_for(
+            [&] {
+                return northbound.arrived(std::get<0>(changes.back()), std::get<1>(changes.back()))
+                    .has_value();
+            },
+            1s);
     std::vector<double> ddata_us;
     for (const auto& [link, word, at] : changes) {
         const auto arrived = northbound.arrived(link, word);
@@ -464,14 +464,14 @@ Row measure(const Environment& env, int links, std::chrono::milliseconds window)
     }
     row.ran = true;
     row.seconds = elapsed;
-    row.points_per_s =
-        static_cast<double>(cycles) * points_per_cycle(bus) / elapsed;
+    row.points_per_s = static_cast<double>(cycles) * points_per_cycle(bus) / elapsed;
     row.transactions_per_s = static_cast<double>(ok) / elapsed;
     row.cycle_ms = cycles > 0 ? elapsed * 1000.0 * links / static_cast<double>(cycles) : 0;
     row.cpu_percent = core_percent(cpu, elapsed);
     row.faults_per_s = static_cast<double>(faults) / elapsed;
     if (client_after.total > client_before.total)
-        row.client_cpu_percent = 100.0 * static_cast<double>(client_after.busy - client_before.busy) /
+        row.client_cpu_percent = 100.0 *
+                                 static_cast<double>(client_after.busy - client_before.busy) /
                                  static_cast<double>(client_after.total - client_before.total);
     row.modbus_per_s = static_cast<double>(modbus->requests) / seconds(to - from);
     row.modbus_us = summarize(modbus->reads_us);
@@ -511,7 +511,8 @@ std::vector<Verdict> run(const Environment& env) {
         "coils (FC 15, dom16 0-6) every {} ms to each unit in turn; simulators, broker and "
         "clients on the client CPU. A point is a digital input or an analog channel read from a "
         "device ({} a cycle of a bus). Change → DDATA: dim16 0 of a link set through its "
-        "simulator's control socket at random moments 60-140 ms apart (more on a cycle slower than 40 ms: 1.5 cycles to 1.5 cycles + 80 ms), to the DDATA carrying it "
+        "simulator's control socket at random moments 60-140 ms apart (more on a cycle slower than "
+        "40 ms: 1.5 cycles to 1.5 cycles + 80 ms), to the DDATA carrying it "
         "at a subscriber; it includes the wait for the poll (a cycle). Windows of {:.1f} s.\n",
         sizes.back(), bus.size(), wander_period.count(), modbus_period.count(), write_coils,
         write_period.count(), points_per_cycle(bus), seconds(window));
@@ -530,7 +531,8 @@ std::vector<Verdict> run(const Environment& env) {
             "{:.0f}/s, client CPU {:.0f} % busy; ioportd's threads:",
             links, r.cycle_ms, r.transactions_per_s, r.ddata_per_s, r.json_per_s, r.modbus_per_s,
             r.modbus_errors, r.write_us.count, r.write_errors, r.scrape_us.count,
-            ms(r.scrape_us.p99), r.scrape_errors, r.probes, r.probes_lost, r.faults_per_s, r.client_cpu_percent);
+            ms(r.scrape_us.p99), r.scrape_errors, r.probes, r.probes_lost, r.faults_per_s,
+            r.client_cpu_percent);
         for (std::size_t t = 0; t < std::min<std::size_t>(r.threads.size(), 6); ++t)
             fmt::print(" {} {:.2f} %{}", r.threads[t].first, r.threads[t].second,
                        t + 1 < std::min<std::size_t>(r.threads.size(), 6) ? "," : "");
@@ -541,16 +543,14 @@ std::vector<Verdict> run(const Environment& env) {
             r.json_per_s, r.modbus_per_s, r.cpu_percent, r.cpu_per_10k_points(), r.memory.rss_kib,
             r.memory.peak_kib, r.modbus_us.p99, ms(r.ddata_us.p50), ms(r.ddata_us.p99),
             ms(r.write_us.mean), ms(r.write_us.p99), r.write_us.count, r.write_errors,
-            r.modbus_errors, r.probes, r.probes_lost, r.faults_per_s,
-            r.client_cpu_percent));
+            r.modbus_errors, r.probes, r.probes_lost, r.faults_per_s, r.client_cpu_percent));
     }
 
     fmt::print("\n");
     const Table table({"links", "points/s read", "northbound msg/s (DDATA + JSON + Modbus)",
                        "ioportd CPU % of a core", "CPU % per 10k points/s",
-                       "per 10k points ÷ 1 link's",
-                       "RSS MiB (peak)", "Modbus p99 ms", "change → DDATA p99 ms",
-                       "write of 100 coils, mean (p99) ms"});
+                       "per 10k points ÷ 1 link's", "RSS MiB (peak)", "Modbus p99 ms",
+                       "change → DDATA p99 ms", "write of 100 coils, mean (p99) ms"});
     // Linear in the links is a constant cost per point read: where the client CPU cannot run
     // every simulator at the line's pace, the links read fewer points each, and the CPU per link
     // would flatter the larger sizes.
@@ -560,8 +560,8 @@ std::vector<Verdict> run(const Environment& env) {
     for (const auto& r : rows) {
         if (!r.ran) {
             all_ran = false;
-            table.row({fmt::format("{}", r.links), "not measured", r.why, "", "", "", "", "", "",
-                       ""});
+            table.row(
+                {fmt::format("{}", r.links), "not measured", r.why, "", "", "", "", "", "", ""});
             continue;
         }
         if (!one_link_cost) one_link_cost = r.cpu_per_10k_points();
@@ -573,20 +573,20 @@ std::vector<Verdict> run(const Environment& env) {
                    fmt::format("{:.0f} ({:.0f} + {:.0f} + {:.0f})", r.northbound_per_s(),
                                r.ddata_per_s, r.json_per_s, r.modbus_per_s),
                    fmt::format("{:.1f}", r.cpu_percent),
-                   fmt::format("{:.2f}", r.cpu_per_10k_points()),
-                   fmt::format("{:.2f}", linearity),
+                   fmt::format("{:.2f}", r.cpu_per_10k_points()), fmt::format("{:.2f}", linearity),
                    fmt::format("{:.1f} ({:.1f})", mib(r.memory.rss_kib), mib(r.memory.peak_kib)),
                    fmt::format("{:.2f}", ms(r.modbus_us.p99)),
                    fmt::format("{:.1f}", ms(r.ddata_us.p99)),
                    fmt::format("{:.0f} ({:.0f})", ms(r.write_us.mean), ms(r.write_us.p99))});
     }
-    return {{"10. RSS with every path on, every size", all_ran ? "see the table" : "not measured",
-             "< 32 MiB", all_ran && rss_ok},
-            {"10. CPU per 10,000 points/s read, every size", all_ran ? "see the table" : "not measured",
-             "< 3 % (EMQX Neuron's published figure)", all_ran && cpu_ok},
-            {"10. CPU per 10,000 points/s ÷ the smallest size's, worst size",
-             all_ran ? fmt::format("{:.2f}", worst_linearity) : "not measured", "<= 1.2 (linear)",
-             all_ran && worst_linearity <= 1.2}};
+    return {
+        {"10. RSS with every path on, every size", all_ran ? "see the table" : "not measured",
+         "< 32 MiB", all_ran && rss_ok},
+        {"10. CPU per 10,000 points/s read, every size", all_ran ? "see the table" : "not measured",
+         "< 3 % (EMQX Neuron's published figure)", all_ran && cpu_ok},
+        {"10. CPU per 10,000 points/s ÷ the smallest size's, worst size",
+         all_ran ? fmt::format("{:.2f}", worst_linearity) : "not measured", "<= 1.2 (linear)",
+         all_ran && worst_linearity <= 1.2}};
 }
 
 }  // namespace curve

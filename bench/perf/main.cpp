@@ -144,7 +144,8 @@ int main(int argc, char** argv) {
                     return 2;
                 }
                 env.curve_links.push_back(links);
-                list = comma == std::string_view::npos ? std::string_view{} : list.substr(comma + 1);
+                list =
+                    comma == std::string_view::npos ? std::string_view{} : list.substr(comma + 1);
             }
         } else if (arg == "--mosquitto" && i + 1 < argc) {
             env.binaries.mosquitto = argv[++i];
@@ -158,9 +159,10 @@ int main(int argc, char** argv) {
             std::cout << usage;
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
-                   arg == "footprint" || arg == "http" || arg == "scrape" || arg == "sparkplug" || arg == "fleet" ||
-                   arg == "outage" || arg == "crash" || arg == "backlog" || arg == "store" ||
-                   arg == "tls" || arg == "mqtt_json" || arg == "curve" || arg == "all") {
+                   arg == "footprint" || arg == "http" || arg == "scrape" || arg == "sparkplug" ||
+                   arg == "fleet" || arg == "outage" || arg == "crash" || arg == "backlog" ||
+                   arg == "store" || arg == "tls" || arg == "mqtt_json" || arg == "curve" ||
+                   arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;

@@ -498,8 +498,8 @@ HttpResponse render_page(const GatewayView& gateway, const Route& route, const C
             return {200, "application/json", render_trends(gateway)};
         case Page::metrics: {
             // An eighth more than the last: the counters' digits and the events grow.
-            auto text = render_metrics(gateway, read_process_stats(),
-                                       metrics_bytes + metrics_bytes / 8);
+            auto text =
+                render_metrics(gateway, read_process_stats(), metrics_bytes + metrics_bytes / 8);
             metrics_bytes = text.size();
             return {200, "text/plain; version=0.0.4; charset=utf-8", std::move(text)};
         }

@@ -34,8 +34,8 @@ TEST(SimArguments, EveryOption) {
 }
 
 TEST(SimArguments, Wander) {
-    const auto invocation = parse({"--link", "/x", "--hub", "dim16:0-1,acm3p:0", "--wander",
-                                   "20ms", "--still", "dim16:0"});
+    const auto invocation = parse(
+        {"--link", "/x", "--hub", "dim16:0-1,acm3p:0", "--wander", "20ms", "--still", "dim16:0"});
     ASSERT_TRUE(invocation) << invocation.error().message;
     const auto& serve = std::get<Serve>(*invocation);
     EXPECT_EQ(serve.wander, 20ms);
