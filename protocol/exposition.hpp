@@ -3,6 +3,7 @@
 // (daemon/core/output.hpp). Pure: tested, and fuzzed through the HTTP routes, alone.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <initializer_list>
 #include <string>
@@ -25,6 +26,9 @@ class Exposition {
     void sample(std::string_view name, std::initializer_list<Label> labels, int value) {
         sample(name, labels, static_cast<std::uint64_t>(value < 0 ? 0 : value));
     }
+    // Room for `bytes` at once: a scrape as large as the last one then grows its text in one
+    // allocation rather than doubling through every size below it.
+    void reserve(std::size_t bytes) { text_.reserve(bytes); }
     std::string take() { return std::move(text_); }
 
   private:

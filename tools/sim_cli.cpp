@@ -1,5 +1,6 @@
 #include "tools/sim_cli.hpp"
 
+#include <algorithm>
 #include <array>
 #include <charconv>
 #include <cstdio>
@@ -28,6 +29,9 @@ SIGTERM.
   --turnaround DUR     from request received to answer start (default 500us)
   --no-line-timing     answer at once, without modelling 10 bits per byte
   --seed N             seed of the random faults (default 1), so a run can be replayed
+  --wander PERIOD      every PERIOD (e.g. 20ms), every word of every input module moves to a
+                       new value, so that every read of it carries a change (default: off)
+  --still MODULES      with --wander, modules left as they are set (by the control socket)
   -h, --help           this text
 
 ctl sends one control command to a running simulator and prints its reply; exit 0 on ok.
@@ -48,10 +52,12 @@ enum : int {
     long_baud,
     long_turnaround,
     long_no_line_timing,
-    long_seed
+    long_seed,
+    long_wander,
+    long_still
 };
 
-constexpr std::array<option, 9> long_options{{
+constexpr std::array<option, 11> long_options{{
     {"link", required_argument, nullptr, long_link},
     {"hub", required_argument, nullptr, long_hub},
     {"id2", no_argument, nullptr, long_id2},
@@ -60,8 +66,50 @@ constexpr std::array<option, 9> long_options{{
     {"turnaround", required_argument, nullptr, long_turnaround},
     {"no-line-timing", no_argument, nullptr, long_no_line_timing},
     {"seed", required_argument, nullptr, long_seed},
+    {"wander", required_argument, nullptr, long_wander},
+    {"still", required_argument, nullptr, long_still},
     {"help", no_argument, nullptr, 'h'},
 }};
+
+// --wander: on the simulator's own thread, every period, each word of each input module not
+// held `still` takes a value it did not have (a counter, spread over the words and modules).
+class Wanderer {
+  public:
+    Wanderer(asio::io_context& io, sim::DeviceModel& model, const Serve& serve)
+        : model_(model), timer_(io), period_(serve.wander) {
+        for (const auto module : serve.modules)
+            if (!is_output(module.type) && reply_words(module.type) > 0 &&
+                std::find(serve.still.begin(), serve.still.end(), module) == serve.still.end())
+                modules_.push_back(module);
+        if (period_.count() > 0 && !modules_.empty()) schedule();
+    }
+    void stop() { timer_.cancel(); }
+
+  private:
+    void schedule() {
+        timer_.expires_after(period_);
+        timer_.async_wait([this](const boost::system::error_code& ec) {
+            if (ec) return;
+            ++tick_;
+            for (const auto module : modules_) {
+                std::array<std::uint16_t, 3> words{};
+                for (std::size_t w = 0; w < words.size(); ++w)
+                    words[w] = static_cast<std::uint16_t>(tick_ + std::size_t{0x5555} * w +
+                                                          std::size_t{0x0101} * module.number);
+                (void)model_.set_values(
+                    module,
+                    std::span(words.data(), static_cast<std::size_t>(reply_words(module.type))));
+            }
+            schedule();
+        });
+    }
+
+    sim::DeviceModel& model_;
+    asio::steady_timer timer_;
+    std::chrono::microseconds period_;
+    std::vector<ModuleAddress> modules_;
+    std::uint16_t tick_ = 0;
+};
 
 int serve(const Serve& serve, std::ostream& out, std::ostream& err) {
     sim::DeviceModel model(serve.protocol, serve.seed);
@@ -73,8 +121,10 @@ int serve(const Serve& serve, std::ostream& out, std::ostream& err) {
         err << "ioport-sim: " << started.error().message << "\n";
         return 1;
     }
+    Wanderer wanderer(io, model, serve);
     asio::signal_set signals(io, SIGINT, SIGTERM);
     signals.async_wait([&](const boost::system::error_code&, int) {
+        wanderer.stop();
         simulator.stop();
         io.stop();
     });
@@ -198,6 +248,21 @@ Result<Invocation> parse_arguments(std::span<const std::string_view> args) {
                 if (!seed)
                     return Unexpected(usage_error(fmt::format("seed '{}': a whole number", value)));
                 serve.seed = *seed;
+                break;
+            }
+            case long_wander: {
+                const auto period = parse_duration(value);
+                if (!period) return Unexpected(usage_error(period.error().message));
+                if (period->count() <= 0)
+                    return Unexpected(usage_error(
+                        fmt::format("wander '{}': a period such as 20ms, not zero", value)));
+                serve.wander = *period;
+                break;
+            }
+            case long_still: {
+                auto modules = parse_module_list(value);
+                if (!modules) return Unexpected(modules.error());
+                serve.still = std::move(*modules);
                 break;
             }
             default:  // a code of the table above without its case here

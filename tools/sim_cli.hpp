@@ -1,6 +1,7 @@
 // ioport-sim: the device simulator's command line.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <ostream>
 #include <span>
@@ -19,6 +20,10 @@ struct Serve {
     sim::Protocol protocol = sim::Protocol::ioport;
     std::vector<ModuleAddress> modules;
     std::uint64_t seed = 1;
+    // --wander: every this often, every word of every input module (but those of `still`) moves
+    // to a value it did not have, as a plant's inputs never hold still. 0: values stay as set.
+    std::chrono::microseconds wander{0};
+    std::vector<ModuleAddress> still;
 };
 struct Control {
     std::string socket;

@@ -23,6 +23,8 @@ std::vector<Verdict> footprint(const Environment& env);
 // of the trend rings; a scrape's CPU with a password and with HTTPS, and Modbus while an operator
 // writes over HTTP (issue 39).
 std::vector<Verdict> http_cost(const Environment& env);
+// 6b-c alone: one scrape's CPU and page faults with 8 links × 72 modules, and the memory.
+std::vector<Verdict> http_scrape_cost(const Environment& env);
 // 7. The Sparkplug B edge node (issue 17): input change → DDATA latency against the poll cycle,
 // ioportd's CPU with MQTT on and off and Modbus beside it, with every analog value changing.
 std::vector<Verdict> sparkplug_cost(const Environment& env);
@@ -39,5 +41,8 @@ std::vector<Verdict> mqtt_json_cost(const Environment& env);
 // 8. Modbus/TCP Security (issue 18): ioportd's CPU per request over TLS against plain TCP,
 // full and resumed handshakes per second, the memory of 256 TLS clients.
 std::vector<Verdict> tls_cost(const Environment& env);
+// 10. The cost curve (issue 42): 1, 2, 4, 8 and 16 full buses with every input changing and every
+// northbound path on; points read, messages, CPU, RSS, Modbus, DDATA and write latency per size.
+std::vector<Verdict> cost_curve(const Environment& env);
 
 }  // namespace ioport::bench

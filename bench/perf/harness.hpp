@@ -62,6 +62,8 @@ struct Environment {
     // Benchmark 7c: how many edge nodes, each an ioportd on its own simulator, share one broker
     // (0: skip 7c). Never in a --quick run.
     int fleet = 50;
+    // Benchmark 10: the numbers of links, one row each (--links 1,4).
+    std::vector<int> curve_links{1, 2, 4, 8, 16};
     std::chrono::milliseconds window(std::chrono::milliseconds full) const;
     // This environment with --baseline's ioportd in place of the one under test.
     Environment baseline() const;

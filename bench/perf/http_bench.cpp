@@ -1327,6 +1327,10 @@ std::vector<Verdict> beside_writes(const Environment& env) {
 
 }  // namespace
 
+std::vector<Verdict> http_scrape_cost(const Environment& env) {
+    return eight_links(env);
+}
+
 std::vector<Verdict> http_cost(const Environment& env) {
     fmt::print(
         "\n## 6. HTTP side\n\nWhat the HTTP side (issue 16) costs the Modbus side while it is "

@@ -19,8 +19,9 @@ namespace {
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, sparkplug (7a-g), fleet (7c alone), outage (7d alone), crash
-(7e alone), backlog (7f alone), store (7g alone), tls, mqtt_json (9), or all (the default).
+write, modbus, footprint, http, scrape (6b-c alone), sparkplug (7a-g), fleet (7c alone),
+outage (7d alone), crash (7e alone), backlog (7f alone), store (7g alone), tls, mqtt_json (9),
+curve (10: 1 to 16 links with every path on), or all (the default).
 Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
 its target. Asserts nothing: exit status 0 unless a program could not be started.
 
@@ -32,6 +33,7 @@ its target. Asserts nothing: exit status 0 unless a program could not be started
                     the same run: 4 in the same alternating rounds (CPU per request and rate
                     against it), 6b its CPU per scrape right after, 7b its CPU with MQTT on over
                     the same windows
+  --links N,M,...   benchmark 10's sizes, a row each (default 1,2,4,8,16; --quick: 1,2)
   --no-pin          do not pin servers and clients to CPUs 1 and 0
   --no-latency-hold let idle CPUs halt during benchmarks 1-4 as well (see WakeupLatencyHold
                     in harness.hpp): their figures then include the hypervisor's wake-ups
@@ -132,6 +134,19 @@ int main(int argc, char** argv) {
             env.fill_trends = true;
         } else if (arg == "--fleet" && i + 1 < argc) {
             env.fleet = std::atoi(argv[++i]);
+        } else if (arg == "--links" && i + 1 < argc) {
+            env.curve_links.clear();
+            for (std::string_view list = argv[++i]; !list.empty();) {
+                const auto comma = list.find(',');
+                const int links = std::atoi(std::string(list.substr(0, comma)).c_str());
+                if (links < 1 || links > 247) {
+                    std::cerr << "ioportd-bench: --links takes numbers of links 1-247, as 1,4,16\n";
+                    return 2;
+                }
+                env.curve_links.push_back(links);
+                list =
+                    comma == std::string_view::npos ? std::string_view{} : list.substr(comma + 1);
+            }
         } else if (arg == "--mosquitto" && i + 1 < argc) {
             env.binaries.mosquitto = argv[++i];
         } else if (arg == "--scale" && i + 1 < argc) {
@@ -144,9 +159,10 @@ int main(int argc, char** argv) {
             std::cout << usage;
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
-                   arg == "footprint" || arg == "http" || arg == "sparkplug" || arg == "fleet" ||
-                   arg == "outage" || arg == "crash" || arg == "backlog" || arg == "store" ||
-                   arg == "tls" || arg == "mqtt_json" || arg == "all") {
+                   arg == "footprint" || arg == "http" || arg == "scrape" || arg == "sparkplug" ||
+                   arg == "fleet" || arg == "outage" || arg == "crash" || arg == "backlog" ||
+                   arg == "store" || arg == "tls" || arg == "mqtt_json" || arg == "curve" ||
+                   arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -182,6 +198,9 @@ int main(int argc, char** argv) {
         // Its Modbus part is benchmark 4's load, so under the same conditions; its scrapes'
         // CPU is not an idle figure.
         if (wanted("http")) add(http_cost(env));
+        // 6b-c alone (`all` runs them within http).
+        if (std::find(chosen.begin(), chosen.end(), "scrape") != chosen.end())
+            add(http_scrape_cost(env));
         // Latency and the Modbus load of benchmark 4 again, under the same conditions.
         if (wanted("sparkplug")) add(sparkplug_cost(env));
         // Benchmark 4's load again, over TLS and plain.
@@ -190,6 +209,9 @@ int main(int argc, char** argv) {
         if (wanted("mqtt_json")) add(mqtt_json_cost(env));
     }
     if (wanted("footprint")) add(footprint(env));
+    // Every path at once, 1 to 16 links: a deployment's CPU, measured as benchmark 5's, with the
+    // CPUs free to halt.
+    if (wanted("curve")) add(cost_curve(env));
     // The fleet's CPU is the CPU of nodes that mostly wait, as benchmark 5's idle figure.
     if (wanted("sparkplug") || wanted("fleet")) add(sparkplug_fleet(env));
     // A broker outage and the forwarding after it (issue 26).

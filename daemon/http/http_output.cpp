@@ -127,7 +127,7 @@ void HttpOutput::metrics(Exposition& out) const {
 
 asio::awaitable<HttpResponse> HttpOutput::answer(HttpCall call) {
     if (call.route.page == Page::write) co_return co_await write(std::move(call));
-    co_return render_page(view_(), call.route, call.caller);
+    co_return render_page(view_(), call.route, call.caller, metrics_bytes_);
 }
 
 HttpResponse HttpOutput::refuse(const HttpCall& call, unsigned status, std::string_view result,

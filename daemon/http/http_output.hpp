@@ -53,6 +53,7 @@ class HttpOutput final : public Output, public std::enable_shared_from_this<Http
     std::shared_ptr<HttpServer> next_;    // bound by prepare(), taken by apply()
     TlsContext next_tls_;                 // made by prepare(), taken by apply()
     LogLimiter refusals_;
+    std::size_t metrics_bytes_ = 0;  // the last /metrics, reserved for the next (render_page)
 };
 
 }  // namespace ioport::daemon

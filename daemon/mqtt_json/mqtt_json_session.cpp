@@ -77,6 +77,7 @@ void MqttJsonSession::start(const Links& links) {
 void MqttJsonSession::build(const Links& links) {
     links_ = links;
     modules_.clear();
+    modules_of_.clear();
     config_topics_.clear();
     connectivity_.clear();
     if (settings_.discovery) config_topics_.insert(mqtt_json::gateway_discovery(node_).topic);
@@ -85,6 +86,7 @@ void MqttJsonSession::build(const Links& links) {
         const auto& name = link->config().name;
         if (settings_.discovery)
             config_topics_.insert(mqtt_json::link_discovery(node_, name).topic);
+        const auto first = modules_.size();
         for (const auto& view : link->modules()) {
             Module module{link,
                           view.slot,
@@ -100,6 +102,7 @@ void MqttJsonSession::build(const Links& links) {
             }
             modules_.push_back(std::move(module));
         }
+        modules_of_[link.get()] = {first, modules_.size()};
     }
     watch_links();
 }
@@ -242,8 +245,10 @@ bool MqttJsonSession::publish(const std::string& topic, std::string_view payload
 
 void MqttJsonSession::changed(const LinkScheduler* link, int slot) {
     if (stopping_ || !client_->connected()) return;
-    for (auto& module : modules_)
-        if (module.link.get() == link && (slot < 0 || module.slot == slot)) update(module);
+    const auto of_link = modules_of_.find(link);
+    if (of_link != modules_of_.end())
+        for (auto i = of_link->second.first; i < of_link->second.second; ++i)
+            if (slot < 0 || modules_[i].slot == slot) update(modules_[i]);
     update_connectivity(*link);
 }
 

@@ -142,6 +142,9 @@ class MqttJsonSession : public std::enable_shared_from_this<MqttJsonSession> {
     LogLimiter refusals_;
     Links links_;
     std::vector<Module> modules_;
+    // Each link's modules, [first, last) in modules_: a change looks at its own link's modules
+    // only, so that its cost does not grow with the number of links (issue 42).
+    std::map<const LinkScheduler*, std::pair<std::size_t, std::size_t>> modules_of_;
     std::set<std::string> config_topics_;  // every discovery config this node publishes now
     bool discovery_due_ = false;           // not (all) published in this session yet
     bool states_due_ = false;              // a Home Assistant birth the last tick did not serve

@@ -137,10 +137,12 @@ void SparkplugNode::start(const Links& links) {
 void SparkplugNode::build(const Links& links) {
     links_ = links;
     devices_.clear();
+    devices_of_.clear();
     links_published_.clear();
     std::uint64_t alias = first_link_alias + metrics_per_link * links.size();
     for (const auto& link : links) {
         links_published_.push_back(link_metrics(*link));
+        const auto first = devices_.size();
         for (const auto& view : link->modules()) {
             Device device{link,
                           view.slot,
@@ -153,6 +155,7 @@ void SparkplugNode::build(const Links& links) {
             alias += device.metrics.size();
             devices_.push_back(std::move(device));
         }
+        devices_of_[link.get()] = {first, devices_.size()};
     }
     watch_links();
 }
@@ -428,8 +431,12 @@ void SparkplugNode::changed(const LinkScheduler* link, int slot) {
     if (rebirth_waiting_) return;
     // Without a session, what would have gone out is kept, when there is a store.
     if (!born_ && (!store_ || stopping_)) return;
-    for (auto& device : devices_) {
-        if (device.link.get() != link || (slot >= 0 && device.slot != slot)) continue;
+    const auto of_link = devices_of_.find(link);
+    const auto [first, last] =
+        of_link == devices_of_.end() ? std::pair<std::size_t, std::size_t>{} : of_link->second;
+    for (auto i = first; i < last; ++i) {
+        auto& device = devices_[i];
+        if (slot >= 0 && device.slot != slot) continue;
         if (born_)
             update(device);
         else

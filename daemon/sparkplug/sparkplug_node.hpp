@@ -195,6 +195,9 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     EventBus::Subscription subscription_;
     LogLimiter refusals_;
     std::vector<Device> devices_;
+    // Each link's devices, [first, last) in devices_: a change looks at its own link's devices
+    // only, so that its cost does not grow with the number of links (issue 42).
+    std::map<const LinkScheduler*, std::pair<std::size_t, std::size_t>> devices_of_;
     std::vector<LinkMetrics> links_published_;
     Links links_;
     std::uint64_t next_bdseq_ = 0;

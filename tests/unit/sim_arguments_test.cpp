@@ -33,6 +33,16 @@ TEST(SimArguments, EveryOption) {
                   {ModuleType::dim16, 0}, {ModuleType::dom16, 0}, {ModuleType::dom16, 1}}));
 }
 
+TEST(SimArguments, Wander) {
+    const auto invocation = parse(
+        {"--link", "/x", "--hub", "dim16:0-1,acm3p:0", "--wander", "20ms", "--still", "dim16:0"});
+    ASSERT_TRUE(invocation) << invocation.error().message;
+    const auto& serve = std::get<Serve>(*invocation);
+    EXPECT_EQ(serve.wander, 20ms);
+    EXPECT_EQ(serve.still, (std::vector<ModuleAddress>{{ModuleType::dim16, 0}}));
+    EXPECT_EQ(std::get<Serve>(*parse({"--link", "/x", "--id2"})).wander, 0ms);  // default: off
+}
+
 TEST(SimArguments, ValuesAfterAnEqualsSign) {
     const auto invocation = parse({"--link=/tmp/tty", "--id2", "--seed=3", "--baud=9600"});
     ASSERT_TRUE(invocation) << invocation.error().message;
@@ -67,6 +77,7 @@ TEST(SimArguments, MistakesAreNamed) {
         {{"--link", "/x", "--hub", "dim16:3-1"}, "a range is TYPE:N-M"},
         {{"--link", "/x", "--id2", "--baud", "1200"}, "9600, 38400 or 115200"},
         {{"--link", "/x", "--id2", "--seed", "x"}, "seed 'x': a whole number"},
+        {{"--link", "/x", "--id2", "--wander", "0ms"}, "wander '0ms': a period"},
         {{"ctl", "/tmp/ctl"}, "ctl takes SOCKET COMMAND"},
     };
     for (const auto& [args, message] : cases) {
