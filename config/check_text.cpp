@@ -110,11 +110,12 @@ std::string check_config_text(const GatewayConfig& config) {
         std::vector<std::string> brokers;
         for (const auto& broker : mqtt->brokers)
             brokers.push_back(to_string(broker));
-        text += fmt::format("Sparkplug B edge node {}/{} on {}{}\n", mqtt->group_id,
+        text += fmt::format("Sparkplug B edge node {}/{} on {}{}{}\n", mqtt->group_id,
                             mqtt->edge_node_id, fmt::join(brokers, ", then "),
                             mqtt->primary_host_id.empty()
                                 ? std::string()
-                                : fmt::format(", primary host {}", mqtt->primary_host_id));
+                                : fmt::format(", primary host {}", mqtt->primary_host_id),
+                            mqtt->templates ? ", templates (one per module type)" : "");
         if (const auto& store = mqtt->store)
             text += fmt::format(
                 "Sparkplug store in {}, at most {} MiB, forwarded at {} messages/s at most\n",

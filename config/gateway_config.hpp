@@ -177,6 +177,7 @@ struct MqttSettings {
     std::string primary_host_id;
     double deadband = 0;                 // analog channels, in engineering units
     std::optional<StoreSettings> store;  // none: what changes while no session can publish is lost
+    bool templates = false;              // gateway.md §7.2: one Sparkplug template per module type
     friend bool operator==(const MqttSettings&, const MqttSettings&) = default;
 };
 

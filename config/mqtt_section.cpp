@@ -10,9 +10,10 @@
 namespace ioport::config::detail {
 namespace {
 
-constexpr std::array<std::string_view, 12> mqtt_keys{
-    "broker",        "brokers", "group_id",  "edge_node_id",    "client_id", "username",
-    "password_file", "ca_file", "keepalive", "primary_host_id", "deadband",  "store"};
+constexpr std::array<std::string_view, 13> mqtt_keys{
+    "broker",   "brokers",       "group_id", "edge_node_id", "client_id",
+    "username", "password_file", "ca_file",  "keepalive",    "primary_host_id",
+    "deadband", "store",         "templates"};
 constexpr std::array<std::string_view, 3> store_keys{"path", "max_size", "forward_rate"};
 
 constexpr std::string_view broker_help =
@@ -104,6 +105,7 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
          });
     read(f, "deadband", "a number of engineering units, e.g. 0.5", m.deadband, non_negative);
     if (const Entry* store = f.find("store")) read_store(*store, m.store);
+    read(f, "templates", "true or false", m.templates, boolean);
     mqtt = std::move(m);
 }
 

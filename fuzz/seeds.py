@@ -431,7 +431,19 @@ def metric(name=None, alias=None, datatype=None, **value):
             out += field(15, 2, v.encode())
         elif kind == "null":
             out += field(7, 0, 1)
+        elif kind == "template":
+            out += field(18, 2, v)
     return out
+
+
+def template(*members, ref=None, definition=False, version=None):
+    """A Template (metric field 18): version 1, members 2, template_ref 4, is_definition 5."""
+    out = b"" if version is None else field(1, 2, version.encode())
+    for m in members:
+        out += field(2, 2, m)
+    if ref is not None:
+        out += field(4, 2, ref.encode())
+    return out + field(5, 0, int(definition))
 
 
 def payload(*metrics, seq=None):
@@ -464,6 +476,17 @@ sparkplug("ncmd-rebirth", 0, payload(metric("Node Control/Rebirth", datatype=11,
 sparkplug("nbirth", 0, payload(metric("bdSeq", datatype=4, long=3),
                                metric("Node Control/Rebirth", alias=0, datatype=11, bool=False),
                                seq=0))
+# gateway.md §7.2: a write of a UDT member, as Ignition sends it; a definition; one nested
+sparkplug("dcmd-instance", DOM16, payload(metric("dom16", datatype=19, template=template(
+    metric("out/3", datatype=11, bool=True), metric("word", datatype=6, int=5), ref="dom16"))))
+sparkplug("dcmd-instance-alias", RGBDM, payload(metric(alias=40, datatype=19, template=template(
+    metric("colour", int=3), ref="rgbdm"))))
+sparkplug("nbirth-definition", 0, payload(metric("_types_/mux8m", datatype=19, template=template(
+    metric("pos", datatype=5, null=True), metric("neg", datatype=5, null=True), version="1",
+    definition=True)), seq=0))
+sparkplug("dcmd-instance-nested", MUX8M, payload(metric("mux8m", datatype=19, template=template(
+    metric("pos", datatype=19, template=template(metric("neg", int=1), ref="mux8m")),
+    ref="mux8m"))))
 sparkplug("topic-dcmd", DOM16, b"spBv1.0/plant1/DCMD/box7/hub0.dom16.0")
 sparkplug("topic-state", 0, b"spBv1.0/STATE/scada")
 sparkplug("state-online", 0, b'{"online":true,"timestamp":1796183655123}')

@@ -14,7 +14,11 @@
 // - a command to a device is decoded only when it names no more metrics than the device has
 //   writable ones and fits max_command_bytes of them; anything larger is refused whole, before
 //   decoding, as invalid_argument (gateway.md §5.5); the metrics counted without decoding are the
-//   metrics decode finds.
+//   metrics decode finds;
+// - templates (gateway.md §7.2): an instance's members count one by one, and the writes counted
+//   before decoding are never fewer than those decoded (the bound is checked on the bytes); the
+//   writes of a command metric (command_writes) are flat metrics, each planned like any other;
+//   flattening a decoded payload gives its flat metrics and every instance's members.
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -55,6 +59,21 @@ void check_command(std::optional<ModuleAddress> module, const sparkplug::Metric&
     }
 }
 
+// A DCMD metric to a device with templates: its writes, each a flat metric planned as one.
+void check_writes(std::optional<ModuleAddress> module, const sparkplug::Metric& metric) {
+    const auto type = module ? std::optional(module->type) : std::nullopt;
+    const auto writes = sparkplug::command_writes(type, metric, true);
+    if (!writes) {
+        check(writes.error().code == Errc::invalid_argument,
+              "a refused instance is invalid_argument");
+        return;
+    }
+    for (const auto& write : *writes) {
+        check(!write.template_value, "a write is a flat metric");
+        check_command(module, write);
+    }
+}
+
 }  // namespace
 }  // namespace ioport::fuzz
 
@@ -75,18 +94,25 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     const auto writable =
         sparkplug::writable_metrics(module ? std::optional(module->type) : std::nullopt);
     const auto counted = sparkplug::count_metrics(bytes);
+    const auto writes = sparkplug::count_command_metrics(bytes);
     const auto command = sparkplug::decode_command(bytes, writable);
     if (command) {
         fuzz::check(command->metrics.size() <= writable,
                     "a command names no more metrics than the device has writable ones");
+        fuzz::check(sparkplug::command_metrics(command->metrics) <= writable,
+                    "a command's instances hold no more members than the device writes");
         fuzz::check(bytes.size() <= sparkplug::max_command_bytes(writable),
                     "a command decoded is within the bytes of its device");
         fuzz::check(counted && *counted == command->metrics.size(),
                     "the metrics counted are the metrics decoded");
+        fuzz::check(writes && *writes >= sparkplug::command_metrics(command->metrics),
+                    "the writes counted before decoding are never fewer than those decoded");
+        for (const auto& metric : command->metrics)
+            fuzz::check_writes(module, metric);
     } else if (command.error().code == Errc::invalid_argument) {
-        fuzz::check(bytes.size() > sparkplug::max_command_bytes(writable) ||
-                        (counted && *counted > writable),
-                    "a command refused whole is too long or names too many metrics");
+        fuzz::check(
+            bytes.size() > sparkplug::max_command_bytes(writable) || (writes && *writes > writable),
+            "a command refused whole is too long or names too many metrics");
     } else {
         fuzz::check(command.error().code == Errc::malformed, "a command that fails is malformed");
     }
@@ -101,6 +127,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
                     "the metrics counted are the metrics decoded");
     fuzz::check(sparkplug::decode(sparkplug::encode(*payload)).has_value(),
                 "a decoded payload encodes to one that decodes");
+    std::size_t leaves = 0;
+    for (const auto& metric : payload->metrics)
+        leaves += metric.template_value ? metric.template_value->members.size() : 1;
+    fuzz::check(sparkplug::to_flat(payload->metrics).size() == leaves,
+                "flattening gives every flat metric and every instance's members");
     for (const auto& metric : payload->metrics)
         fuzz::check_command(module, metric);
     return 0;

@@ -223,9 +223,170 @@ std::vector<std::vector<Property>> module_properties(std::optional<ModuleAddress
     return out;
 }
 
+bool operator==(const Template& a, const Template& b) {
+    return a.version == b.version && a.template_ref == b.template_ref &&
+           a.is_definition == b.is_definition && a.members == b.members;
+}
+
+std::string template_name(std::optional<ModuleType> type) {
+    return type ? std::string(name(*type)) : std::string("id2");
+}
+
+std::string definition_name(std::optional<ModuleType> type) {
+    return fmt::format("_types_/{}", template_name(type));
+}
+
+Metric template_definition(std::optional<ModuleType> type, std::uint64_t timestamp) {
+    Template definition{std::string(template_version), {}, true, {}};
+    for (const auto& spec : module_metrics(type))
+        definition.members.push_back(Metric{spec.name, std::nullopt, std::nullopt,
+                                            static_cast<std::uint32_t>(spec.type), std::nullopt});
+    Metric metric{definition_name(type), std::nullopt, timestamp, template_datatype, std::nullopt};
+    metric.template_value = std::move(definition);
+    return metric;
+}
+
+Metric template_instance(std::optional<ModuleType> type, std::vector<Metric> members,
+                         std::optional<std::uint64_t> alias, std::uint64_t timestamp) {
+    Metric metric{template_name(type), alias, timestamp, template_datatype, std::nullopt};
+    metric.template_value = Template{{}, template_name(type), false, std::move(members)};
+    return metric;
+}
+
+std::vector<Metric> to_flat(std::vector<Metric> metrics) {
+    std::vector<Metric> flat;
+    flat.reserve(metrics.size());
+    for (auto& metric : metrics) {
+        if (!metric.template_value) {
+            flat.push_back(std::move(metric));
+            continue;
+        }
+        for (auto& member : metric.template_value->members) {
+            member.is_historical = member.is_historical || metric.is_historical;
+            if (!member.timestamp) member.timestamp = metric.timestamp;
+            flat.push_back(std::move(member));
+        }
+    }
+    return flat;
+}
+
+Result<std::vector<Metric>> command_writes(std::optional<ModuleType> type, const Metric& metric,
+                                           bool templates) {
+    if (!metric.template_value && metric.datatype != template_datatype)
+        return std::vector<Metric>{metric};
+    const auto what = metric.name.empty() ? fmt::format("alias {}", metric.alias.value_or(0))
+                                          : std::string(metric.name);
+    if (!templates)
+        return refused(what, "a Template, and this edge node publishes none (mqtt.templates)");
+    const auto& instance = metric.template_value;
+    const auto own = template_name(type);
+    if (!instance) return refused(what, "datatype Template without a Template value");
+    if (metric.name != own)
+        return refused(what, fmt::format("not this device's template instance, {}", own));
+    if (instance->is_definition)
+        return refused(what, "a template definition is not a command: send an instance");
+    if (!instance->template_ref.empty() && instance->template_ref != own)
+        return refused(what, fmt::format("template_ref {} is not {}",
+                                         printable(instance->template_ref, 64), own));
+    for (const auto& member : instance->members) {
+        if (member.name.empty())
+            return refused(what, "a member without a name (members go by name)");
+        if (member.template_value || member.datatype == template_datatype)
+            return refused(what, fmt::format("member {} is a Template", member.name));
+    }
+    return instance->members;
+}
+
 std::size_t writable_metrics(std::optional<ModuleType> type) {
     const auto metrics = module_metrics(type);
     return static_cast<std::size_t>(std::ranges::count(metrics, true, &MetricSpec::writable));
+}
+
+namespace {
+
+// Calls on(field, bytes) for every length-delimited field of a protobuf message, skipping the
+// others, without decoding anything. False when the bytes are not a sequence of protobuf fields.
+template <typename On>
+bool walk_fields(std::span<const std::uint8_t> bytes, On&& on) {
+    std::size_t at = 0;
+    const auto varint = [&]() -> std::optional<std::uint64_t> {
+        std::uint64_t value = 0;
+        for (int shift = 0; shift < 64 && at < bytes.size(); shift += 7) {
+            const auto byte = bytes[at++];
+            value |= std::uint64_t{byte & 0x7Fu} << shift;
+            if ((byte & 0x80) == 0) return value;
+        }
+        return std::nullopt;
+    };
+    const auto skip = [&](std::uint64_t length) {
+        if (length > bytes.size() - at) return false;
+        at += static_cast<std::size_t>(length);
+        return true;
+    };
+    while (at < bytes.size()) {
+        const auto key = varint();
+        if (!key || *key >> 3 == 0) return false;
+        bool ok = false;
+        switch (*key & 7) {
+            case 0:
+                ok = varint().has_value();
+                break;
+            case 1:
+                ok = skip(8);
+                break;
+            case 2: {
+                const auto length = varint();
+                const auto start = at;
+                ok = length && skip(*length);
+                if (ok && !on(*key >> 3, bytes.subspan(start, at - start))) return false;
+                break;
+            }
+            case 5:
+                ok = skip(4);
+                break;
+            default:  // groups (3, 4), which Sparkplug does not use, and wire types 6, 7
+                break;
+        }
+        if (!ok) return false;
+    }
+    return true;
+}
+
+// Payload field 2 is a metric; Metric field 18 its Template value; Template field 2 a member.
+constexpr std::uint64_t payload_metrics = 2;
+constexpr std::uint64_t metric_template = 18;
+constexpr std::uint64_t template_members = 2;
+
+}  // namespace
+
+Result<std::size_t> count_command_metrics(std::span<const std::uint8_t> bytes) {
+    std::size_t metrics = 0;
+    const bool ok = walk_fields(bytes, [&](std::uint64_t field, auto metric) {
+        if (field != payload_metrics) return true;
+        std::size_t members = 0;
+        bool instance = false;
+        const bool inner = walk_fields(metric, [&](std::uint64_t f, auto value) {
+            if (f != metric_template) return true;
+            instance = true;
+            return walk_fields(value, [&](std::uint64_t m, auto) {
+                if (m == template_members) ++members;
+                return true;
+            });
+        });
+        metrics += instance ? std::max<std::size_t>(members, 1) : 1;
+        return inner;
+    });
+    if (!ok) return fail(Errc::malformed, "not a Sparkplug B payload (bad protobuf field)");
+    return metrics;
+}
+
+std::size_t command_metrics(const std::vector<Metric>& metrics) {
+    std::size_t count = 0;
+    for (const auto& metric : metrics)
+        count += metric.template_value
+                     ? std::max<std::size_t>(metric.template_value->members.size(), 1)
+                     : 1;
+    return count;
 }
 
 Result<std::size_t> count_metrics(std::span<const std::uint8_t> bytes) {

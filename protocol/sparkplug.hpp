@@ -72,6 +72,21 @@ struct Property {
     friend bool operator==(const Property&, const Property&) = default;
 };
 
+struct Metric;
+
+// A Template (Sparkplug 3.0 §6.4.14, datatype 19), the value of a metric: a definition (NBIRTH,
+// is_definition, no template_ref) or an instance of one (template_ref names the definition).
+// ioportd's templates have no parameters (gateway.md §7.2); decode skips a host's.
+struct Template {
+    std::string version;         // empty: absent
+    std::string template_ref;    // empty: absent (a definition)
+    bool is_definition = false;  // always on the wire (payloads-template-is-definition)
+    std::vector<Metric> members;
+    // Member by member, written out (sparkplug.cpp): Metric is incomplete here, and clang 14's
+    // clang-tidy crashes on a defaulted comparison of the two types that hold each other.
+    friend bool operator==(const Template&, const Template&);
+};
+
 struct Metric {
     std::string name;  // empty when the metric goes by its alias alone (DATA after a BIRTH)
     std::optional<std::uint64_t> alias;
@@ -82,6 +97,9 @@ struct Metric {
     std::optional<Value> value;  // nullopt: is_null
     bool is_historical = false;  // a value from the store (gateway.md §6.2), not a current one
     std::vector<Property> properties{};  // births only: names, units and ranges (§6.1)
+    // Datatype Template (19): the definition or instance this metric is; `value` is then nullopt
+    // and no is_null goes on the wire.
+    std::optional<Template> template_value{};
     friend bool operator==(const Metric&, const Metric&) = default;
 };
 
@@ -93,10 +111,15 @@ struct Payload {
 };
 
 // Sparkplug 3.0 §6.4.4: a birth gives every metric's datatype, and DATA SHOULD NOT repeat it
-// (payloads-metric-datatype-not-req): the host knows it from the birth, by alias or name.
+// (payloads-metric-datatype-not-req): the host knows it from the birth, by alias or name, and a
+// template member's from the definition. Left out for template members too.
 enum class Datatypes { sent, left_out };
 std::vector<std::uint8_t> encode(const Payload& payload, Datatypes datatypes = Datatypes::sent);
-// Fails with malformed for bytes that are not a Sparkplug B payload.
+// Templates within templates deeper than this do not decode (ioportd's are one level deep; a
+// host's command is bounded in bytes, and this bounds the recursion of reading it).
+inline constexpr int max_template_depth = 4;
+// Fails with malformed for bytes that are not a Sparkplug B payload, or nest templates deeper
+// than max_template_depth.
 Result<Payload> decode(std::span<const std::uint8_t> bytes);
 
 // A DDATA kept while no session could publish it (gateway.md §6.2): the device and the payload
@@ -151,6 +174,33 @@ Value metric_value(const gateway::PointValue& value);
 std::vector<std::vector<Property>> module_properties(std::optional<ModuleAddress> module,
                                                      const gateway::ModuleTags& tags);
 
+// --- Templates (gateway.md §7.2, mqtt.templates) --------------------------------------------
+
+// Datatype Template (Sparkplug 3.0 §6.4.16).
+inline constexpr std::uint32_t template_datatype = 19;
+// Every definition is version "1": members are never added or removed without a new version.
+inline constexpr std::string_view template_version = "1";
+// A module type's template, and its instance metric in DBIRTH and DDATA: "dim16", …, "id2"
+// (nullopt: the ID-2).
+std::string template_name(std::optional<ModuleType> type);
+// Its definition metric in NBIRTH: "_types_/dim16", the folder Ignition's MQTT Engine keeps UDT
+// definitions in.
+std::string definition_name(std::optional<ModuleType> type);
+// The NBIRTH metric defining a type's template: datatype Template, no value of its own, a
+// Template with is_definition, version "1", no template_ref, and module_metrics(type) as members
+// (names and datatypes, is_null: a definition carries no values).
+Metric template_definition(std::optional<ModuleType> type, std::uint64_t timestamp);
+// An instance of a type's template holding `members` (a DBIRTH's are every member, with values
+// and properties; a DDATA's only those that changed, the caller clearing the name to go by the
+// alias): named template_name(type), template_ref template_name(type), is_definition false.
+Metric template_instance(std::optional<ModuleType> type, std::vector<Metric> members,
+                         std::optional<std::uint64_t> alias, std::uint64_t timestamp);
+// The flat metrics of a DDATA (by name) as the instance a template session sends, and back: the
+// store keeps records flat (by name), so a record forwarded goes out in the form the session's
+// births announced, whichever form it was made in. Flat metrics pass to_flat() unchanged; an
+// instance's members come out under their names, with the instance's is_historical.
+std::vector<Metric> to_flat(std::vector<Metric> metrics);
+
 // --- Commands (DCMD) --------------------------------------------------------------------------
 
 // How many metrics a command to this device may name: its writable ones (a host sets each at most
@@ -170,11 +220,18 @@ constexpr std::size_t max_command_bytes(std::size_t metrics) {
 // the protobuf fields without decoding any: no allocation, and cheap for any size. Fails with
 // malformed for bytes that are not a sequence of protobuf fields.
 Result<std::size_t> count_metrics(std::span<const std::uint8_t> bytes);
+// The metrics a command asks to write, counted the same way: a metric whose value is a Template
+// (field 18) counts as its member metrics (at least one), any other as one. For a payload without
+// templates, count_metrics().
+Result<std::size_t> count_command_metrics(std::span<const std::uint8_t> bytes);
+// Of a decoded payload's metrics, counted as count_command_metrics counts them.
+std::size_t command_metrics(const std::vector<Metric>& metrics);
 
 // A command's payload, decoded only when it is at most max_command_bytes(max_metrics) long and
-// names at most `max_metrics` metrics (gateway.md §5.5: a DCMD naming more metrics than the device
-// has writable ones is refused whole). Otherwise invalid_argument, saying how many it named and
-// how many the device takes, before anything is decoded; malformed for bytes that are not a
+// names at most `max_metrics` metrics, an instance's members counted one by one
+// (count_command_metrics; gateway.md §5.5: a DCMD naming more metrics than the device has
+// writable ones is refused whole). Otherwise invalid_argument, saying how many it named and how
+// many the device takes, before anything is decoded; malformed for bytes that are not a
 // Sparkplug B payload.
 Result<Payload> decode_command(std::span<const std::uint8_t> bytes, std::size_t max_metrics);
 
@@ -186,5 +243,14 @@ Result<Payload> decode_command(std::span<const std::uint8_t> bytes, std::size_t 
 // metric's, a value of another kind or outside the metric's range: never truncated.
 Result<gateway::WritePlan> plan_command(std::optional<ModuleAddress> module, std::string_view name,
                                         std::uint32_t datatype, const std::optional<Value>& value);
+
+// The writes a DCMD metric asks for (gateway.md §7.2): a flat metric is itself; an instance of the
+// device's template (named template_name(type), datatype Template or none, is_definition false,
+// template_ref absent or the type's) is its members, each by name, as Ignition's MQTT Engine
+// writes a UDT member. Fails (invalid_argument, naming the metric) for a Template metric that is
+// not such an instance: a definition, another type's, a member by alias or itself a template.
+// `templates`: whether this node publishes instances; without, a Template metric is refused.
+Result<std::vector<Metric>> command_writes(std::optional<ModuleType> type, const Metric& metric,
+                                           bool templates);
 
 }  // namespace ioport::sparkplug

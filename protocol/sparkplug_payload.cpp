@@ -109,31 +109,68 @@ std::vector<Property> properties_of(const wire::Payload::PropertySet& set) {
     return out;
 }
 
+void set_metric(wire::Payload::Metric& m, const Metric& metric, Datatypes datatypes) {
+    if (!metric.name.empty()) m.set_name(metric.name);
+    if (metric.alias) m.set_alias(*metric.alias);
+    if (metric.timestamp) m.set_timestamp(*metric.timestamp);
+    switch (datatypes) {
+        case Datatypes::sent:
+            m.set_datatype(metric.datatype);
+            break;
+        case Datatypes::left_out:
+            break;
+    }
+    if (metric.value)
+        set_value(m, metric.datatype, *metric.value);
+    else if (!metric.template_value)
+        m.set_is_null(true);
+    if (metric.is_historical) m.set_is_historical(true);
+    if (!metric.properties.empty()) set_properties(*m.mutable_properties(), metric.properties);
+    if (const auto& t = metric.template_value) {
+        auto& out = *m.mutable_template_value();
+        if (!t->version.empty()) out.set_version(t->version);
+        for (const auto& member : t->members)
+            set_metric(*out.add_metrics(), member, datatypes);
+        if (!t->template_ref.empty()) out.set_template_ref(t->template_ref);
+        // Sparkplug 3.0 payloads-template-is-definition: on every definition and instance.
+        out.set_is_definition(t->is_definition);
+    }
+}
+
+Result<Metric> metric_of(const wire::Payload::Metric& m, int depth) {
+    Metric metric;
+    metric.name = m.name();
+    if (m.has_alias()) metric.alias = m.alias();
+    if (m.has_timestamp()) metric.timestamp = m.timestamp();
+    metric.datatype = m.datatype();
+    metric.value = value_of(m);
+    metric.is_historical = m.is_historical();
+    if (m.has_properties()) metric.properties = properties_of(m.properties());
+    if (m.has_template_value()) {
+        if (depth >= max_template_depth)
+            return fail(Errc::malformed,
+                        fmt::format("templates nested deeper than {}", max_template_depth));
+        const auto& in = m.template_value();
+        Template t{in.version(), in.template_ref(), in.is_definition(), {}};
+        t.members.reserve(static_cast<std::size_t>(in.metrics_size()));
+        for (const auto& member : in.metrics()) {
+            auto decoded = metric_of(member, depth + 1);
+            if (!decoded) return decoded;
+            t.members.push_back(std::move(*decoded));
+        }
+        metric.template_value = std::move(t);
+    }
+    return metric;
+}
+
 }  // namespace
 
 std::vector<std::uint8_t> encode(const Payload& payload, Datatypes datatypes) {
     wire::Payload out;
     out.set_timestamp(payload.timestamp);
     if (payload.seq) out.set_seq(*payload.seq);
-    for (const auto& metric : payload.metrics) {
-        auto& m = *out.add_metrics();
-        if (!metric.name.empty()) m.set_name(metric.name);
-        if (metric.alias) m.set_alias(*metric.alias);
-        if (metric.timestamp) m.set_timestamp(*metric.timestamp);
-        switch (datatypes) {
-            case Datatypes::sent:
-                m.set_datatype(metric.datatype);
-                break;
-            case Datatypes::left_out:
-                break;
-        }
-        if (metric.value)
-            set_value(m, metric.datatype, *metric.value);
-        else
-            m.set_is_null(true);
-        if (metric.is_historical) m.set_is_historical(true);
-        if (!metric.properties.empty()) set_properties(*m.mutable_properties(), metric.properties);
-    }
+    for (const auto& metric : payload.metrics)
+        set_metric(*out.add_metrics(), metric, datatypes);
     std::vector<std::uint8_t> bytes(out.ByteSizeLong());
     out.SerializeToArray(bytes.data(), static_cast<int>(bytes.size()));
     return bytes;
@@ -149,15 +186,9 @@ Result<Payload> decode(std::span<const std::uint8_t> bytes) {
     if (in.has_seq()) payload.seq = in.seq();
     payload.metrics.reserve(static_cast<std::size_t>(in.metrics_size()));
     for (const auto& m : in.metrics()) {
-        Metric metric;
-        metric.name = m.name();
-        if (m.has_alias()) metric.alias = m.alias();
-        if (m.has_timestamp()) metric.timestamp = m.timestamp();
-        metric.datatype = m.datatype();
-        metric.value = value_of(m);
-        metric.is_historical = m.is_historical();
-        if (m.has_properties()) metric.properties = properties_of(m.properties());
-        payload.metrics.push_back(std::move(metric));
+        auto metric = metric_of(m, 0);
+        if (!metric) return Unexpected(metric.error());
+        payload.metrics.push_back(std::move(*metric));
     }
     return payload;
 }
@@ -201,7 +232,7 @@ Result<Payload> decode_command(std::span<const std::uint8_t> bytes, std::size_t 
                     fmt::format("refused whole: {} bytes, more than the {} a command of at most {} "
                                 "metric(s) may take",
                                 bytes.size(), max_command_bytes(max_metrics), max_metrics));
-    const auto metrics = count_metrics(bytes);
+    const auto metrics = count_command_metrics(bytes);
     if (!metrics) return Unexpected(metrics.error());
     if (*metrics > max_metrics)
         return fail(Errc::invalid_argument,

@@ -35,6 +35,9 @@ std::vector<Verdict> sparkplug_outage_kill(const Environment& env);
 std::vector<Verdict> sparkplug_backlog(const Environment& env);
 // 7g. A store full at the largest max_size: start-up, and Modbus while a reload scans it.
 std::vector<Verdict> sparkplug_full_store(const Environment& env);
+// 7h. Sparkplug templates (issue 41): bytes per DDATA and CPU per change against flat metrics on
+// the demo's bus, every analog value changing; the births of 8 links × 72 modules.
+std::vector<Verdict> sparkplug_templates(const Environment& env);
 // 9. Plain MQTT with Home Assistant discovery (issue 28) beside the Sparkplug edge node: CPU and
 // messages with every analog value of the demo's bus changing, and Modbus p99 beside it.
 std::vector<Verdict> mqtt_json_cost(const Environment& env);

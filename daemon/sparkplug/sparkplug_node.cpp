@@ -194,10 +194,23 @@ void SparkplugNode::set_links(const Links& links) {
         watch_links();
         return;
     }
+    const auto types_of = [](const std::vector<Device>& of) {
+        std::vector<std::string> types;
+        types.reserve(of.size());
+        for (const auto& device : of)
+            types.push_back(sparkplug::template_name(type_of(device.module)));
+        std::ranges::sort(types);
+        types.erase(std::unique(types.begin(), types.end()), types.end());
+        return types;
+    };
+    const auto types_before = types_of(devices_);
     build(links);
     if (born_) {
         log_.info({}, "Sparkplug: {} changed; new births",
-                  same_map ? "names, units or scales" : "the module map");
+                  same_map ? "names, units or scales"
+                  : settings_.templates && types_of(devices_) != types_before
+                      ? "the module map and its template types"
+                      : "the module map");
         birth();
     }
 }
@@ -393,6 +406,7 @@ void SparkplugNode::birth() {
                                         Value(current.reopens)});
         links_published_[l] = current;
     }
+    if (settings_.templates) definitions(nbirth, now);
     counters_sent_ = std::chrono::steady_clock::now();
     if (!publish(MessageType::nbirth, {}, nbirth)) return;
     last_nbirth_ = counters_sent_;
@@ -412,15 +426,39 @@ void SparkplugNode::birth() {
     start_forwarding();
 }
 
+// One definition per module type configured, in the order of ModuleType, the ID-2's last: the
+// same module map gives the same NBIRTH.
+void SparkplugNode::definitions(Payload& nbirth, std::uint64_t now) const {
+    std::vector<std::optional<ModuleType>> types;
+    for (const auto& device : devices_)
+        if (std::ranges::find(types, type_of(device.module)) == types.end())
+            types.push_back(type_of(device.module));
+    std::ranges::sort(types, [](const auto& a, const auto& b) {
+        if (!a || !b) return a.has_value() && !b.has_value();  // the ID-2 last
+        return static_cast<int>(*a) < static_cast<int>(*b);
+    });
+    for (const auto& type : types)
+        nbirth.metrics.push_back(sparkplug::template_definition(type, now));
+}
+
 void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
     const auto now = now_ms();
     const auto& values = view.values;
     Payload payload{now, next_seq(), {}};
-    payload.metrics.reserve(device.metrics.size());
+    std::vector<Metric> metrics;
+    metrics.reserve(device.metrics.size());
+    // Flat, each metric by name and alias; with templates, the members by name alone (the
+    // instance has the alias), each with its §6.1 properties.
     for (std::size_t i = 0; i < device.metrics.size(); ++i)
-        payload.metrics.push_back(Metric{device.metrics[i].name, device.first_alias + i, now,
-                                         wire(device.metrics[i].type), metric_value(values[i]),
-                                         false, device.properties[i]});
+        metrics.push_back(Metric{
+            device.metrics[i].name,
+            settings_.templates ? std::nullopt : std::optional(device.first_alias + i), now,
+            wire(device.metrics[i].type), metric_value(values[i]), false, device.properties[i]});
+    if (settings_.templates)
+        payload.metrics.push_back(sparkplug::template_instance(
+            type_of(device.module), std::move(metrics), device.first_alias, now));
+    else
+        payload.metrics = std::move(metrics);
     if (!publish(MessageType::dbirth, device.id, payload)) return;
     device.published = values;
     device.born = true;
@@ -514,10 +552,21 @@ void SparkplugNode::forward(std::uint64_t session, std::vector<StoredRecord> rec
             // back until it is born again.
             if (!device->born) break;
             if (sent == 0) backlog_oldest_ms_ = data->payload.timestamp;
-            for (auto& metric : data->payload.metrics) {
+            // Records are flat, by name; they go out in the form this session's births gave.
+            auto metrics = sparkplug::to_flat(std::move(data->payload.metrics));
+            for (auto& metric : metrics) {
                 metric.is_historical = true;
-                by_alias(*device, metric);
+                if (!settings_.templates) by_alias(*device, metric);
             }
+            if (settings_.templates) {
+                auto instance =
+                    sparkplug::template_instance(type_of(device->module), std::move(metrics),
+                                                 device->first_alias, data->payload.timestamp);
+                instance.name.clear();
+                instance.is_historical = true;
+                metrics = {std::move(instance)};
+            }
+            data->payload.metrics = std::move(metrics);
             data->payload.seq = next_seq();
             if (!publish(MessageType::ddata, data->device, data->payload)) break;
         } else if (const auto held =
@@ -602,18 +651,31 @@ SparkplugNode::Changes SparkplugNode::changes(Device& device, const ModuleState&
     data.changed = gateway::changed_points(type_of(device.module), device.published, data.values,
                                            settings_.deadband);
     const auto now = data.payload.timestamp;
+    // With templates, a session's DDATA is the instance (by its alias) holding the members that
+    // changed, by name; the store keeps them flat, by name (forward() makes the instance).
+    const bool instance = settings_.templates && by == MetricsBy::alias;
     for (const auto i : data.changed) {
         const auto type = wire(device.metrics[i].type);
         switch (by) {
             case MetricsBy::alias:
                 data.payload.metrics.push_back(
-                    Metric{{}, device.first_alias + i, now, type, metric_value(data.values[i])});
+                    instance
+                        ? Metric{device.metrics[i].name, std::nullopt, now, type,
+                                 metric_value(data.values[i])}
+                        : Metric{
+                              {}, device.first_alias + i, now, type, metric_value(data.values[i])});
                 break;
             case MetricsBy::name:
                 data.payload.metrics.push_back(Metric{device.metrics[i].name, std::nullopt, now,
                                                       type, metric_value(data.values[i])});
                 break;
         }
+    }
+    if (instance && !data.changed.empty()) {
+        auto metric = sparkplug::template_instance(
+            type_of(device.module), std::move(data.payload.metrics), device.first_alias, now);
+        metric.name.clear();  // by alias alone, as DATA goes
+        data.payload.metrics = {std::move(metric)};
     }
     return data;
 }
@@ -852,14 +914,47 @@ void SparkplugNode::rebirth_asked() {
     });
 }
 
+// A DCMD metric: a flat one is a write of its point; with templates, the device's instance
+// (by name or by its alias) is a write of each member it holds, as Ignition writes a UDT member
+// (gateway.md §7.2). decode_command counted the members against the device's writable metrics.
 void SparkplugNode::device_command(Device& device, const Metric& metric) {
+    if (!settings_.templates) {
+        point_command(device, metric, false);
+        return;
+    }
+    auto named = metric;
+    if (named.name.empty() && named.alias == device.first_alias)
+        named.name = sparkplug::template_name(type_of(device.module));
+    const bool instance =
+        named.template_value.has_value() || named.datatype == sparkplug::template_datatype;
+    auto writes = sparkplug::command_writes(type_of(device.module), named, true);
+    if (!writes) {
+        ++stats_.commands;
+        ++stats_.commands_refused;
+        const LogFields fields{
+            device.link->config().name, device.link->config().unit_id, {}, "sparkplug"};
+        refuse(fmt::format("{} instance", device.id), fields,
+               fmt::format("Sparkplug DCMD to {} refused: {}", device.id,
+                           printable(writes.error().message, 4 * shown_bytes)));
+        return;
+    }
+    for (const auto& write : *writes)
+        point_command(device, write, instance);
+}
+
+void SparkplugNode::point_command(Device& device, const Metric& metric, bool instance) {
     ++stats_.commands;
     std::string name = metric.name;
-    if (name.empty() && metric.alias && *metric.alias >= device.first_alias &&
+    // Flat, an alias of the DBIRTH names its metric; with templates only the instance has one.
+    if (name.empty() && !settings_.templates && metric.alias &&
+        *metric.alias >= device.first_alias &&
         *metric.alias < device.first_alias + device.metrics.size())
         name = device.metrics[*metric.alias - device.first_alias].name;
     const auto value = value_text(metric.value);
-    const auto address = fmt::format("{}/{}", device.id, name.empty() ? "?" : shown(name));
+    const auto address =
+        instance ? fmt::format("{}/{}/{}", device.id,
+                               sparkplug::template_name(type_of(device.module)), shown(name))
+                 : fmt::format("{}/{}", device.id, name.empty() ? "?" : shown(name));
     const LogFields fields{
         device.link->config().name, device.link->config().unit_id, {}, "sparkplug"};
     auto plan = sparkplug::plan_command(device.module, name, metric.datatype, metric.value);

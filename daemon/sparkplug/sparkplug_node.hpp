@@ -31,6 +31,11 @@
 // the list on every loss; with primary_host_id, a broker where that host is offline (or sends no
 // STATE within keepalive), or an NCMD Node Control/Next Server, makes the node say NDEATH and walk.
 //
+// Templates (gateway.md §7.2, mqtt.templates): NBIRTH defines a template per module type
+// configured (_types_/<type>); each DBIRTH is one instance of its type with every member, each
+// DDATA the instance with the members that changed; the store keeps records flat, by name, and
+// they are forwarded as instances; a DCMD instance is a write of its members, flat names too.
+//
 // Everything from the broker is hostile: its strings reach the log escaped (printable), and the
 // lines a host can cause at any rate (refused commands) go through one LogLimiter.
 #pragma once
@@ -151,6 +156,10 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void rebirth_asked();
     void command(const sparkplug::Topic& topic, std::span<const std::uint8_t> payload);
     void device_command(Device& device, const sparkplug::Metric& metric);
+    // One point of a DCMD (a flat metric, or a member of the device's instance: `instance`).
+    void point_command(Device& device, const sparkplug::Metric& metric, bool instance);
+    // The definitions of the module types configured, for NBIRTH (gateway.md §7.2).
+    void definitions(sparkplug::Payload& nbirth, std::uint64_t now) const;
     void refuse(std::string_view key, const LogFields& fields, std::string text);
     void birth();
     void device_birth(Device& device, const ModuleState& view);

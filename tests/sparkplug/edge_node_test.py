@@ -177,18 +177,18 @@ class SparkplugCase(unittest.TestCase):
                 found.append(m)
         return found
 
-    def barrier(self, rig):
+    def barrier(self, rig, instance=""):
         """Everything the node published about inputs set before this call has arrived: two
         changes of acm3p:0 channel 2 in a row, each waited for in DDATA. Between the polls of
         the acm3p that saw them, the round robin polled every other module once, after the
         caller's change; the node publishes in order and the broker keeps it. The changes are
-        of 2.9 %, beyond any deadband of the tests."""
+        of 2.9 %, beyond any deadband of the tests. `instance`: "acm3p/" with templates."""
         for _ in range(2):
             raws = rig.ctl("get acm3p:0").split()
             raws[2] = "2000" if raws[2] == "100" else "100"
             mark = self.host.mark()
             rig.ctl("set acm3p:0 " + " ".join(raws))
-            self.host.wait_metric("hub0.acm3p.0", "raw/2", int(raws[2]), since=mark)
+            self.host.wait_metric("hub0.acm3p.0", instance + "raw/2", int(raws[2]), since=mark)
 
 
 class EdgeNode(SparkplugCase):
@@ -1021,11 +1021,13 @@ class StoreAndForward(OwnDaemon):
     first; a record leaves the store once the broker has it; kill -9 loses nothing written."""
 
     WORDS = [0x0001, 0x0003, 0x0007, 0x000F, 0x001F, 0x003F]
+    MQTT_EXTRA = ""  # more keys under mqtt:
+    WORD = "word"  # dim16:0's word as the host knows it
 
     def setUp(self):
         self.store = os.path.join(tempfile.mkdtemp(dir=self.dir), "sparkplug")
         self.rig = self.new_rig(
-            mqtt_extra=f"  store: {{ path: {self.store}, forward_rate: 20 }}\n")
+            mqtt_extra=f"  store: {{ path: {self.store}, forward_rate: 20 }}\n" + self.MQTT_EXTRA)
 
     def tearDown(self):
         if self.broker.process is None:
@@ -1062,7 +1064,14 @@ class StoreAndForward(OwnDaemon):
     def history(self, mark):
         """(value, timestamp) of every historical `word` of dim16:0 since `mark`, in order."""
         return [(value, stamp) for m in self.host.since(mark, "DDATA", "hub0.dim16.0")
-                for name, value, stamp in m.historical if name == "word"]
+                for name, value, stamp in m.historical if name == self.WORD]
+
+    def check_history_form(self, mark):
+        """What a historical DDATA looks like: flat metrics, each is_historical."""
+        for m in self.host.since(mark, "DDATA", "hub0.dim16.0"):
+            if m.historical:
+                self.assertTrue(all(metric.is_historical and metric.template is None
+                                    for metric in m.metrics), m.metrics)
 
     @covers("gateway.md §6.2")
     def test_changes_while_the_broker_is_away_arrive_as_history_in_order(self):
@@ -1078,6 +1087,7 @@ class StoreAndForward(OwnDaemon):
         self.wait_births(mark)
         eventually(lambda: [v for v, _ in self.history(mark)] == self.WORDS, 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
+        self.check_history_form(mark)
         stamps = [stamp for _, stamp in self.history(mark)]
         self.assertEqual(stamps, sorted(stamps), "oldest first")
         nbirth = self.host.since(mark, "NBIRTH")[0]
@@ -1085,8 +1095,8 @@ class StoreAndForward(OwnDaemon):
                         "acquisition timestamps, from before the births")
         # The births carry the current values; history never changes the host's view.
         dbirth = self.host.since(mark, "DBIRTH", "hub0.dim16.0")[0]
-        self.assertEqual(dbirth.resolved["word"], self.WORDS[-1])
-        self.assertEqual(self.value("hub0.dim16.0", "word"), self.WORDS[-1])
+        self.assertEqual(dbirth.resolved[self.WORD], self.WORDS[-1])
+        self.assertEqual(self.value("hub0.dim16.0", self.WORD), self.WORDS[-1])
         # Emptied once the broker provably has them, and said so.
         state = eventually(lambda: self.store_state()["records"] == 0 and self.store_state(), 10,
                            "the store emptied")
@@ -1123,6 +1133,292 @@ class StoreAndForward(OwnDaemon):
         self.wait_births(mark)
         eventually(lambda: [v for v, _ in self.history(mark)] == self.WORDS[:3], 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
+
+
+# gateway.md §7.2: each device's template, by module type.
+TEMPLATE_OF = {"hub0.dim16.0": "dim16", "hub0.dom16.0": "dom16", "hub0.acm3p.0": "acm3p",
+               "hub0.rgbdm.0": "rgbdm", "hub0.mux8m.0": "mux8m", "press.id2": "id2"}
+TEMPLATES = "  templates: true\n"
+
+
+class TemplatesStoreAndForward(StoreAndForward):
+    """gateway.md §7.2 with §6.2 (issue 41): with templates, what changed while the broker was
+    away is forwarded as instances of the device's template, is_historical, with the original
+    timestamps, oldest first."""
+    MQTT_EXTRA = TEMPLATES
+    WORD = "dim16/word"
+    test_kill_9_in_the_outage_loses_nothing_written = None  # the store is the same: once is enough
+
+    def check_history_form(self, mark):
+        for m in self.host.since(mark, "DDATA", "hub0.dim16.0"):
+            if not m.historical:
+                continue
+            self.assertEqual(len(m.metrics), 1, m.metrics)
+            instance = m.metrics[0]
+            self.assertIsNone(instance.name, "by the instance's alias")
+            self.assertEqual(instance.alias, self.host.alias(GROUP, NODE, "hub0.dim16.0", "dim16"))
+            self.assertTrue(instance.is_historical)
+            self.assertEqual((instance.template.ref, instance.template.is_definition),
+                             ("dim16", False))
+            self.assertTrue(all(member.is_historical and member.timestamp
+                                for member in instance.template.members))
+
+
+class Templates(OwnDaemon):
+    """Sparkplug templates (gateway.md §7.2, issue 41): NBIRTH defines a template per module type
+    configured, DBIRTH is one instance per module with every member, DDATA the instance with the
+    members that changed, DCMD writes an instance's members (as Ignition's MQTT Engine writes a
+    UDT member) or flat names, and a reload that changes the set of types rebirths."""
+
+    EXTRA = TEMPLATES + "  deadband: 1.0\n"
+
+    def setUp(self):
+        self.rig = self.new_rig(mqtt_extra=self.EXTRA)
+
+    def instance_of(self, message):
+        self.assertEqual(len(message.metrics), 1, message.metrics)
+        return message.metrics[0]
+
+    def definitions(self, nbirth):
+        return {m.name: m for m in nbirth.metrics if m.template is not None}
+
+    @covers("gateway.md §7.2", "tck-id-payloads-template-definition-nbirth",
+            "tck-id-payloads-template-definition-members",
+            "tck-id-payloads-template-instance-members-birth",
+            "tck-id-payloads-template-definition-is-definition",
+            "tck-id-payloads-template-instance-is-definition",
+            "tck-id-payloads-template-definition-ref", "tck-id-payloads-template-instance-ref",
+            "tck-id-payloads-template-version")
+    def test_births_define_a_template_per_type_and_an_instance_per_module(self):
+        self.rig.configure(HUB_MODULES, mqtt_extra=self.EXTRA, module_extra=TAGS)
+        self.rig.ctl("set dim16:0 0x0005")
+        self.rig.ctl("set acm3p:0 13208 41203 0")
+        self.rig.id2("set count 7")
+        nbirth = self.start()
+        definitions = self.definitions(nbirth)
+        self.assertEqual(sorted(definitions), ["_types_/acm3p", "_types_/dim16", "_types_/dom16",
+                                               "_types_/id2", "_types_/rgbdm"])
+        for device, type_ in TEMPLATE_OF.items():
+            if device == "hub0.mux8m.0":
+                continue
+            definition = definitions[f"_types_/{type_}"]
+            self.assertEqual((definition.datatype, definition.alias), (19, None))
+            t = definition.template
+            self.assertEqual((t.is_definition, t.version, t.ref), (True, "1", None))
+            self.assertEqual([(m.name, m.datatype) for m in t.members],
+                             [(n, TYPE_NUMBERS[d]) for n, d in METRICS[device]])
+            self.assertTrue(all(m.is_null and m.alias is None for m in t.members),
+                            "a definition has names and datatypes, no values")
+            dbirth = self.host.since(nbirth.index, "DBIRTH", device)[0]
+            instance = self.instance_of(dbirth)
+            self.assertEqual((instance.name, instance.datatype), (type_, 19))
+            self.assertIsNotNone(instance.alias)
+            self.assertIs(instance.template.is_definition, False, "is_definition, present")
+            self.assertEqual((instance.template.ref, instance.template.version), (type_, None))
+            self.assertEqual([(m.name, m.datatype) for m in instance.template.members],
+                             [(n, TYPE_NUMBERS[d]) for n, d in METRICS[device]])
+            self.assertTrue(all(m.has_value and m.alias is None and m.timestamp
+                                for m in instance.template.members))
+        dim = self.host.since(nbirth.index, "DBIRTH", "hub0.dim16.0")[0]
+        self.assertEqual(dim.resolved["dim16/word"], 5)
+        self.assertEqual([dim.resolved[f"dim16/in/{k}"] for k in range(3)], [True, False, True])
+        members = {m.name: m for m in self.instance_of(dim).template.members}
+        self.assertEqual(members["in/2"].properties, {"documentation": "dim16 0: door open"})
+        acm = {m.name: m for m in self.instance_of(
+            self.host.since(nbirth.index, "DBIRTH", "hub0.acm3p.0")[0]).template.members}
+        self.assertEqual(acm["value/0"].properties, {
+            "engUnit": "°C", "engLow": -20.0, "engHigh": 150.0,
+            "documentation": "boiler 1: supply temperature"})
+        self.assertEqual(acm["value/0"].value, float32(-20 + 13208 / 65535 * 100 * 1.7))
+        self.assertEqual(self.value("press.id2", "id2/count"), 7)
+
+    @covers("gateway.md §7.2", "tck-id-payloads-template-instance-members-data")
+    def test_ddata_is_the_instance_with_only_the_changed_members(self):
+        self.rig.ctl("set acm3p:0 1000 2000 100")  # channel 2 at 100: barrier() moves it 2.9 %
+        self.start()
+        alias = self.host.alias(GROUP, NODE, "hub0.dim16.0", "dim16")
+        self.rig.ctl("set dim16:0 0x0005")
+        self.barrier(self.rig, "acm3p/")
+        mark = self.host.mark()
+        self.rig.ctl("set dim16:0 0x0105")  # in/8 on
+        ddata = self.host.wait_message("DDATA", "hub0.dim16.0", since=mark)
+        self.assertEqual(ddata.resolved, {"dim16/in/8": True, "dim16/word": 0x0105})
+        instance = self.instance_of(ddata)
+        self.assertEqual((instance.name, instance.alias, instance.datatype), (None, alias, None),
+                         "by alias alone, the datatype left to the birth")
+        self.assertEqual((instance.template.ref, instance.template.is_definition),
+                         ("dim16", False))
+        self.assertEqual([(m.name, m.alias, m.datatype) for m in instance.template.members],
+                         [("in/8", None, None), ("word", None, None)])
+        # deadband 1.0 (%) as gateway.md §5.5 says: a noisy channel publishes no member at all
+        self.rig.ctl("set acm3p:0 1000 2000 100")
+        self.barrier(self.rig, "acm3p/")
+        mark = self.host.mark()
+        for noisy in (2030, 1980, 2400, 2010):  # within ±0.61 %
+            self.rig.ctl(f"set acm3p:0 1000 {noisy} 100")
+            self.barrier(self.rig, "acm3p/")
+        self.assertEqual([m.resolved for m in self.host.since(mark, "DDATA", "hub0.acm3p.0")
+                          if {"acm3p/raw/1", "acm3p/value/1"} & m.resolved.keys()], [])
+        mark = self.host.mark()
+        self.rig.ctl("set acm3p:0 1000 2700 100")  # +1.07 %: raw/1 and value/1 together
+        ddata = self.host.wait_metric("hub0.acm3p.0", "acm3p/raw/1", 2700, since=mark)
+        self.assertEqual(sorted(ddata.resolved), ["acm3p/raw/1", "acm3p/value/1"])
+        self.assertAlmostEqual(ddata.resolved["acm3p/value/1"], 2700 / 65535 * 100, places=4)
+
+    def instance_command(self, device, instance, members, template_ref=None):
+        """A DCMD payload of one instance with (name, datatype, value) members, for a raw
+        publish."""
+        payload = pb.Payload(timestamp=int(time.time() * 1000))
+        m = payload.metrics.add(name=instance, datatype=19)
+        m.template_value.template_ref = template_ref or instance
+        m.template_value.is_definition = False
+        for name, datatype, value in members:
+            encode_value(m.template_value.metrics.add(name=name), datatype, value)
+        return payload.SerializeToString()
+
+    @covers("gateway.md §7.2")
+    def test_dcmd_writes_an_instance_member_and_flat_names(self):
+        self.start()
+        self.assertEqual(int(self.rig.ctl("get dom16:0")) & 0x0088, 0)
+        # as Ignition's MQTT Engine writes a UDT member: the instance holding that member
+        mark, log = self.host.mark(), self.rig.log_mark()
+        self.host.dcmd_instance(GROUP, NODE, "hub0.dom16.0", "dom16", {"out/3": True})
+        ddata = self.host.wait_metric("hub0.dom16.0", "dom16/out/3", True, since=mark)
+        self.assertEqual(ddata.resolved["dom16/word"] & 0x0008, 0x0008)
+        self.assertEqual(int(self.rig.ctl("get dom16:0")) & 0x0008, 0x0008)
+        self.rig.wait_log(r"DCMD hub0\.dom16\.0/dom16/out/3 = true: ", since=log)  # audited
+        # by the instance's alias, two members at once
+        alias = self.host.alias(GROUP, NODE, "hub0.dom16.0", "dom16")
+        mark = self.host.mark()
+        self.host.dcmd_instance(GROUP, NODE, "hub0.dom16.0", "dom16",
+                                {"out/3": False, "out/7": True}, alias=alias)
+        self.host.wait(lambda: self.value("hub0.dom16.0", "dom16/out/3") is False and
+                       self.value("hub0.dom16.0", "dom16/out/7") is True, 5, "out/3 and out/7")
+        # the flat §5.5 names are accepted as well
+        mark = self.host.mark()
+        self.host.dcmd(GROUP, NODE, "hub0.dom16.0",
+                       [{"name": "out/7", "value": False, "datatype": "Boolean"}])
+        self.host.wait_metric("hub0.dom16.0", "dom16/out/7", False, since=mark)
+        self.assertEqual(int(self.rig.ctl("get dom16:0")) & 0x0088, 0)
+        # refused, each logged and nothing written: 18 members to a dom16 (17 writable), a
+        # colour out of range, another type's instance, an input module's member
+        log = self.rig.log_mark()
+        self.host.publish_raw(dcmd_topic("hub0.dom16.0"), self.instance_command(
+            "hub0.dom16.0", "dom16", [("out/0", "Boolean", True)] * 18))
+        self.host.publish_raw(dcmd_topic("hub0.rgbdm.0"), self.instance_command(
+            "hub0.rgbdm.0", "rgbdm", [("colour", "UInt8", 8)]))
+        self.host.publish_raw(dcmd_topic("hub0.rgbdm.0"), self.instance_command(
+            "hub0.rgbdm.0", "rgbdm", [("colour", "UInt8", 2)], template_ref="mux8m"))
+        self.host.publish_raw(dcmd_topic("hub0.dim16.0"), self.instance_command(
+            "hub0.dim16.0", "dim16", [("in/0", "Boolean", True)]))
+        self.rig.wait_log(r"Sparkplug DCMD to hub0\.dom16\.0 refused: refused whole: it names "
+                          r"18 metrics, and the device has 17 writable", since=log)
+        self.rig.wait_log(r"DCMD hub0\.rgbdm\.0/rgbdm/colour = 8 refused", since=log)
+        self.rig.wait_log(r"DCMD to hub0\.rgbdm\.0 refused: metric rgbdm: template_ref mux8m "
+                          r"is not rgbdm", since=log)
+        self.rig.wait_log(r"Sparkplug DCMD to hub0\.dim16\.0 refused: refused whole: it names 1 "
+                          r"metrics, and the device has 0 writable", since=log)
+        colour = 5 if self.rig.ctl("get rgbdm:0") != "5" else 6
+        mark = self.host.mark()
+        self.host.dcmd_instance(GROUP, NODE, "hub0.rgbdm.0", "rgbdm", {"colour": colour})
+        self.host.wait_metric("hub0.rgbdm.0", "rgbdm/colour", colour, since=mark)
+        self.assertEqual([m.resolved for m in self.host.since(mark, "DDATA", "hub0.rgbdm.0")],
+                         [{"rgbdm/colour": colour}], "a refused command was applied")
+        self.assertEqual(int(self.rig.ctl("get dom16:0")) & 0x0001, 0)
+        self.assertEqual(self.rig.ctl("get rgbdm:0"), str(colour))
+
+    @covers("gateway.md §7.2")
+    def test_a_reload_that_changes_the_set_of_types_rebirths(self):
+        nbirth = self.start()
+        bdseq = nbirth.metric("bdSeq").value
+        self.rig.configure(HUB_MODULES + ["mux8m:0"], mqtt_extra=self.EXTRA)
+        mark, log = self.host.mark(), self.rig.log_mark()
+        self.rig.daemon.send_signal(signal.SIGHUP)
+        self.rig.wait_log(r"Sparkplug: the module map and its template types changed; new "
+                          r"births", since=log)
+        again = self.wait_births(mark, devices=list(METRICS))
+        self.assertEqual(again.metric("bdSeq").value, bdseq, "the same session")
+        self.assertEqual(self.host.since(mark, "NDEATH"), [])
+        self.assertIn("_types_/mux8m", self.definitions(again))
+        mux = self.instance_of(self.host.since(again.index, "DBIRTH", "hub0.mux8m.0")[0])
+        self.assertEqual([(m.name, m.datatype) for m in mux.template.members],
+                         [("pos", 5), ("neg", 5)])
+        mark = self.host.mark()
+        self.host.dcmd_instance(GROUP, NODE, "hub0.mux8m.0", "mux8m", {"pos": 3})
+        self.host.wait_metric("hub0.mux8m.0", "mux8m/pos", 3, since=mark)
+        self.assertEqual(int(self.rig.ctl("get mux8m:0")) >> 8, 3)
+        # one type fewer: its definition goes with it
+        self.rig.configure(["dim16:0", "dom16:0", "acm3p:0"], mqtt_extra=self.EXTRA)
+        mark, log = self.host.mark(), self.rig.log_mark()
+        self.rig.daemon.send_signal(signal.SIGHUP)
+        self.rig.wait_log(r"the module map and its template types changed", since=log)
+        again = self.wait_births(mark, devices=["hub0.dim16.0", "hub0.dom16.0", "hub0.acm3p.0",
+                                                "press.id2"])
+        self.assertEqual(sorted(self.definitions(again)),
+                         ["_types_/acm3p", "_types_/dim16", "_types_/dom16", "_types_/id2"])
+        # templates off again: a new session (NDEATH, the next bdSeq), flat as §5.5
+        self.rig.configure(["dim16:0", "dom16:0", "acm3p:0"], mqtt_extra="  deadband: 1.0\n")
+        mark = self.host.mark()
+        self.rig.daemon.send_signal(signal.SIGHUP)
+        flat = self.host.wait_message("NBIRTH", since=mark, node=NODE, timeout=10)
+        self.assertEqual(len(self.host.since(mark, "NDEATH")), 1)
+        self.assertEqual(flat.metric("bdSeq").value, (bdseq + 1) % 256)
+        self.assertEqual(self.definitions(flat), {})
+        dim = self.host.wait_message("DBIRTH", "hub0.dim16.0", since=flat.index, timeout=10)
+        self.assertEqual([m.name for m in dim.metrics], [n for n, _ in METRICS["hub0.dim16.0"]])
+
+    def test_the_template_rules_find_each_break(self):
+        """The host app's template rules on canned messages of another node: each must catch
+        what it claims to check, or the ids it covers are not checked."""
+        now = int(time.time() * 1000)
+
+        def payload(seq):
+            return pb.Payload(timestamp=now, seq=seq)
+
+        def template(p, name, is_definition, ref=None, members=(), alias=None):
+            m = p.metrics.add(name=name, timestamp=now, datatype=19)
+            if alias is not None:
+                m.alias = alias
+            if is_definition is not None:
+                m.template_value.is_definition = is_definition
+            if ref is not None:
+                m.template_value.template_ref = ref
+            for member, value in members:
+                encode_value(m.template_value.metrics.add(name=member), "Boolean", value)
+            if not members:
+                m.template_value.version = "1"
+            return m
+
+        nbirth = payload(0)
+        for name, datatype, value in (("bdSeq", "Int64", 0),
+                                      ("Node Control/Rebirth", "Boolean", False)):
+            encode_value(nbirth.metrics.add(name=name, timestamp=now), datatype, value)
+        template(nbirth, "_types_/t", True, members=[("a", None), ("b", None)])
+        template(nbirth, "_types_/refd", True, ref="t")  # a definition with a template_ref
+        dbirth = payload(1)
+        template(dbirth, "missing", False, "t", [("a", True)], alias=1)  # b missing in a birth
+        template(dbirth, "nowhere", False, "u", [("a", True)], alias=2)  # no definition u
+        template(dbirth, "unsaid", None, "t", [("a", True), ("b", True)], alias=3)
+        ddata = payload(2)
+        template(ddata, "_types_/late", True, members=[("a", None)])  # a definition in DDATA
+        m = template(ddata, None, False, "t", [("c", True)])  # c is no member of t
+        m.ClearField("name")
+        m.alias = 1
+        before = len(self.host.violations)
+        with self.host._cond:
+            for type_, p, device in (("NBIRTH", nbirth, ""), ("DBIRTH", dbirth, "/d"),
+                                     ("DDATA", ddata, "/d")):
+                self.host._receive(f"spBv1.0/canned/{type_}/rules{device}", p.SerializeToString())
+        new, self.host.violations[before:] = self.host.violations[before:], []
+        definitions = [v for v in new if v.startswith("[template definitions]")]
+        instances = [v for v in new if v.startswith("[template instances]")]
+        for text in ("_types_/refd: a definition with template_ref", "_types_/late: a "
+                     "definition in DDATA"):
+            self.assertTrue(any(text in v for v in definitions), (text, new))
+        for text in ("missing: in a birth, members", "nowhere: template_ref u is no definition",
+                     "unsaid: a Template without is_definition", "alias 1: members ['c'] are "
+                     "not in t"):
+            self.assertTrue(any(text in v for v in instances), (text, new))
 
 
 class FromOutside(OwnDaemon):

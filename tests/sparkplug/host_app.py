@@ -123,6 +123,27 @@ RULES = {
          "tck-id-payloads-metric-propertyvalue-type-type",
          "tck-id-payloads-metric-propertyvalue-type-value",
          "tck-id-payloads-metric-propertyvalue-type-req"]),
+    "template definitions": (
+        "a Template metric that is a definition is in NBIRTH only, has is_definition true and no "
+        "template_ref, a version (a string) if any, members with names and datatypes, and "
+        "parameters with names and types",
+        ["tck-id-payloads-template-definition-nbirth-only",
+         "tck-id-payloads-template-definition-ref", "tck-id-payloads-template-ref-definition",
+         "tck-id-payloads-template-definition-is-definition",
+         "tck-id-payloads-template-is-definition-definition",
+         "tck-id-payloads-template-is-definition", "tck-id-payloads-template-version"]),
+    "template instances": (
+        "every other Template metric is an instance: is_definition present and false, a "
+        "template_ref naming a definition of the session's NBIRTH; in a birth, every member of "
+        "that definition with its datatype; anywhere, only members and parameters of it",
+        ["tck-id-payloads-template-instance-is-definition",
+         "tck-id-payloads-template-is-definition-instance",
+         "tck-id-payloads-template-is-definition", "tck-id-payloads-template-instance-ref",
+         "tck-id-payloads-template-ref-instance", "tck-id-payloads-template-definition-nbirth",
+         "tck-id-payloads-template-instance-members-birth",
+         "tck-id-payloads-template-instance-members",
+         "tck-id-payloads-template-definition-members",
+         "tck-id-payloads-template-definition-parameters"]),
     "host app": ("the host app itself did not fail on a message", []),
     # BrokerLog: what mosquitto saw of the node's client.
     "connect": (
@@ -176,15 +197,29 @@ PROPERTY_FIELDS = {**{DATATYPES[t]: "int_value" for t in INT_TYPES},
 LONG_TYPES = {"Int64", "UInt64", "DateTime"}
 
 
+class Template:
+    """A decoded Template (Sparkplug 3.0 §6.4.14): None for the fields that are absent."""
+
+    def __init__(self, version, ref, is_definition, members, parameters):
+        self.version, self.ref, self.is_definition = version, ref, is_definition
+        self.members = members  # [Metric]
+        self.parameters = parameters  # [(name or None, type or None)]
+
+    def __repr__(self):
+        kind = "definition" if self.is_definition else f"instance of {self.ref}"
+        return f"Template({kind}, {self.members})"
+
+
 class Metric:
-    """A decoded metric: value None for is_null."""
+    """A decoded metric: value None for is_null; `template` the Template of a Template metric."""
 
     def __init__(self, name, alias, datatype, value, timestamp, is_historical=False,
-                 is_null=False, has_value=True, properties=None):
+                 is_null=False, has_value=True, properties=None, template=None):
         self.name, self.alias, self.datatype, self.value = name, alias, datatype, value
         self.timestamp, self.is_historical = timestamp, is_historical
         self.is_null, self.has_value = is_null, has_value
         self.properties = properties or {}  # key -> value
+        self.template = template
 
     def __repr__(self):
         return (f"Metric({self.name!r}, alias={self.alias}, "
@@ -222,9 +257,30 @@ def decode_value(metric):
     if metric.HasField("is_null") and metric.is_null:
         return None
     kind = metric.WhichOneof("value")
-    if kind is None:
+    if kind is None or kind == "template_value":
         return None
     return getattr(metric, kind)
+
+
+def decode_metric(m):
+    """A protobuf metric as a Metric, a Template's members decoded alike."""
+    template = None
+    if m.WhichOneof("value") == "template_value":
+        t = m.template_value
+        template = Template(
+            t.version if t.HasField("version") else None,
+            t.template_ref if t.HasField("template_ref") else None,
+            t.is_definition if t.HasField("is_definition") else None,
+            [decode_metric(member) for member in t.metrics],
+            [(p.name if p.HasField("name") else None, p.type if p.HasField("type") else None)
+             for p in t.parameters])
+    return Metric(m.name if m.HasField("name") else None, m.alias if m.HasField("alias") else None,
+                  m.datatype if m.HasField("datatype") else None, decode_value(m),
+                  m.timestamp if m.HasField("timestamp") else None,
+                  m.HasField("is_historical") and m.is_historical,
+                  m.HasField("is_null") and m.is_null, m.WhichOneof("value") is not None,
+                  {k: getattr(v, v.WhichOneof("value") or "is_null")
+                   for k, v in zip(m.properties.keys, m.properties.values)}, template)
 
 
 def encode_value(metric, datatype, value):
@@ -274,6 +330,9 @@ class NodeState:
         self.node_metrics = DeviceState()  # the node's own metrics, from NBIRTH
         self.devices = {}
         self.sessions = 0  # NBIRTHs seen
+        # NBIRTH's template definitions, by the name an instance's template_ref gives:
+        # name -> ({member: datatype}, {parameter names})
+        self.templates = {}
 
 
 class HostApp:
@@ -364,18 +423,15 @@ class HostApp:
             return
         message.seq = decoded.seq if decoded.HasField("seq") else None
         message.timestamp = decoded.timestamp if decoded.HasField("timestamp") else None
-        message.metrics = [
-            Metric(m.name if m.HasField("name") else None, m.alias if m.HasField("alias") else None,
-                   m.datatype if m.HasField("datatype") else None, decode_value(m),
-                   m.timestamp if m.HasField("timestamp") else None,
-                   m.HasField("is_historical") and m.is_historical,
-                   m.HasField("is_null") and m.is_null, m.WhichOneof("value") is not None,
-                   {k: getattr(v, v.WhichOneof("value") or "is_null")
-                    for k, v in zip(m.properties.keys, m.properties.values)})
-            for m in decoded.metrics]
-        for m in decoded.metrics:
-            if m.HasField("properties"):
-                self._check_properties(message, m)
+        message.metrics = [decode_metric(m) for m in decoded.metrics]
+
+        def properties(metrics):
+            for m in metrics:
+                if m.HasField("properties"):
+                    self._check_properties(message, m)
+                if m.WhichOneof("value") == "template_value":
+                    properties(m.template_value.metrics)
+        properties(decoded.metrics)
         if type_ in ("NCMD", "DCMD"):
             return  # commands: ours, or another host's; not the node's to keep rules on
         if message.timestamp is None:
@@ -383,6 +439,55 @@ class HostApp:
         self._check_times(message)
         state = self.nodes.setdefault((group, node), NodeState())
         getattr(self, "_" + type_.lower())(state, message)
+        self._check_templates(state, message)
+
+    def _check_templates(self, state, message):
+        """The template rules (Sparkplug 3.0 §6.4.14) on every Template metric of a message."""
+        birth = message.type in ("NBIRTH", "DBIRTH")
+        for m in message.metrics:
+            t = m.template
+            if t is None:
+                continue
+            what = m.name or f"alias {m.alias}"
+            if t.is_definition:
+                rule = "template definitions"
+                if message.type != "NBIRTH":
+                    self.violation(message, rule, f"{what}: a definition in {message.type}")
+                if t.ref is not None:
+                    self.violation(message, rule, f"{what}: a definition with template_ref "
+                                                  f"{t.ref!r}")
+                if t.version is not None and not isinstance(t.version, str):
+                    self.violation(message, rule, f"{what}: version {t.version!r}")
+                for member in t.members:
+                    if not member.name or member.datatype is None:
+                        self.violation(message, rule, f"{what}: member {member!r} without a "
+                                                      f"name or datatype")
+                for name, type_ in t.parameters:
+                    if name is None or type_ is None:
+                        self.violation(message, rule, f"{what}: a parameter without a name or "
+                                                      f"type")
+                continue
+            rule = "template instances"
+            if t.is_definition is None:
+                self.violation(message, rule, f"{what}: a Template without is_definition")
+            if t.ref is None:
+                self.violation(message, rule, f"{what}: an instance without template_ref")
+                continue
+            if t.ref not in state.templates:
+                self.violation(message, rule, f"{what}: template_ref {t.ref} is no definition of "
+                                              f"the NBIRTH ({sorted(state.templates)})")
+                continue
+            members, parameters = state.templates[t.ref]
+            got = {member.name: member.datatype for member in t.members}
+            extra = [name for name in got if name not in members]
+            if extra:
+                self.violation(message, rule, f"{what}: members {extra} are not in {t.ref}")
+            if birth and got != members:
+                self.violation(message, rule, f"{what}: in a birth, members {got} are not "
+                                              f"{t.ref}'s {members}")
+            unknown = [name for name, _ in t.parameters if name not in parameters]
+            if unknown:
+                self.violation(message, rule, f"{what}: parameters {unknown} are not {t.ref}'s")
 
     def _check_properties(self, message, metric):
         keys, values = metric.properties.keys, metric.properties.values
@@ -458,6 +563,14 @@ class HostApp:
                                    f"alias {m.alias} of {m.name} is already {taken[m.alias]}'s")
                 device_state.by_alias[m.alias] = (m.name, m.datatype)
             device_state.by_name[m.name] = (m.alias, m.datatype)
+            if m.template is not None and not m.template.is_definition:
+                # An instance: the host's view is of its members, "<instance>/<member>", as
+                # Ignition's tag browser shows them.
+                for member in m.template.members:
+                    path = f"{m.name}/{member.name}"
+                    device_state.values[path] = member.value
+                    message.resolved[path] = member.value
+                continue
             device_state.values[m.name] = m.value
             message.resolved[m.name] = m.value
 
@@ -479,6 +592,9 @@ class HostApp:
                 continue
             if m.datatype is not None:
                 self.violation(message, "data datatype", f"{name}: datatype {m.datatype} in DATA")
+            if m.template is not None:
+                self._data_instance(device_state, message, name, m, seen)
+                continue
             if m.is_historical:
                 # A stored value (store-and-forward): history, not the current state, so it
                 # neither changes the view nor counts as data on change.
@@ -494,6 +610,33 @@ class HostApp:
                                f"{name} = {m.value!r} unchanged: data only on change")
             device_state.values[name] = m.value
             message.resolved[name] = m.value
+
+    def _data_instance(self, device_state, message, name, instance, seen):
+        """The members of an instance in DATA, by "<instance>/<member>": only those that
+        changed (or history, when the instance or the member says so)."""
+        for m in instance.template.members:
+            path = f"{name}/{m.name}"
+            if m.datatype is not None:
+                self.violation(message, "data datatype", f"{path}: datatype {m.datatype} in DATA")
+            if instance.is_historical or m.is_historical:
+                if m.timestamp is None and instance.timestamp is None:
+                    self.violation(message, "historical", f"historical {path} without timestamp")
+                message.historical.append((path, m.value, m.timestamp or instance.timestamp))
+                continue
+            if path in seen:
+                self.violation(message, "on change", f"{path} twice in one message")
+            seen.add(path)
+            if same_value(device_state.values.get(path), m.value, self._member_type(
+                    message, instance.template.ref, m.name)):
+                self.violation(message, "on change",
+                               f"{path} = {m.value!r} unchanged: data only on change")
+            device_state.values[path] = m.value
+            message.resolved[path] = m.value
+
+    def _member_type(self, message, ref, member):
+        state = self.nodes.get((message.group, message.node))
+        members = state.templates.get(ref, ({}, set()))[0] if state else {}
+        return members.get(member)
 
     def _nbirth(self, state, message):
         if message.seq != 0:
@@ -518,6 +661,12 @@ class HostApp:
         state.devices = {}
         state.node_metrics = DeviceState()
         state.node_metrics.born = True
+        # Named "_types_/<name>" (as Ignition and Eclipse Tahu name them), referred to as <name>.
+        state.templates = {
+            m.name.removeprefix("_types_/"): (
+                {member.name: member.datatype for member in m.template.members},
+                     {name for name, _ in m.template.parameters})
+            for m in message.metrics if m.template is not None and m.template.is_definition}
         self._announce(state, state.node_metrics, message, "node")
 
     def _ndeath(self, state, message):
@@ -685,6 +834,29 @@ class HostApp:
                     else:
                         datatype = known.by_alias[spec["alias"]][1]
             encode_value(m, datatype, spec["value"])
+        self._publish(f"{PREFIX}/{group}/DCMD/{node}/{device}", payload.SerializeToString())
+
+    def dcmd_instance(self, group, node, device, instance, members, alias=None):
+        """A DCMD as Ignition's MQTT Engine writes a UDT member: the device's template instance
+        (by name, or by `alias`), datatype Template, template_ref the instance's type,
+        is_definition false, holding `members` (name -> value), each typed as the NBIRTH's
+        definition says."""
+        with self._cond:
+            definition = self.nodes[(group, node)].templates[instance][0] \
+                if instance in self.nodes[(group, node)].templates else None
+        payload = pb.Payload(timestamp=int(time.time() * 1000))
+        m = payload.metrics.add()
+        if alias is None:
+            m.name = instance
+        else:
+            m.alias = alias
+        m.datatype = DATATYPES["Template"]
+        m.template_value.template_ref = instance
+        m.template_value.is_definition = False
+        for name, value in members.items():
+            member = m.template_value.metrics.add(name=name)
+            datatype = definition[name] if definition and name in definition else "Boolean"
+            encode_value(member, datatype, value)
         self._publish(f"{PREFIX}/{group}/DCMD/{node}/{device}", payload.SerializeToString())
 
     def state(self, host_id, online, retain=True, timestamp=None):

@@ -35,7 +35,8 @@ def covers(*ids):
     return mark
 
 
-_TEMPLATES = "ioportd publishes no Template: every metric is a scalar of §5.5's types"
+_PARAMETERS = ("ioportd's templates have no parameters (gateway.md §7.2: a module type's members "
+               "are its §5.5 metrics)")
 _DATASETS = "ioportd publishes no DataSet"
 _QUALITY = "ioportd sends no quality property (its metrics' properties are gateway.md §6.1's)"
 _MQTT5 = "ioportd connects with MQTT 3.1.1 only (the -311 twin of this id is checked)"
@@ -43,7 +44,9 @@ _MQTT5 = "ioportd connects with MQTT 3.1.1 only (the -311 twin of this id is che
 NOT_APPLICABLE = {
     "tck-id-principles-persistence-clean-session-50": _MQTT5,
     "tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt50": _MQTT5,
-    **{i: _TEMPLATES for i in IDS if "-template-" in i and "dataset" not in i},
+    **{i: _PARAMETERS for i in IDS if "-template-parameter-" in i},
+    "tck-id-payloads-template-definition-parameters-default": _PARAMETERS,
+    "tck-id-payloads-template-instance-parameters": _PARAMETERS,
     "tck-id-payloads-template-dataset-value": _DATASETS,
     **{i: _DATASETS for i in IDS if "-dataset-" in i and "template" not in i},
     **{i: _QUALITY for i in IDS if "propertyset-quality" in i},

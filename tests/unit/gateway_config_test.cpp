@@ -298,6 +298,34 @@ TEST(GatewayConfig, CheckConfigShowsOutputValuesAsTheFileWritesThem) {
                                                           << text;
 }
 
+// §7.2: mqtt.templates, parsed as a boolean and shown by --check-config on the edge node's line.
+TEST(GatewayConfig, SparkplugTemplatesAreParsedAndShown) {
+    const std::string section = R"(mqtt:
+  broker: "mqtt://127.0.0.1:1883"
+  group_id: plant1
+  edge_node_id: box7
+)";
+    const std::string links = R"(links:
+  - { name: hub0, protocol: ioport, device: /dev/ttyUSB0, modules: [{ type: dim16, number: 0 }] }
+)";
+    const auto on = parse(section + "  templates: true\n" + links);
+    ASSERT_TRUE(on) << describe(on.error());
+    EXPECT_TRUE(on->mqtt->templates);
+    EXPECT_NE(check_config_text(*on).find("Sparkplug B edge node plant1/box7 on "
+                                          "mqtt://127.0.0.1:1883, templates (one per module "
+                                          "type)\n"),
+              std::string::npos)
+        << check_config_text(*on);
+    const auto off = parse(section + "  templates: false\n" + links);
+    ASSERT_TRUE(off) << describe(off.error());
+    EXPECT_FALSE(off->mqtt->templates);
+    EXPECT_NE(check_config_text(*off).find(
+                  "Sparkplug B edge node plant1/box7 on mqtt://127.0.0.1:1883\n"),
+              std::string::npos)
+        << check_config_text(*off);
+    EXPECT_NE(*on->mqtt, *off->mqtt);  // a reload that turns them on or off is a new session
+}
+
 // §5.3: `safe` takes what `initial` takes and defaults to it; comm_loss_timeout defaults to off.
 // §5.2: `identity` objects per link.
 TEST(GatewayConfig, SafeValuesCommLossAndIdentity) {
@@ -425,6 +453,8 @@ TEST(GatewayConfig, TheMqttSection) {
     EXPECT_EQ(plain->mqtt->client_id, "gw-7");
     EXPECT_EQ(plain->mqtt->keepalive, 30s);
     EXPECT_EQ(plain->mqtt->deadband, 0.0);
+    EXPECT_FALSE(m.templates);  // gateway.md §7.2: off by default
+    EXPECT_FALSE(plain->mqtt->templates);
     const auto off = parse("mqtt:\n  group_id: g\n" + links);
     ASSERT_TRUE(off) << describe(off.error());
     EXPECT_FALSE(off->mqtt);
@@ -995,6 +1025,10 @@ TEST(GatewayConfigErrors, TheMqttSection) {
                       "mqtt.keepalive", "out of range"});
     expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  deadband: -1\n" + hub, 5,
                       "mqtt.deadband", "at least 0"});
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  templates: 2\n" + hub, 5,
+                      "mqtt.templates", "true or false"});
+    expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  template: true\n" + hub, 5,
+                      "mqtt.template", "unknown key"});
     expect_one_error({b + "  group_id: g\n  edge_node_id: n\n  ca_file: /dev/null\n" + hub, 5,
                       "mqtt.ca_file", "mqtts:// brokers only"});
     const TempFile open_password("pw\n", owner_only | perms::others_read);

@@ -480,5 +480,195 @@ TEST(SparkplugCommandSize, ABoundOfBytesLeavesRoomForLongNames) {
     EXPECT_FALSE(decode_command(Bytes(max_command_bytes(17) + 1, 0), 17));
 }
 
+// --- Templates (gateway.md §7.2) ---------------------------------------------------------------
+
+// Sparkplug 3.0 §6.4.14 on the wire: the Template is metric field 18 (tag 0x92 0x01), holding
+// version (1), member metrics (2), template_ref (4) and is_definition (5).
+TEST(SparkplugTemplate, ADefinitionOnTheWire) {
+    const Payload payload{7, 0, {template_definition(ModuleType::rgbdm, 5)}};
+    const Bytes expected{
+        0x08, 0x07,  // 1 timestamp: 7
+        0x12, 0x29,  // 2 metrics: 41 bytes
+        0x0A, 0x0D, '_',  't', 'y', 'p', 'e', 's', '_', '/', 'r', 'g', 'b', 'd', 'm',  // 1 name
+        0x18, 0x05,                                 //   3 timestamp: 5
+        0x20, 0x13,                                 //   4 datatype: 19 Template
+        0x92, 0x01, 0x13,                           //   18 template_value: 19 bytes
+        0x0A, 0x01, '1',                            //     1 version: "1"
+        0x12, 0x0C,                                 //     2 metrics: 12 bytes
+        0x0A, 0x06, 'c',  'o', 'l', 'o', 'u', 'r',  //       1 name: "colour"
+        0x20, 0x05,                                 //       4 datatype: 5 UInt8
+        0x38, 0x01,                                 //       7 is_null: no value
+        0x28, 0x01,                                 //     5 is_definition: true
+        0x18, 0x00,                                 // 3 seq: 0
+    };
+    EXPECT_EQ(encode(payload), expected);
+    EXPECT_EQ(decode(expected).value(), payload);
+}
+
+TEST(SparkplugTemplate, AnInstanceInDataByAliasWithoutDatatypes) {
+    auto instance = template_instance(
+        ModuleType::rgbdm, {Metric{"colour", std::nullopt, 5, 5, Value(std::uint64_t{3})}}, 9, 5);
+    instance.name.clear();
+    const Payload payload{7, 1, {instance}};
+    const Bytes expected{
+        0x08, 0x07,                                 // 1 timestamp: 7
+        0x12, 0x1E,                                 // 2 metrics: 30 bytes
+        0x10, 0x09,                                 //   2 alias: 9
+        0x18, 0x05,                                 //   3 timestamp: 5 (no datatype: DATA)
+        0x92, 0x01, 0x17,                           //   18 template_value: 23 bytes
+        0x12, 0x0C,                                 //     2 metrics: 12 bytes
+        0x0A, 0x06, 'c',  'o', 'l', 'o', 'u', 'r',  //       1 name: "colour"
+        0x18, 0x05,                                 //       3 timestamp: 5
+        0x50, 0x03,                                 //       10 int_value: 3 (no datatype)
+        0x22, 0x05, 'r',  'g', 'b', 'd', 'm',       //     4 template_ref: "rgbdm"
+        0x28, 0x00,                                 //     5 is_definition: false, yet there
+        0x18, 0x01,                                 // 3 seq: 1
+    };
+    EXPECT_EQ(encode(payload, Datatypes::left_out), expected);
+}
+
+TEST(SparkplugTemplate, DefinitionsAndInstancesDecodeAsTheyWereSent) {
+    for (const auto type : {std::optional(ModuleType::dim16), std::optional(ModuleType::acm3p),
+                            std::optional<ModuleType>()}) {
+        const auto definition = template_definition(type, 1);
+        EXPECT_EQ(definition.name, type ? "_types_/" + std::string(name(*type)) : "_types_/id2");
+        EXPECT_EQ(definition.datatype, template_datatype);
+        EXPECT_FALSE(definition.value);
+        ASSERT_TRUE(definition.template_value);
+        const auto& t = *definition.template_value;
+        EXPECT_TRUE(t.is_definition);
+        EXPECT_EQ(t.version, "1");
+        EXPECT_EQ(t.template_ref, "");
+        const auto specs = module_metrics(type);
+        ASSERT_EQ(t.members.size(), specs.size());
+        for (std::size_t i = 0; i < specs.size(); ++i) {
+            EXPECT_EQ(t.members[i].name, specs[i].name);
+            EXPECT_EQ(t.members[i].datatype, static_cast<std::uint32_t>(specs[i].type));
+            EXPECT_FALSE(t.members[i].value);  // names and datatypes, no values
+        }
+        auto member = Metric{specs[0].name, std::nullopt, 1,
+                             static_cast<std::uint32_t>(specs[0].type), std::nullopt};
+        member.properties = {{"documentation", std::string("boiler 1")}};
+        const auto instance = template_instance(type, {member}, 40, 1);
+        EXPECT_EQ(instance.name, template_name(type));
+        EXPECT_EQ(instance.alias, 40u);
+        EXPECT_EQ(instance.template_value->template_ref, template_name(type));
+        EXPECT_FALSE(instance.template_value->is_definition);
+        const Payload payload{1, 0, {definition, instance}};
+        EXPECT_EQ(decode(encode(payload)).value(), payload);
+    }
+}
+
+TEST(SparkplugTemplate, NestingBeyondTheBoundIsMalformed) {
+    Metric metric{"deep", std::nullopt, std::nullopt, template_datatype, std::nullopt};
+    metric.template_value = Template{};
+    for (int depth = 0; depth < max_template_depth; ++depth) {
+        Metric outer{"deep", std::nullopt, std::nullopt, template_datatype, std::nullopt};
+        outer.template_value = Template{{}, {}, false, {metric}};
+        metric = outer;
+    }
+    const auto decoded = decode(encode(Payload{1, 0, {metric}}));
+    ASSERT_FALSE(decoded);
+    EXPECT_EQ(decoded.error().code, Errc::malformed);
+    EXPECT_TRUE(decode(encode(Payload{1, 0, {metric.template_value->members[0]}})));
+}
+
+TEST(SparkplugTemplate, RecordsAreFlatAndAnInstanceFlattens) {
+    auto instance =
+        template_instance(ModuleType::dim16,
+                          {Metric{"in/0", std::nullopt, 3, 11, Value(true)},
+                           Metric{"word", std::nullopt, std::nullopt, 6, Value(std::uint64_t{1})}},
+                          std::nullopt, 4);
+    instance.is_historical = true;
+    const Metric flat{"in/1", std::nullopt, 2, 11, Value(false)};
+    const auto out = to_flat({flat, instance});
+    ASSERT_EQ(out.size(), 3u);
+    EXPECT_EQ(out[0], flat);
+    EXPECT_EQ(out[1].name, "in/0");
+    EXPECT_EQ(out[1].timestamp, 3u);
+    EXPECT_TRUE(out[1].is_historical);
+    EXPECT_EQ(out[2].name, "word");
+    EXPECT_EQ(out[2].timestamp, 4u);  // the instance's, when the member has none
+}
+
+// A DCMD instance names its members: they are what counts against the device's writable metrics.
+Payload instance_command(std::size_t members, std::string_view type = "dom16") {
+    Metric metric{std::string(type), std::nullopt, 17, template_datatype, std::nullopt};
+    metric.template_value = Template{{}, std::string(type), false, {}};
+    for (std::size_t i = 0; i < members; ++i)
+        metric.template_value->members.push_back(
+            Metric{fmt::format("out/{}", i % 16), std::nullopt, 17, 11, Value(true)});
+    return Payload{17, std::nullopt, {metric}};
+}
+
+TEST(SparkplugTemplate, AnInstanceCommandCountsItsMembers) {
+    const auto dom16 = writable_metrics(ModuleType::dom16);
+    for (const std::size_t n : {0u, 1u, 17u, 18u, 1000u}) {
+        const auto bytes = encode(instance_command(n));
+        EXPECT_EQ(count_command_metrics(bytes).value(), std::max<std::size_t>(n, 1)) << n;
+        EXPECT_EQ(count_metrics(bytes).value(), 1u);
+    }
+    // a payload without templates counts as count_metrics counts it
+    const auto flat = encode(command_of(17));
+    EXPECT_EQ(count_command_metrics(flat).value(), 17u);
+    const auto fits = decode_command(encode(instance_command(dom16)), dom16);
+    ASSERT_TRUE(fits) << fits.error().message;
+    EXPECT_EQ(command_metrics(fits->metrics), dom16);
+    const auto over = decode_command(encode(instance_command(dom16 + 1)), dom16);
+    ASSERT_FALSE(over);
+    EXPECT_EQ(over.error().code, Errc::invalid_argument);
+    EXPECT_NE(over.error().message.find("names 18 metrics, and the device has 17 writable"),
+              std::string::npos)
+        << over.error().message;
+    // two instances of 9 members: 18 as well
+    auto two = instance_command(9);
+    two.metrics.push_back(two.metrics[0]);
+    EXPECT_FALSE(decode_command(encode(two), dom16));
+    // a template field that is not a message is malformed, as any bad field is
+    const Bytes bad{0x12, 0x05, 0x92, 0x01, 0x02, 0x12, 0x40};
+    EXPECT_EQ(count_command_metrics(bad).error().code, Errc::malformed);
+}
+
+TEST(SparkplugTemplate, AnInstanceCommandIsAWriteOfItsMembers) {
+    const auto command = instance_command(2).metrics[0];
+    const auto writes = command_writes(ModuleType::dom16, command, true);
+    ASSERT_TRUE(writes) << writes.error().message;
+    EXPECT_EQ(*writes, command.template_value->members);
+    for (const auto& write : *writes)
+        EXPECT_TRUE(plan_command(ModuleAddress{ModuleType::dom16, 0}, write.name, write.datatype,
+                                 write.value));
+    // a flat metric is itself, with templates or without
+    const Metric flat{"out/3", std::nullopt, 1, 11, Value(true)};
+    EXPECT_EQ(command_writes(ModuleType::dom16, flat, true).value(), std::vector<Metric>{flat});
+    EXPECT_EQ(command_writes(ModuleType::dom16, flat, false).value(), std::vector<Metric>{flat});
+    const auto refused_for = [&](Metric metric, bool templates = true) {
+        const auto result = command_writes(ModuleType::dom16, metric, templates);
+        EXPECT_FALSE(result);
+        if (result) return std::string();
+        EXPECT_EQ(result.error().code, Errc::invalid_argument);
+        return result.error().message;
+    };
+    EXPECT_NE(refused_for(command, false).find("publishes none"), std::string::npos);
+    auto definition = command;
+    definition.template_value->is_definition = true;
+    EXPECT_NE(refused_for(definition).find("definition is not a command"), std::string::npos);
+    EXPECT_NE(refused_for(instance_command(1, "rgbdm").metrics[0]).find("not this device's"),
+              std::string::npos);
+    auto other_ref = command;
+    other_ref.template_value->template_ref = "rgbdm";
+    EXPECT_NE(refused_for(other_ref).find("template_ref rgbdm is not dom16"), std::string::npos);
+    auto by_alias = command;
+    by_alias.template_value->members[0].name.clear();
+    by_alias.template_value->members[0].alias = 3;
+    EXPECT_NE(refused_for(by_alias).find("members go by name"), std::string::npos);
+    auto nested = command;
+    nested.template_value->members[0] = command;
+    nested.template_value->members[0].name = "out/0";
+    EXPECT_NE(refused_for(nested).find("member out/0 is a Template"), std::string::npos);
+    auto no_value = command;
+    no_value.template_value.reset();
+    EXPECT_NE(refused_for(no_value).find("without a Template value"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace ioport::sparkplug
