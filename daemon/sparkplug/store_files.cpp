@@ -310,7 +310,10 @@ Result<> StoreFiles::write_mark() {
     endian::store_little_u32(mark.data() + 8, crc32(std::span(mark).first(8)));
     const auto file = dir_->open_append(mark_temporary, true);
     if (!file) return Unexpected(file.error());
+    // Its bytes reach the disk before its name does: a rename made durable first could leave
+    // the mark empty after a power cut, and a damaged mark forwards the whole store again.
     auto written = dir_->write(*file, mark);
+    if (written) written = dir_->sync(*file);
     dir_->close(*file);
     if (!written) return written;
     if (auto renamed = dir_->rename(mark_temporary, mark_name); !renamed) return renamed;

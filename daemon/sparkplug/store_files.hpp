@@ -4,7 +4,8 @@
 //   <dir>/00000000000000000001.seg   records 1…, the name is the first record's number
 //   <dir>/00000000000000004097.seg   …the newest segment, the only one appended to
 //   <dir>/delivered                  the number of the last record the broker has (8 bytes LE,
-//                                    then their CRC-32), written by rename at each sync
+//                                    then their CRC-32), written to delivered.tmp, synced and
+//                                    renamed at each sync
 //
 // Every file operation goes through StoreDirectory (store_directory.hpp): by name, within the
 // directory, never following a link. Every call blocks on the disk (an SD card can take seconds
