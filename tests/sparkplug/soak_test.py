@@ -27,8 +27,8 @@ lost, wrong and duplicated; in short:
              a birth's timestamp is the birth's time, so for births the end is widened by
              BIRTH_TOLERANCE (1 s)
   duplicated a value received in DDATA (live or historical) more than once: allowed, counted
-             (docs/sparkplug.md, the store: after a lost connection a record can arrive twice; and after a
-             restart the first read is stored as a change again)
+             (docs/sparkplug.md, the store: after a lost connection a record can arrive twice;
+             and after a restart the first read is stored as a change again)
 
 Exit status 0 when nothing was lost or wrong, every write reached the simulator, the host app
 saw no broken Sparkplug rule and every planned disruption happened; 1 otherwise.
@@ -143,6 +143,7 @@ class SimControl:
 class Soak:
     def __init__(self):
         self.random = random.Random(ARGS.seed)
+        self.setter_random = random.Random(ARGS.seed + 1)  # the setter thread's own
         self.dir = tempfile.mkdtemp(prefix="ioportd-spb-soak-")
         self.broker = Broker(self.dir, keep_sessions=True)
         self.broker.start()
@@ -195,7 +196,6 @@ mqtt:
         self.timeline = []  # (time, event)
         self.t0 = time.time()
         self.modbus = None
-        self.mark = None  # the log and host marks of the daemon's and broker's last start
         self.stop_setting = threading.Event()
 
     # --- ioportd -------------------------------------------------------------------------------
@@ -228,7 +228,7 @@ mqtt:
             called = time.time()
             self.sim.command(f"set dim16:0 {value}")
             self.sets.append((value, called, time.time()))
-            self.stop_setting.wait(self.random.uniform(0.5, 1.0))
+            self.stop_setting.wait(self.setter_random.uniform(0.5, 1.0))
 
     # --- the writes ----------------------------------------------------------------------------
 
@@ -241,14 +241,17 @@ mqtt:
             # The node subscribes to its commands before its NBIRTH.
             return any(m.type == "NBIRTH" and m.node == NODE
                        for m in self.host.messages[self.host_mark:])
-        # mqtt_json subscribes to its sets as it connects, before it logs nothing else.
+        # mqtt_json subscribes to its sets as soon as it has logged its connection.
         return "mqtt_json: connected to" in self.rig.log_text()[self.json_mark:]
 
     def write(self, path, value):
         if path == "modbus":
-            if not self.modbus.connected:
-                self.modbus.connect()
-            reply = self.modbus.write_register(0, value, slave=1)
+            try:
+                if not self.modbus.connected:
+                    self.modbus.connect()
+                reply = self.modbus.write_register(0, value, slave=1)
+            except Exception:  # pymodbus raises on a connection it lost: never acknowledged
+                return False
             if reply.isError():
                 return False  # refused, never acknowledged: nothing to check
         elif path == "json":
@@ -460,26 +463,38 @@ def main():
         soak.close()
     changes = len(soak.sets) - 1
     violations = soak.host.violations
-    print(f"""ioportd soak on every path: {elapsed:.0f} s ({ARGS.duration:.0f} s of disruption), seed {ARGS.seed}{', NO STORE' if ARGS.no_store else ''}
-  input changes          {changes} (dim16 0 word, a counter, every 0.5-1 s)
-  expected at the host   {len(expected)} (held >= {HOLD} s while ioportd ran and read dim16 0)
-  not readable           {len(unreadable)} (held while ioportd ran, but dim16 0 failed or was offline)
-  received               {kinds['live']} live, {kinds['historical']} historical, {kinds['birth']} in births ({len(received)} distinct values)
-  broker restarts        {soak.broker_restarts} (down {ARGS.broker_down:.0f} s each)
-  kill -9                {soak.kills} (and restarted, the store on disk)
-  serial faults          {faults} injected ({soak.fault_rolls} re-rolls of 1-10 % on each module)
-  writes                 {soak.writes['modbus']} Modbus, {soak.writes['json']} MQTT JSON /set, {soak.writes['dcmd']} DCMD; not at the simulator: {len(soak.writes_not_applied)} (refused by the device, a fault: {soak.writes_refused})
-  values lost            {len(lost)}
-  values wrong           {len(wrong)}
-  values duplicated      {duplicated}
-  Sparkplug violations   {len(violations)}""")
+    store = ", NO STORE" if ARGS.no_store else ""
+    lines = [
+        f"ioportd soak on every path: {elapsed:.0f} s ({ARGS.duration:.0f} s of disruption), "
+        f"seed {ARGS.seed}{store}",
+        f"  input changes          {changes} (dim16 0 word, a counter, every 0.5-1 s)",
+        f"  expected at the host   {len(expected)} (held >= {HOLD} s while ioportd ran and read "
+        "dim16 0)",
+        f"  not readable           {len(unreadable)} (held while ioportd ran, but dim16 0 failed "
+        "or was offline)",
+        f"  received               {kinds['live']} live, {kinds['historical']} historical, "
+        f"{kinds['birth']} in births ({len(received)} distinct values)",
+        f"  broker restarts        {soak.broker_restarts} (down {ARGS.broker_down:.0f} s each)",
+        f"  kill -9                {soak.kills} (and restarted, the store on disk)",
+        f"  serial faults          {faults} injected ({soak.fault_rolls} re-rolls of 1-10 % on "
+        "each module)",
+        f"  writes                 {soak.writes['modbus']} Modbus, {soak.writes['json']} MQTT "
+        f"JSON /set, {soak.writes['dcmd']} DCMD; not at the simulator: "
+        f"{len(soak.writes_not_applied)} (refused by the device, a fault: {soak.writes_refused})",
+        f"  values lost            {len(lost)}",
+        f"  values wrong           {len(wrong)}",
+        f"  values duplicated      {duplicated}",
+        f"  Sparkplug violations   {len(violations)}",
+    ]
+    print("\n".join(lines))
     for v in lost[:20]:
         called, returned, nxt = next((c, r, n) for (x, c, r), (_, n, _) in
                                      zip(soak.sets, soak.sets[1:] + [(0, soak.setting_ended, 0)])
                                      if x == v)
         print(f"  lost: {v}, held {returned - soak.t0:.3f}-{nxt - soak.t0:.3f} s")
     if lost or wrong:
-        print("  dim16 0 readable: " + ", ".join(f"{a - soak.t0:.3f}-{b - soak.t0:.3f}" for a, b in soak.readable()))
+        print("  dim16 0 readable: " + ", ".join(
+            f"{a - soak.t0:.3f}-{b - soak.t0:.3f}" for a, b in soak.readable()))
         print("  runs of ioportd: " + ", ".join(
             f"{a - soak.t0:.3f}-{b - soak.t0:.3f}" for a, b in soak.up))
         print("  events: " + ", ".join(f"{t:.3f} {e}" for t, e in soak.timeline))
