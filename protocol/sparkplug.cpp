@@ -390,50 +390,12 @@ std::size_t command_metrics(const std::vector<Metric>& metrics) {
 }
 
 Result<std::size_t> count_metrics(std::span<const std::uint8_t> bytes) {
-    const auto malformed = [] {
-        return fail(Errc::malformed, "not a Sparkplug B payload (bad protobuf field)");
-    };
-    std::size_t at = 0;
-    const auto varint = [&]() -> std::optional<std::uint64_t> {
-        std::uint64_t value = 0;
-        for (int shift = 0; shift < 64 && at < bytes.size(); shift += 7) {
-            const auto byte = bytes[at++];
-            value |= std::uint64_t{byte & 0x7Fu} << shift;
-            if ((byte & 0x80) == 0) return value;
-        }
-        return std::nullopt;
-    };
-    const auto skip = [&](std::uint64_t length) {
-        if (length > bytes.size() - at) return false;
-        at += static_cast<std::size_t>(length);
-        return true;
-    };
     std::size_t metrics = 0;
-    while (at < bytes.size()) {
-        const auto key = varint();
-        if (!key || *key >> 3 == 0) return malformed();
-        bool ok = false;
-        switch (*key & 7) {
-            case 0:
-                ok = varint().has_value();
-                break;
-            case 1:
-                ok = skip(8);
-                break;
-            case 2: {
-                const auto length = varint();
-                ok = length && skip(*length);
-                if (*key >> 3 == 2) ++metrics;
-                break;
-            }
-            case 5:
-                ok = skip(4);
-                break;
-            default:  // groups (3, 4), which Sparkplug does not use, and wire types 6, 7
-                break;
-        }
-        if (!ok) return malformed();
-    }
+    const bool ok = walk_fields(bytes, [&](std::uint64_t field, auto) {
+        if (field == payload_metrics) ++metrics;
+        return true;
+    });
+    if (!ok) return fail(Errc::malformed, "not a Sparkplug B payload (bad protobuf field)");
     return metrics;
 }
 
