@@ -5,7 +5,12 @@ real installation with dpkg into a scratch root, removal that keeps the configur
 that does not, the installed programs and man pages, the udev rule, and the hardening of the
 systemd unit (systemd-analyze security and verify).
 
-Usage: package_test.py BUILD_DIR SOURCE_DIR VERSION
+Usage: package_test.py BUILD_DIR SOURCE_DIR VERSION [ARCH SYSROOT EMULATOR...]
+
+The package is this machine's architecture's, or, for a cross build (cmake/debian-cross.cmake),
+ARCH's: its dependencies must then be met by the packages of the sysroot (SYSROOT/DEBIAN/packages,
+written by scripts/package), and the installed programs run under EMULATOR (qemu-user with the
+sysroot's libraries).
 
 Needs dpkg-dev (dpkg-shlibdeps), lintian, systemd (systemd-analyze), groff, man-db and
 util-linux (unshare); scripts/install-deps installs them. Runs as root or not: dpkg gets
@@ -26,6 +31,9 @@ from pathlib import Path
 from unit_file import unit_settings
 
 BUILD_DIR, SOURCE_DIR, VERSION = (Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3])
+CROSS = len(sys.argv) > 4
+SYSROOT = Path(sys.argv[5]) if CROSS else None
+EMULATOR = sys.argv[6:]
 PACKAGING = SOURCE_DIR / "packaging"
 UNIT = "ioportd.service"
 MAX_EXPOSURE = 2.0
@@ -55,7 +63,7 @@ def section(title: str) -> None:
 
 # ---- The package, and what it must contain ---------------------------------------------------
 
-ARCH = run("dpkg", "--print-architecture").stdout.strip()
+ARCH = sys.argv[4] if CROSS else run("dpkg", "--print-architecture").stdout.strip()
 
 # path -> mode string of `dpkg-deb -c`. Directories end with "/".
 EXPECTED_FILES = {
@@ -176,16 +184,23 @@ def check_control(deb: Path) -> None:
         check(any(n == expected or n.startswith(expected + "-") for n in names),
               f"Depends lacks {expected}: {fields['Depends']}")
     # Built here, so every dependency must be satisfiable here: apt install ./ioportd_*.deb on
-    # this Debian release resolves.
+    # this Debian release resolves. A cross build's, by the packages it was built against.
     installed = set()
-    query = run("dpkg-query", "-W", "-f=${db:Status-Abbrev}|${Package}|${Provides}\n").stdout
-    for line in query.splitlines():
-        state, package, provides = line.split("|")
-        if state.startswith("ii"):
-            installed.add(package)
-            installed.update(re.split(r"\s*\([^)]*\)\s*|\s*,\s*", provides))
+    if CROSS:
+        where = f"{SYSROOT}/DEBIAN/packages"
+        query = (SYSROOT / "DEBIAN/packages").read_text()  # Package|Version|Architecture|Provides
+        packages = [(fields[0], fields[3]) for fields in
+                    (line.split("|") for line in query.splitlines())]
+    else:
+        where = "this machine"
+        query = run("dpkg-query", "-W", "-f=${db:Status-Abbrev}|${Package}|${Provides}\n").stdout
+        packages = [(package, provides) for state, package, provides in
+                    (line.split("|") for line in query.splitlines()) if state.startswith("ii")]
+    for package, provides in packages:
+        installed.add(package)
+        installed.update(re.split(r"\s*\([^)]*\)\s*|\s*,\s*", provides))
     for name in names:
-        check(name in installed, f"Depends names {name}, which nothing installed here provides")
+        check(name in installed, f"Depends names {name}, which nothing in {where} provides")
     changelog = run("dpkg-parsechangelog", "-l", PACKAGING / "changelog", "-S", "Version")
     check(changelog.stdout.strip() == VERSION,
           f"packaging/changelog's latest entry is {changelog.stdout.strip()!r}, the project "
@@ -338,8 +353,9 @@ def check_script_behaviour(control: Path) -> None:
 def dpkg(root: Path, stubs: Path, *args) -> subprocess.CompletedProcess:
     # The stubs come first on PATH: with DPKG_ROOT set, the scripts must call none of them.
     env = dict(os.environ, PATH=f"{stubs}:{os.environ['PATH']}")
+    foreign = ["--force-architecture"] if CROSS else []
     return run("dpkg", f"--root={root}", "--force-script-chrootless", "--force-depends",
-               "--force-not-root", "--log=/dev/null", *args, env=env)
+               "--force-not-root", *foreign, "--log=/dev/null", *args, env=env)
 
 
 def status(root: Path) -> str:
@@ -433,15 +449,15 @@ def check_programs(root: Path) -> None:
     section("installed programs")
     ioportd = root / "usr/sbin/ioportd"
     config = root / "etc/ioportd/ioportd.yaml"
-    result = run(ioportd, "--check-config", "--config", config)
+    result = run(*EMULATOR, ioportd, "--check-config", "--config", config)
     check(result.returncode == 0 and f"{config}: valid" in result.stdout,
           f"ioportd --check-config on the installed configuration: exit {result.returncode}\n"
           f"{result.stdout}{result.stderr}")
-    result = run(ioportd, "--version")
+    result = run(*EMULATOR, ioportd, "--version")
     check(result.returncode == 0 and result.stdout.strip() == f"ioportd {VERSION}",
           f"ioportd --version: {result.stdout!r}")
     for binary in BINARIES:
-        result = run(root / binary, "--help")
+        result = run(*EMULATOR, root / binary, "--help")
         check(result.returncode == 0 and result.stdout.startswith("Usage:"),
               f"{binary} --help: exit {result.returncode}, {result.stdout[:80]!r}")
 
@@ -456,7 +472,7 @@ def check_man_pages(root: Path) -> None:
         check(result.returncode == 0 and result.stderr == "",
               f"groff -man -ww -z {page}:\n{result.stderr}")
     # Every option of ioportd --help is in the man page.
-    usage = run(root / "usr/sbin/ioportd", "--help").stdout
+    usage = run(*EMULATOR, root / "usr/sbin/ioportd", "--help").stdout
     page = gzip.decompress((root / MAN_PAGES[0]).read_bytes()).decode().replace("\\-", "-")
     for option in sorted(set(re.findall(r"(?<![\w-])--[a-z][a-z-]+", usage))):
         check(option in page, f"ioportd --help has {option}, ioportd(8) does not")
