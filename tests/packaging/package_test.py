@@ -117,8 +117,11 @@ MAN_PAGES = ["usr/share/man/man8/ioportd.8.gz", "usr/share/man/man1/ioportctl.1.
 CONFFILE = "/etc/ioportd/ioportd.yaml"
 # Libraries the binaries link, by Debian package name (prefixes where the name carries an ABI
 # suffix that may change with a rebuild against another version).
+# Each architecture's package names all of them: a library the linker took statically from a
+# sysroot instead (libcrypt.a, once, for arm64 and armhf) is missing here.
 EXPECTED_DEPENDS = ["libc6", "libstdc++6", "libgcc-s1", "libmodbus5", "libsystemd0",
-                    "libyaml-cpp0.7", "libfmt9", "libspdlog1.10", "procps"]
+                    "libyaml-cpp0.7", "libfmt9", "libspdlog1.10", "libcrypt1", "libssl3",
+                    "libmosquitto1", "libprotobuf-lite32", "procps"]
 SCRIPTS = ["postinst", "prerm", "postrm"]
 
 
