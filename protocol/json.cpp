@@ -151,7 +151,8 @@ Json& Json::raw(std::string_view json) {
 
 std::string rfc3339(std::chrono::system_clock::time_point at) {
     const auto ms = std::chrono::floor<std::chrono::milliseconds>(at).time_since_epoch().count();
-    const std::time_t seconds = ms / 1000;
+    // 32 bits on Debian 12's armhf, as is its clock's own time_t (until 2038).
+    const auto seconds = static_cast<std::time_t>(ms / 1000);
     std::tm utc{};
     ::gmtime_r(&seconds, &utc);
     return fmt::format("{:04}-{:02}-{:02}T{:02}:{:02}:{:02}.{:03}Z", utc.tm_year + 1900,

@@ -402,8 +402,8 @@ asio::awaitable<std::optional<HttpResponse>> HttpServer::authenticate(
                                                                       Authenticator::Clock::now());
             auto refused = refusal(write, 429, "limited",
                                    "too many failed sign-ins from this address: try again later");
-            refused.headers.emplace_back("Retry-After",
-                                         std::to_string(std::max<long>(1, wait.count())));
+            refused.headers.emplace_back(
+                "Retry-After", std::to_string(std::max(wait, std::chrono::seconds{1}).count()));
             co_return refused;
         }
         case AuthVerdict::busy: {

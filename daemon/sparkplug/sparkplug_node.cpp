@@ -529,8 +529,9 @@ void SparkplugNode::forward_tick() {
     });
     // The disk is slow, or a rebirth waits: this tick's share is skipped.
     if (forward_reading_ || rebirth_waiting_) return;
-    const auto count =
-        std::max<std::uint64_t>(1, rate * static_cast<std::uint64_t>(interval.count()) / 1000);
+    // At most forward_rate (10000) records: a size_t on every architecture.
+    const auto count = static_cast<std::size_t>(
+        std::max<std::uint64_t>(1, rate * static_cast<std::uint64_t>(interval.count()) / 1000));
     forward_reading_ = true;
     store_->read_after(
         forward_sent_, count,
@@ -949,7 +950,7 @@ void SparkplugNode::point_command(Device& device, const Metric& metric, bool ins
     if (name.empty() && !settings_.templates && metric.alias &&
         *metric.alias >= device.first_alias &&
         *metric.alias < device.first_alias + device.metrics.size())
-        name = device.metrics[*metric.alias - device.first_alias].name;
+        name = device.metrics[static_cast<std::size_t>(*metric.alias - device.first_alias)].name;
     const auto value = value_text(metric.value);
     const auto address =
         instance ? fmt::format("{}/{}/{}", device.id,

@@ -123,8 +123,10 @@ Result<std::vector<std::uint8_t>> DiskDirectory::read(std::string_view name, std
     int error = ::fstat(fd, &st) != 0 ? errno : S_ISREG(st.st_mode) ? 0 : EINVAL;
     // Read straight into a buffer of the file's size: a segment is megabytes, and every copy or
     // regrowth of it costs the opening of a large store.
+    // At most `limit`, a segment's few MiB and a record: a size_t on every architecture.
     if (error == 0)
-        bytes.resize(std::min<std::uint64_t>(limit, static_cast<std::uint64_t>(st.st_size)));
+        bytes.resize(static_cast<std::size_t>(
+            std::min<std::uint64_t>(limit, static_cast<std::uint64_t>(st.st_size))));
     std::size_t got = 0;
     while (error == 0 && got < bytes.size()) {
         const auto n = ::read(fd, bytes.data() + got, bytes.size() - got);

@@ -6,6 +6,7 @@
 
 #include "daemon/core/link_scheduler.hpp"
 #include "tests/support/pty_pair.hpp"
+#include "tests/support/timing.hpp"
 
 namespace ioport::daemon {
 namespace {
@@ -53,7 +54,10 @@ TEST_F(LinkWatchdog, ALoopThatStopsActingIsStuckOneTimeoutAndTheSlackLater) {
 // The old bound, (retries + 1) timeouts + 10 timeouts + 1 s, was 2.05 s here; a step on this
 // line takes 11 × (10 timeouts of noise + 1): 5.5 s. Every moment of it is progress.
 TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
-    const auto timeout = 50ms;
+    // The line falls silent for the link if the test's own chatter (every 5 ms) stalls for a
+    // timeout: stretched where the test runs slower (under qemu-user a starved test stalled
+    // past 50 ms).
+    const auto timeout = 50ms * test::slowdown;
     auto link = std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout),
                                                 log, bus);
     link->start();

@@ -19,7 +19,7 @@ import unittest
 IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 
-from rig import Rig, eventually  # noqa: E402
+from rig import SLOWDOWN, Rig, eventually  # noqa: E402
 from pymodbus.client import ModbusTcpClient  # noqa: E402
 from pymodbus.constants import DeviceInformation  # noqa: E402
 from pymodbus.mei_message import ReadDeviceInformationRequest  # noqa: E402
@@ -65,7 +65,7 @@ class ThirdPartyClients(unittest.TestCase):
             cls.rig.write_config(config(cls.rig))
             cls.rig.start_daemon()
             cls.port = cls.rig.listening_port("Modbus TCP")
-            cls.client = ModbusTcpClient("127.0.0.1", port=cls.port, timeout=3)
+            cls.client = ModbusTcpClient("127.0.0.1", port=cls.port, timeout=3 * SLOWDOWN)
             assert cls.client.connect()
 
             def online():
@@ -99,7 +99,7 @@ class ThirdPartyClients(unittest.TestCase):
 
     def mbpoll(self, *args):
         out = subprocess.run(["mbpoll", "-1", "-m", "tcp", "-p", str(self.port), *args],
-                             capture_output=True, text=True, timeout=20)
+                             capture_output=True, text=True, timeout=20 * SLOWDOWN)
         self.assertEqual(out.returncode, 0, out.stdout + out.stderr)
         return out.stdout
 
@@ -142,7 +142,8 @@ class ThirdPartyClients(unittest.TestCase):
             ReadDeviceInformationRequest(read_code=code, object_id=object_id, unit=unit))
 
     def test_pymodbus_reads_the_device_identification(self):
-        out = subprocess.run([IOPORTD, "--version"], capture_output=True, text=True, timeout=10)
+        out = subprocess.run([IOPORTD, "--version"], capture_output=True, text=True,
+                             timeout=10 * SLOWDOWN)
         self.assertEqual(out.returncode, 0, out.stderr)
         version = re.fullmatch(r"ioportd (\S+)\n", out.stdout).group(1)
         for unit, model, name in ((1, "ioport hub", "hub0"), (2, "ID-2", "press")):
@@ -216,7 +217,7 @@ class ThirdPartyClients(unittest.TestCase):
         self.assertRegex(out, r"\[201\]:\s+14\.26")  # 20.15 % scaled to °C
 
     def test_malformed_frame_closes_only_its_own_connection(self):
-        with socket.create_connection(("127.0.0.1", self.port), timeout=3) as bad:
+        with socket.create_connection(("127.0.0.1", self.port), timeout=3 * SLOWDOWN) as bad:
             # transaction 1, protocol id 1 (must be 0), length 6, unit 1, FC04 0 1
             bad.sendall(bytes.fromhex("0001 0001 0006 01 04 0000 0001"))
             self.assertEqual(bad.recv(100), b"")  # closed, not answered

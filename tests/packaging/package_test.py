@@ -1,14 +1,19 @@
 #!/usr/bin/python3
 """Builds the Debian package with CPack into the build directory, where it stays, and checks
-it: contents, control fields, maintainer scripts (statically and by what they do), a real
-installation with dpkg into a scratch root, removal that keeps the configuration and purge
+it: lintian, contents, control fields, maintainer scripts (statically and by what they do), a
+real installation with dpkg into a scratch root, removal that keeps the configuration and purge
 that does not, the installed programs and man pages, the udev rule, and the hardening of the
 systemd unit (systemd-analyze security and verify).
 
-Usage: package_test.py BUILD_DIR SOURCE_DIR VERSION
+Usage: package_test.py BUILD_DIR SOURCE_DIR VERSION [ARCH SYSROOT EMULATOR...]
 
-Needs dpkg-dev (dpkg-shlibdeps), systemd (systemd-analyze), groff, man-db and util-linux
-(unshare); scripts/install-deps installs them. Runs as root or not: dpkg gets
+The package is this machine's architecture's, or, for a cross build (cmake/debian-cross.cmake),
+ARCH's: its dependencies must then be met by the packages of the sysroot (SYSROOT/DEBIAN/packages,
+written by scripts/package), and the installed programs run under EMULATOR (qemu-user with the
+sysroot's libraries).
+
+Needs dpkg-dev (dpkg-shlibdeps), lintian, systemd (systemd-analyze), groff, man-db and
+util-linux (unshare); scripts/install-deps installs them. Runs as root or not: dpkg gets
 --force-not-root, and the maintainer scripts run in a user and mount namespace of their own.
 """
 
@@ -26,6 +31,9 @@ from pathlib import Path
 from unit_file import unit_settings
 
 BUILD_DIR, SOURCE_DIR, VERSION = (Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3])
+CROSS = len(sys.argv) > 4
+SYSROOT = Path(sys.argv[5]) if CROSS else None
+EMULATOR = sys.argv[6:]
 PACKAGING = SOURCE_DIR / "packaging"
 UNIT = "ioportd.service"
 MAX_EXPOSURE = 2.0
@@ -55,7 +63,7 @@ def section(title: str) -> None:
 
 # ---- The package, and what it must contain ---------------------------------------------------
 
-ARCH = run("dpkg", "--print-architecture").stdout.strip()
+ARCH = sys.argv[4] if CROSS else run("dpkg", "--print-architecture").stdout.strip()
 
 # path -> mode string of `dpkg-deb -c`. Directories end with "/".
 EXPECTED_FILES = {
@@ -109,8 +117,11 @@ MAN_PAGES = ["usr/share/man/man8/ioportd.8.gz", "usr/share/man/man1/ioportctl.1.
 CONFFILE = "/etc/ioportd/ioportd.yaml"
 # Libraries the binaries link, by Debian package name (prefixes where the name carries an ABI
 # suffix that may change with a rebuild against another version).
+# Each architecture's package names all of them: a library the linker took statically from a
+# sysroot instead (libcrypt.a, once, for arm64 and armhf) is missing here.
 EXPECTED_DEPENDS = ["libc6", "libstdc++6", "libgcc-s1", "libmodbus5", "libsystemd0",
-                    "libyaml-cpp0.7", "libfmt9", "libspdlog1.10", "procps"]
+                    "libyaml-cpp0.7", "libfmt9", "libspdlog1.10", "libcrypt1", "libssl3",
+                    "libmosquitto1", "libprotobuf-lite32", "procps"]
 SCRIPTS = ["postinst", "prerm", "postrm"]
 
 
@@ -126,6 +137,15 @@ def build_package() -> Path | None:
         return None
     print(f"package: {deb}")
     return deb
+
+
+def check_lintian(deb: Path) -> None:
+    """Debian's own checks: no error and no warning (an overridden tag has its reason in the
+    override)."""
+    section("lintian")
+    result = run("lintian", "--fail-on", "error,warning", deb)
+    check(result.returncode == 0 and result.stdout == "",
+          f"lintian: exit {result.returncode}\n{result.stdout}{result.stderr}")
 
 
 def check_contents(deb: Path) -> None:
@@ -167,16 +187,23 @@ def check_control(deb: Path) -> None:
         check(any(n == expected or n.startswith(expected + "-") for n in names),
               f"Depends lacks {expected}: {fields['Depends']}")
     # Built here, so every dependency must be satisfiable here: apt install ./ioportd_*.deb on
-    # this Debian release resolves.
+    # this Debian release resolves. A cross build's, by the packages it was built against.
     installed = set()
-    query = run("dpkg-query", "-W", "-f=${db:Status-Abbrev}|${Package}|${Provides}\n").stdout
-    for line in query.splitlines():
-        state, package, provides = line.split("|")
-        if state.startswith("ii"):
-            installed.add(package)
-            installed.update(re.split(r"\s*\([^)]*\)\s*|\s*,\s*", provides))
+    if CROSS:
+        where = f"{SYSROOT}/DEBIAN/packages"
+        query = (SYSROOT / "DEBIAN/packages").read_text()  # Package|Version|Architecture|Provides
+        packages = [(fields[0], fields[3]) for fields in
+                    (line.split("|") for line in query.splitlines())]
+    else:
+        where = "this machine"
+        query = run("dpkg-query", "-W", "-f=${db:Status-Abbrev}|${Package}|${Provides}\n").stdout
+        packages = [(package, provides) for state, package, provides in
+                    (line.split("|") for line in query.splitlines()) if state.startswith("ii")]
+    for package, provides in packages:
+        installed.add(package)
+        installed.update(re.split(r"\s*\([^)]*\)\s*|\s*,\s*", provides))
     for name in names:
-        check(name in installed, f"Depends names {name}, which nothing installed here provides")
+        check(name in installed, f"Depends names {name}, which nothing in {where} provides")
     changelog = run("dpkg-parsechangelog", "-l", PACKAGING / "changelog", "-S", "Version")
     check(changelog.stdout.strip() == VERSION,
           f"packaging/changelog's latest entry is {changelog.stdout.strip()!r}, the project "
@@ -286,11 +313,6 @@ def check_script_behaviour(control: Path) -> None:
           f"postinst configure 0.0.9 (upgrade) called {calls}: it must try-restart the service")
     check(result.stdout == "", f"postinst on upgrade prints {result.stdout!r}")
 
-    result, calls = run_script(postinst, ["configure", "0.0.9"], systemd=True, udev=True,
-                               without=("deb-systemd-invoke",))
-    check(result.returncode == 0 and calls[-1:] == [f"systemctl try-restart {UNIT}"],
-          f"postinst upgrade without deb-systemd-invoke called {calls}")
-
     result, calls = run_script(postinst, ["configure"], systemd=False, udev=False)
     check(result.returncode == 0 and calls == [group],
           f"postinst configure without a running systemd and udev (a chroot) called {calls}: "
@@ -334,8 +356,9 @@ def check_script_behaviour(control: Path) -> None:
 def dpkg(root: Path, stubs: Path, *args) -> subprocess.CompletedProcess:
     # The stubs come first on PATH: with DPKG_ROOT set, the scripts must call none of them.
     env = dict(os.environ, PATH=f"{stubs}:{os.environ['PATH']}")
+    foreign = ["--force-architecture"] if CROSS else []
     return run("dpkg", f"--root={root}", "--force-script-chrootless", "--force-depends",
-               "--force-not-root", "--log=/dev/null", *args, env=env)
+               "--force-not-root", *foreign, "--log=/dev/null", *args, env=env)
 
 
 def status(root: Path) -> str:
@@ -429,15 +452,15 @@ def check_programs(root: Path) -> None:
     section("installed programs")
     ioportd = root / "usr/sbin/ioportd"
     config = root / "etc/ioportd/ioportd.yaml"
-    result = run(ioportd, "--check-config", "--config", config)
+    result = run(*EMULATOR, ioportd, "--check-config", "--config", config)
     check(result.returncode == 0 and f"{config}: valid" in result.stdout,
           f"ioportd --check-config on the installed configuration: exit {result.returncode}\n"
           f"{result.stdout}{result.stderr}")
-    result = run(ioportd, "--version")
+    result = run(*EMULATOR, ioportd, "--version")
     check(result.returncode == 0 and result.stdout.strip() == f"ioportd {VERSION}",
           f"ioportd --version: {result.stdout!r}")
     for binary in BINARIES:
-        result = run(root / binary, "--help")
+        result = run(*EMULATOR, root / binary, "--help")
         check(result.returncode == 0 and result.stdout.startswith("Usage:"),
               f"{binary} --help: exit {result.returncode}, {result.stdout[:80]!r}")
 
@@ -452,7 +475,7 @@ def check_man_pages(root: Path) -> None:
         check(result.returncode == 0 and result.stderr == "",
               f"groff -man -ww -z {page}:\n{result.stderr}")
     # Every option of ioportd --help is in the man page.
-    usage = run(root / "usr/sbin/ioportd", "--help").stdout
+    usage = run(*EMULATOR, root / "usr/sbin/ioportd", "--help").stdout
     page = gzip.decompress((root / MAN_PAGES[0]).read_bytes()).decode().replace("\\-", "-")
     for option in sorted(set(re.findall(r"(?<![\w-])--[a-z][a-z-]+", usage))):
         check(option in page, f"ioportd --help has {option}, ioportd(8) does not")
@@ -587,6 +610,7 @@ def main() -> int:
         scratch = Path(scratch_name)
         deb = build_package()
         if deb is not None:
+            check_lintian(deb)
             check_contents(deb)
             check_control(deb)
             extract_control(deb, scratch)

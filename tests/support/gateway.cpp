@@ -13,6 +13,8 @@
 #include <sstream>
 #include <thread>
 
+#include "tests/support/timing.hpp"
+
 namespace ioport::test {
 namespace {
 
@@ -126,7 +128,8 @@ int GatewayProcess::stop(int signal, std::chrono::milliseconds deadline) {
 ModbusClient::ModbusClient(std::uint16_t port, int unit, const char* host)
     : context_(modbus_new_tcp(host, port)) {
     if (!context_) return;
-    modbus_set_response_timeout(context_, 3, 0);
+    // A bound on a wait: a write queued behind others on a slow line answers late, not never.
+    modbus_set_response_timeout(context_, static_cast<std::uint32_t>(3 * slowdown), 0);
     modbus_set_slave(context_, unit);
     connected_ = modbus_connect(context_) == 0;
 }

@@ -13,6 +13,9 @@ on a configuration of the test's, its log, and polling with a deadline (never a 
 
 Rig(..., preexec_fn=die_with_parent): the simulators and the daemon are killed when the test
 process dies, even by SIGKILL (a CTest timeout); a process of the test's own can have it too.
+
+Deadlines are upper bounds at native speed: IOPORT_TEST_SLOWDOWN in the environment (a cross
+build's ctest under qemu-user, tests/CMakeLists.txt) stretches them by its factor (SLOWDOWN).
 """
 
 import ctypes
@@ -25,6 +28,8 @@ import subprocess
 import time
 import urllib.request
 
+SLOWDOWN = int(os.environ.get("IOPORT_TEST_SLOWDOWN", "1"))
+
 
 def free_port():
     with socket.socket() as s:
@@ -33,9 +38,10 @@ def free_port():
 
 
 def eventually(condition, deadline=5.0, what="condition", interval=0.01):
-    """condition()'s first true result, polled every `interval` until `deadline` seconds.
-    `what` names the condition in the failure; a callable is asked for it at the failure, so
-    that it can tell what things were like then (a log, a server's answer)."""
+    """condition()'s first true result, polled every `interval` until `deadline` seconds (times
+    SLOWDOWN). `what` names the condition in the failure; a callable is asked for it at the
+    failure, so that it can tell what things were like then (a log, a server's answer)."""
+    deadline *= SLOWDOWN
     until = time.monotonic() + deadline
     while True:
         result = condition()
@@ -140,10 +146,10 @@ class Rig:
 
     def stop_daemon(self, sig=signal.SIGTERM, timeout=10):
         """Seconds from the signal to the exit, and the exit status; subprocess.TimeoutExpired
-        if it is still running after `timeout` (close() kills it then)."""
+        if it is still running after `timeout` (times SLOWDOWN; close() kills it then)."""
         started = time.monotonic()
         self.daemon.send_signal(sig)
-        code = self.daemon.wait(timeout)
+        code = self.daemon.wait(timeout * SLOWDOWN)
         return time.monotonic() - started, code
 
     def ctl(self, command, socket_path=None):

@@ -1,7 +1,8 @@
 // Upper bounds on how long something may take are there to catch a hang or a stall, with room
 // for a busy machine. Under ASan and UBSan every process of a test runs two to three times
-// slower, so the sanitizer build stretches those bounds by `slowdown`; lower bounds and every
-// check of values stay as they are.
+// slower, and under qemu-user (a cross build's tests, IOPORT_TEST_SLOWDOWN from
+// tests/CMakeLists.txt) slower still, so those builds stretch the bounds by `slowdown`; lower
+// bounds and every check of values stay as they are.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -23,10 +24,13 @@ namespace ioport::test {
 #define IOPORT_TEST_SANITIZED 1
 #endif
 #endif
+#if !defined(IOPORT_TEST_SLOWDOWN)
+#define IOPORT_TEST_SLOWDOWN 1
+#endif
 #if defined(IOPORT_TEST_SANITIZED)
-inline constexpr int slowdown = 3;
+inline constexpr int slowdown = 3 * IOPORT_TEST_SLOWDOWN;
 #else
-inline constexpr int slowdown = 1;
+inline constexpr int slowdown = IOPORT_TEST_SLOWDOWN;
 #endif
 
 // A scenario's own clock: a storm that lasts so long, faults injected on a schedule. It waits
