@@ -1,8 +1,8 @@
 // Upper bounds on how long something may take are there to catch a hang or a stall, with room
 // for a busy machine. Under ASan and UBSan every process of a test runs two to three times
-// slower, and under qemu-user (a cross build's tests, IOPORT_TEST_SLOWDOWN from
-// tests/CMakeLists.txt) slower still, so those builds stretch the bounds by `slowdown`; lower
-// bounds and every check of values stay as they are.
+// slower, and under qemu-user (a cross build's tests) slower still, so those builds stretch the
+// bounds by `slowdown` (IOPORT_TEST_SLOWDOWN from tests/CMakeLists.txt); lower bounds and every
+// check of values stay as they are.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -15,23 +15,9 @@
 
 namespace ioport::test {
 
-// g++ says __SANITIZE_ADDRESS__, clang __has_feature(address_sanitizer) (scripts/test's
-// sanitizer build is clang's).
-#if defined(__SANITIZE_ADDRESS__)
-#define IOPORT_TEST_SANITIZED 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define IOPORT_TEST_SANITIZED 1
-#endif
-#endif
-#if !defined(IOPORT_TEST_SLOWDOWN)
-#define IOPORT_TEST_SLOWDOWN 1
-#endif
-#if defined(IOPORT_TEST_SANITIZED)
-inline constexpr int slowdown = 3 * IOPORT_TEST_SLOWDOWN;
-#else
+// The build's factor (tests/CMakeLists.txt): 1 natively, 3 under the sanitizers, more under
+// qemu-user.
 inline constexpr int slowdown = IOPORT_TEST_SLOWDOWN;
-#endif
 
 // A scenario's own clock: a storm that lasts so long, faults injected on a schedule. It waits
 // for a time, not for a condition (there is none to wait for: use eventually() for those).
