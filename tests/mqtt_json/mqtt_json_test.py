@@ -33,7 +33,7 @@ import paho.mqtt.client as mqtt  # noqa: E402
 import node_red  # noqa: E402
 from broker import Broker  # noqa: E402
 from process_memory import RSS_TELLS, MemoryLimit, peak_rss  # noqa: E402
-from rig import Rig, eventually, free_port  # noqa: E402
+from rig import SLOWDOWN, Rig, eventually, free_port  # noqa: E402
 
 PREFIX = "ioportd/box7"
 NODE = "ioportd_box7"  # mqtt_json::node_id(PREFIX)
@@ -739,9 +739,15 @@ class FromOutside(unittest.TestCase):
         attacker = mqtt.Client(client_id="hostile", clean_session=True)
         attacker.connect("127.0.0.1", self.broker.port, keepalive=30)
         attacker.loop_start()
-        attacker.publish(topic("hub0/dom16_0", "out3/set"), b"1" * (250 << 20),
-                         qos=1).wait_for_publish(60)
-        attacker.publish(topic("hub0/dom16_0", "out4/set"), "ON", qos=1).wait_for_publish(10)
+        # paho's wait_for_publish() returns at its timeout without a word: on a busy machine the
+        # 250 MB were still being written when the small set was queued behind them, and the
+        # disconnect below dropped both. Both must have reached the broker.
+        huge = attacker.publish(topic("hub0/dom16_0", "out3/set"), b"1" * (250 << 20), qos=1)
+        huge.wait_for_publish(60 * SLOWDOWN)
+        self.assertTrue(huge.is_published(), "the broker did not take the huge set")
+        small = attacker.publish(topic("hub0/dom16_0", "out4/set"), "ON", qos=1)
+        small.wait_for_publish(10 * SLOWDOWN)
+        self.assertTrue(small.is_published(), "the broker did not take the small set")
         attacker.loop_stop()
         attacker.disconnect()
         sub.close()
