@@ -1,5 +1,7 @@
 #include "daemon/mqtt/mqtt_client.hpp"
 
+#include "daemon/mqtt/mqtt_error.hpp"
+
 #include <mosquitto.h>
 #include <mqtt_protocol.h>
 
@@ -7,11 +9,6 @@
 
 namespace ioport::daemon {
 namespace {
-
-std::string mosquitto_error(int rc) {
-    if (rc == MOSQ_ERR_ERRNO) return std::generic_category().message(errno);
-    return mosquitto_strerror(rc);
-}
 
 // CONNECT's Maximum Packet Size (MQTT 5, 3.1.2.11.4). libmosquitto 2.0 takes CONNECT properties
 // only in mosquitto_connect_bind_v5(), which connects blocking; it keeps them for every later
@@ -410,8 +407,23 @@ void MqttClient::on_disconnect(mosquitto* /*client*/, void* self, int rc) {
         me.finish_stop();
         return;
     }
-    me.lost(rc == 0 ? fmt::format("{} closed the connection", me.broker())
-                    : fmt::format("connection to {} lost: {}", me.broker(), mosquitto_error(rc)));
+    me.lost(me.disconnect_reason(rc));
+}
+
+// libmosquitto hands on_disconnect either its own error (MOSQ_ERR_*, below 0x80) or, when an
+// MQTT 5 broker sent DISCONNECT, that packet's reason code (0x80 and up, MQTT 5 3.14.2.1), which
+// mosquitto_strerror() calls "Unknown error.".
+std::string MqttClient::disconnect_reason(int rc) const {
+    if (rc == 0) return fmt::format("{} closed the connection", broker());
+    if (mqtt5() && rc >= 0x80 && rc <= 0xFF) {
+        auto why = fmt::format("{} sent DISCONNECT: {} (reason code 0x{:02X})", broker(),
+                               mosquitto_reason_string(rc), rc);
+        if (rc == MQTT_RC_SESSION_TAKEN_OVER)
+            why += fmt::format("; another client connected as {}: give each its own client_id",
+                               settings_.client_id);
+        return why;
+    }
+    return fmt::format("connection to {} lost: {}", broker(), mosquitto_error(rc));
 }
 
 void MqttClient::on_publish(mosquitto* /*client*/, void* self, int mid) {

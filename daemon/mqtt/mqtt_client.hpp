@@ -118,6 +118,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     void after_io(int rc, std::string_view during);
     // The attempt or the connection ended; the next goes to the next broker, or, with
     // `same_broker`, to this one again at once (a protocol fallback).
+    std::string disconnect_reason(int rc) const;
     void lost(const std::string& why, bool same_broker = false);
     void schedule_reconnect();
     void tick();
