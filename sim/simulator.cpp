@@ -211,7 +211,7 @@ void Simulator::chatter(std::chrono::microseconds every) {
         static constexpr std::string_view noise = "GHJKLMNPQRSTUVWXYZ#*?!~";
         if (master_.is_open()) {
             const char byte = noise[static_cast<std::size_t>(++chatter_count_) % noise.size()];
-            (void)::write(master_.native_handle(), &byte, 1);
+            [[maybe_unused]] const ssize_t written = ::write(master_.native_handle(), &byte, 1);
         }
         chatter(every);
     });

@@ -141,11 +141,14 @@ def build_package() -> Path | None:
 
 def check_lintian(deb: Path) -> None:
     """Debian's own checks: no error and no warning (an overridden tag has its reason in the
-    override)."""
+    override); of its notes, none that a program lacks a hardening flag (hardening-no-*)."""
     section("lintian")
-    result = run("lintian", "--fail-on", "error,warning", deb)
-    check(result.returncode == 0 and result.stdout == "",
+    result = run("lintian", "--fail-on", "error,warning", "--display-info", deb)
+    notes = result.stdout.splitlines()
+    check(result.returncode == 0 and all(line.startswith("I: ") for line in notes),
           f"lintian: exit {result.returncode}\n{result.stdout}{result.stderr}")
+    unhardened = [line for line in notes if " hardening-" in line]
+    check(not unhardened, "lintian: " + "\n".join(unhardened))
 
 
 def check_contents(deb: Path) -> None:
@@ -465,6 +468,26 @@ def check_programs(root: Path) -> None:
               f"{binary} --help: exit {result.returncode}, {result.stdout[:80]!r}")
 
 
+def check_hardening(root: Path) -> None:
+    """What Debian's hardening flags leave in a program (CMakeLists.txt, IOPORTD_HARDENING), read
+    from the ELF file itself: position independent, every symbol bound at start and the GOT then
+    read-only (full RELRO), stack canaries, and glibc's checked functions (_FORTIFY_SOURCE)."""
+    section("hardening")
+    for binary in BINARIES:
+        elf = run("readelf", "--wide", "--dynamic", "--program-headers", "--dyn-syms",
+                  root / binary)
+        if not check(elf.returncode == 0, f"readelf {binary}: {elf.stderr}"):
+            continue
+        flags = " ".join(re.findall(r"\(FLAGS(?:_1)?\)\s+(?:Flags: )?(.*)", elf.stdout))
+        symbols = set(re.findall(r"\b(__\w+_chk(?:_fail)?)\b", elf.stdout))
+        check("PIE" in flags.split(), f"{binary}: not position independent ({flags!r})")
+        check("NOW" in flags.split() or "BIND_NOW" in flags.split(),
+              f"{binary}: symbols bound lazily, not at start ({flags!r})")
+        check("GNU_RELRO" in elf.stdout, f"{binary}: no RELRO segment")
+        check("__stack_chk_fail" in symbols, f"{binary}: no stack protector")
+        check(symbols - {"__stack_chk_fail"}, f"{binary}: no checked (fortified) function")
+
+
 def check_man_pages(root: Path) -> None:
     section("man pages")
     for page in MAN_PAGES:
@@ -618,6 +641,7 @@ def main() -> int:
             root = check_installation(deb, scratch)
             if root is not None:
                 check_programs(root)
+                check_hardening(root)
                 check_man_pages(root)
                 check_udev_rule(root)
                 check_unit(root, scratch)
