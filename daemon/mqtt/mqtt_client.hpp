@@ -116,9 +116,10 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     void watch();
     void forget_socket();
     void after_io(int rc, std::string_view during);
+    // What on_disconnect's rc means, for the log.
+    std::string disconnect_reason(int rc) const;
     // The attempt or the connection ended; the next goes to the next broker, or, with
     // `same_broker`, to this one again at once (a protocol fallback).
-    std::string disconnect_reason(int rc) const;
     void lost(const std::string& why, bool same_broker = false);
     void schedule_reconnect();
     void tick();
