@@ -272,10 +272,10 @@ class ClientCertificates(WebRig):
         self.certs = Certificates(self.dir)
         self.certs.client("operator", None)
         self.certs.client("viewer", None)
-        return (f"tls_server_config:\n  cert_file: server.pem\n  key_file: server.key\n"
-                f"  client_ca_file: ca.pem\n  client_auth_type: RequireAndVerifyClientCert\n"
-                f"http_server_config:\n  headers:\n"
-                f"    Strict-Transport-Security: max-age=31536000\n")
+        return ("tls_server_config:\n  cert_file: server.pem\n  key_file: server.key\n"
+                "  client_ca_file: ca.pem\n  client_auth_type: RequireAndVerifyClientCert\n"
+                "http_server_config:\n  headers:\n"
+                "    Strict-Transport-Security: max-age=31536000\n")
 
     def tls(self, who):
         context = ssl.create_default_context(cafile=self.certs.path("ca.pem"))

@@ -33,7 +33,7 @@ import paho.mqtt.client as mqtt  # noqa: E402
 import node_red  # noqa: E402
 from broker import Broker  # noqa: E402
 from process_memory import RSS_TELLS, MemoryLimit, peak_rss  # noqa: E402
-from rig import SLOWDOWN, Rig, eventually, free_port  # noqa: E402
+from rig import SLOWDOWN, Rig, eventually  # noqa: E402
 
 PREFIX = "ioportd/box7"
 NODE = "ioportd_box7"  # mqtt_json::node_id(PREFIX)
@@ -875,36 +875,32 @@ class FromOutside(unittest.TestCase):
         finally:
             sub.close()
 
+    def start_daemon_on(self, broker):
+        """The daemon, on a ScriptedBroker (started here, closed after the test)."""
+        broker.start()
+        self.addCleanup(broker.close)
+        self.rig.broker_port = broker.port
+        self.rig.configure(HUB)
+        self.rig.start_daemon()
+
     def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
         old = Mqtt311Broker()
-        old.start()
-        try:
-            self.rig.broker_port = old.port
-            self.rig.configure(HUB)
-            self.rig.start_daemon()
-            self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} refused MQTT 5, so "
-                              r"MQTT 3\.1\.1, which cannot ask it to send nothing larger than "
-                              r"65536 bytes: set its message_size_limit", 10)
-            self.rig.wait_log(r"mqtt_json: connected to \S+ as \S+ \(MQTT 3\.1\.1\)", 10)
-            self.assertEqual(old.levels[:2], [5, 4])
-        finally:
-            old.close()
-
+        self.start_daemon_on(old)
+        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} refused MQTT 5, so "
+                          r"MQTT 3\.1\.1, which cannot ask it to send nothing larger than "
+                          r"65536 bytes: set its message_size_limit", 10)
+        self.rig.wait_log(r"mqtt_json: connected to \S+ as \S+ \(MQTT 3\.1\.1\)", 10)
+        self.assertEqual(old.levels[:2], [5, 4])
 
     def test_a_disconnect_from_the_broker_is_logged_with_its_reason(self):
         # Before: "connection ... lost: Unknown error." (the reason code given to strerror).
         rival = TakingOverBroker()
-        rival.start()
-        try:
-            self.rig.broker_port = rival.port
-            self.rig.configure(HUB)
-            self.rig.start_daemon()
-            self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{rival.port} sent DISCONNECT: "
-                              r"Session taken over \(reason code 0x8E\); another client "
-                              r"connected as ioportd-json_ioportd_2Fbox7: give each its own "
-                              r"client_id; reconnecting within 1 s", 10)
-        finally:
-            rival.close()
+        self.start_daemon_on(rival)
+        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{rival.port} sent DISCONNECT: "
+                          r"Session taken over \(reason code 0x8E\); another client connected "
+                          r"as ioportd-json_ioportd_2Fbox7: give each its own client_id; "
+                          r"reconnecting within 1 s", 10)
+
 
 @unittest.skipUnless(NODE_RED_DIR, "Node-RED is not installed (tests/mqtt_json/node_red.py)")
 class NodeRed(JsonCase):

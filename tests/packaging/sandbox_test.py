@@ -228,7 +228,7 @@ links:
             config.write_text(config.read_text().replace("timeout: 500ms\n", "timeout: 400ms\n"))
             notify.messages.clear()
             os.kill(int(children[0]), signal.SIGHUP)
-            check(notify.wait_for(lambda m: m == "READY=1", 10), f"no READY=1 after SIGHUP")
+            check(notify.wait_for(lambda m: m == "READY=1", 10), "no READY=1 after SIGHUP")
             check("SIGHUP: reloaded" in Path(log).read_text(),
                   f"the reload was not applied:\n{Path(log).read_text()}")
             os.kill(int(children[0]), signal.SIGTERM)
