@@ -579,7 +579,10 @@ TEST_F(MisbehavingClients, DoNotDisturbTheOthers) {
     figure("read latency of the well-behaved clients, p99", ms(report.read_latency.p99));
     EXPECT_EQ(crowd_served.load(), 1000);
     EXPECT_TRUE(deaf_closed());
-    EXPECT_LT(report.read_latency.p99, 50ms * slowdown);
+    // Reads are answered from the image; what delays them here is the crowd's 1000 connections
+    // being accepted and the machine. The sanitized build, beside other tests on two cores,
+    // once measured a p99 of 158 ms: the bound leaves room for that, not for a wait on a client.
+    EXPECT_LT(report.read_latency.p99, 100ms * slowdown);
 }
 
 // --- A client that trickles its request ----------------------------------------------------
