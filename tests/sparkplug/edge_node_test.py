@@ -1082,6 +1082,15 @@ class StoreAndForward(OwnDaemon):
         return [(value, stamp) for m in self.host.since(mark, "DDATA", "hub0.dim16.0")
                 for name, value, stamp in m.historical if name == self.WORD]
 
+    def written_history(self, mark):
+        """history()'s values, each run of one value once, and without a leading 0 (dim16:0's word
+        before the test's changes). The node publishes the current word again when the module's
+        status changes; under load a poll that timed out did that during an outage once, and the
+        0 it stored is history like the rest, truthfully stamped before the changes."""
+        values = [value for value, _ in self.history(mark)]
+        runs = [value for i, value in enumerate(values) if i == 0 or value != values[i - 1]]
+        return runs[1:] if runs[:1] == [0] else runs
+
     def check_history_form(self, mark):
         """What a historical DDATA looks like: flat metrics, each is_historical."""
         for m in self.host.since(mark, "DDATA", "hub0.dim16.0"):
@@ -1101,13 +1110,14 @@ class StoreAndForward(OwnDaemon):
         mark = self.host.mark()
         self.broker_back()
         self.wait_births(mark)
-        eventually(lambda: [v for v, _ in self.history(mark)] == self.WORDS, 20,
+        eventually(lambda: self.written_history(mark) == self.WORDS, 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
         self.check_history_form(mark)
         stamps = [stamp for _, stamp in self.history(mark)]
         self.assertEqual(stamps, sorted(stamps), "oldest first")
         nbirth = self.host.since(mark, "NBIRTH")[0]
-        self.assertTrue(before <= stamps[0] and stamps[-1] <= nbirth.timestamp,
+        first_change = next(stamp for value, stamp in self.history(mark) if value == self.WORDS[0])
+        self.assertTrue(before <= first_change and stamps[-1] <= nbirth.timestamp,
                         "acquisition timestamps, from before the births")
         # The births carry the current values; history never changes the host's view.
         dbirth = self.host.since(mark, "DBIRTH", "hub0.dim16.0")[0]
@@ -1147,7 +1157,7 @@ class StoreAndForward(OwnDaemon):
         self.rig.start_daemon()
         self.rig.wait_log(r"Sparkplug store \S+: [3-9]\d* record\(s\) to forward", 5)
         self.wait_births(mark)
-        eventually(lambda: [v for v, _ in self.history(mark)] == self.WORDS[:3], 20,
+        eventually(lambda: self.written_history(mark) == self.WORDS[:3], 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
 
 
