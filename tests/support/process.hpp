@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "sim/control_client.hpp"
+#include "tests/support/timing.hpp"
 
 namespace ioport::test {
 
@@ -29,8 +30,11 @@ pid_t spawn(const std::vector<std::string>& argv, int out_fd, int err_fd,
 // if it is still running then.
 int wait_exit(pid_t pid, std::chrono::steady_clock::time_point deadline);
 
-// Runs a program to completion; kills it if it outlives `deadline`.
-Outcome run(const std::vector<std::string>& argv, std::chrono::milliseconds deadline = 20s);
+// Runs a program to completion; kills it if it outlives `deadline` (by default 20 s, stretched
+// by the build's slowdown like every upper bound on a wait: an ASan ioportctl scanning 72
+// addresses with deadlines of its own stretched took longer).
+Outcome run(const std::vector<std::string>& argv,
+            std::chrono::milliseconds deadline = 20s * slowdown);
 
 // A started program whose stdout can be waited on line by line; SIGTERM and reaped on destruction.
 class Child {
