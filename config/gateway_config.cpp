@@ -1,9 +1,11 @@
 #include "config/gateway_config.hpp"
 
 #include <algorithm>
+#include <map>
 #include <system_error>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 namespace ioport::config {
 
@@ -60,6 +62,45 @@ bool authenticates(const HttpSettings& http) {
             (http.web->tls && http.web->tls->client_auth == ClientAuth::require_and_verify));
 }
 
+// The cost of a bcrypt hash ("$2y$10$…": 10), which the loader checked.
+int bcrypt_cost(const std::string& hash) {
+    return (hash[4] - '0') * 10 + (hash[5] - '0');
+}
+
+// What the web configuration's users cost each check, and whether their passwords cross the
+// network readable (gateway.md §7.5).
+void web_warnings(const HttpSettings& http, std::vector<std::string>& found) {
+    const auto& web = *http.web;
+    if (!web.users.empty() && !web.tls && !loopback(http.listen_host))
+        found.push_back(fmt::format(
+            "the passwords of {}'s basic_auth_users cross the network readable: http.listen "
+            "\"{}\" is plain HTTP. Add tls_server_config to {} (docs/http.md), or listen on "
+            "127.0.0.1 behind a proxy that speaks HTTPS",
+            web.path, host_port(http.listen_host, http.listen_port), web.path));
+    std::map<int, std::vector<std::string>> users_of_cost;
+    for (const auto& [user, hash] : web.users)
+        users_of_cost[bcrypt_cost(hash)].push_back(user);
+    if (users_of_cost.size() > 1) {
+        std::vector<std::string> costs;
+        costs.reserve(users_of_cost.size());
+        for (const auto& [cost, users] : users_of_cost)
+            costs.push_back(fmt::format("{} ({})", cost, fmt::join(users, ", ")));
+        found.push_back(fmt::format(
+            "the bcrypt hashes of {} have different costs: {}. An unknown user is refused at one "
+            "cost, so how long a refusal takes tells which names exist: make every hash with the "
+            "same cost (htpasswd -nBC 10 USER)",
+            web.path, fmt::join(costs, ", ")));
+    }
+    constexpr int max_quick_cost = 12;
+    for (const auto& [cost, users] : users_of_cost)
+        if (cost > max_quick_cost)
+            found.push_back(fmt::format(
+                "the bcrypt hash of {} in {} has cost {}: each check of its password is {} times "
+                "the work of cost 10 (cost 12 took 0.22 s on a 2-core x86 box), and every other "
+                "sign-in waits behind it on the one hashing thread; make it with cost 10 to 12",
+                fmt::join(users, ", "), web.path, cost, 1 << (cost - 10)));
+}
+
 }  // namespace
 
 std::vector<std::string> warnings(const GatewayConfig& config) {
@@ -89,6 +130,7 @@ std::vector<std::string> warnings(const GatewayConfig& config) {
             "basic_auth_users or required client certificates (docs/http.md), or listen on "
             "127.0.0.1",
             host_port(config.http->listen_host, config.http->listen_port)));
+    if (config.http && config.http->web) web_warnings(*config.http, found);
     if (config.mqtt) password_in_clear(*config.mqtt, "mqtt");
     if (config.mqtt_json) password_in_clear(config.mqtt_json->connection, "mqtt_json");
     return found;

@@ -126,6 +126,8 @@ struct WebConfig {
     friend bool operator==(const WebConfig&, const WebConfig&) = default;
 };
 
+inline constexpr int default_ipv6_prefix = 64;
+
 // The HTTP side (gateway.md §5.4, §7.1): metrics, status page, health; writes by operators.
 struct HttpSettings {
     std::string listen_host = "127.0.0.1";  // as ModbusSettings::listen_host
@@ -136,6 +138,9 @@ struct HttpSettings {
     std::vector<std::string> server_names;
     std::optional<WebConfig> web;        // http.web_config_file; none: plain, anyone reads (§5.4)
     std::vector<std::string> operators;  // users who may write (§7.1)
+    // How many leading bits of an IPv6 client's address make one address for the per-address
+    // limits (gateway.md §7.5).
+    int ipv6_prefix = default_ipv6_prefix;
     friend bool operator==(const HttpSettings&, const HttpSettings&) = default;
 };
 

@@ -3,8 +3,8 @@
 namespace ioport::config::detail {
 namespace {
 
-constexpr std::array<std::string_view, 5> http_keys{"listen", "allow", "server_names",
-                                                    "web_config_file", "operators"};
+constexpr std::array<std::string_view, 6> http_keys{"listen",          "allow",     "server_names",
+                                                    "web_config_file", "operators", "ipv6_prefix"};
 
 // http.server_names: what a Host header names, as DNS spells it; no scheme, port or wildcard.
 Parsed<std::string> server_name(const std::string& name) {
@@ -33,6 +33,7 @@ void Loader::read_http(const Entry& entry, std::optional<HttpSettings>& http) {
     read_allow(f, http->allow);
     read_server_names(f, http->server_names);
     read_web(f, *http);
+    read(f, "ipv6_prefix", "a prefix length 64..128", http->ipv6_prefix, integer(64, 128));
     Endpoint listen{http->listen_host, http->listen_port};
     const Entry* off = f.find("listen");
     if (off != nullptr && off->value.IsScalar() && off->value.Scalar().empty()) {

@@ -1,6 +1,7 @@
 #include "config/tls_files.hpp"
 
 #include <fcntl.h>
+#include <pwd.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -40,6 +41,16 @@ std::string system_error(const std::string& path, int error) {
     return fmt::format("{}: {}", path, std::generic_category().message(error));
 }
 
+// "ioportd (uid 998)", or "uid 998" for a number without a name.
+std::string user_text(uid_t uid) {
+    passwd entry{};
+    passwd* found = nullptr;
+    std::array<char, 4096> buffer{};
+    if (::getpwuid_r(uid, &entry, buffer.data(), buffer.size(), &found) == 0 && found != nullptr)
+        return fmt::format("{} (uid {})", found->pw_name, uid);
+    return fmt::format("uid {}", uid);
+}
+
 struct Descriptor {
     int fd = -1;
     ~Descriptor() {
@@ -64,6 +75,12 @@ Expected<std::string, std::string> read_protected_file(const std::string& path, 
         return Unexpected(
             fmt::format("{} is not a file ({})", path, std::generic_category().message(EISDIR)));
     if (!S_ISREG(status.st_mode)) return Unexpected(fmt::format("{} is not a file", path));
+    // As sshd does with its files: whoever owns a file can change its mode, and so its rights.
+    if (status.st_uid != 0 && status.st_uid != ::geteuid())
+        return Unexpected(fmt::format(
+            "{} is owned by {}, neither root nor {}, the user ioportd runs as: its owner can "
+            "change it and give themselves any right; chown root {}",
+            path, user_text(status.st_uid), user_text(::geteuid()), path));
     const auto mode = status.st_mode & 07777;
     if ((status.st_mode & (S_IWGRP | S_IWOTH)) != 0)
         return Unexpected(fmt::format(

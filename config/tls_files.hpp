@@ -14,8 +14,9 @@ namespace ioport::config {
 enum class Secrecy { public_file, secret };
 
 // The text of a file that grants rights (gateway.md §5.6: the configuration, the TLS files, an
-// MQTT password file): a regular file that neither its group nor others may write, else whoever
-// can write it grants themselves a role. Checked with fstat on the opened descriptor, so that
+// MQTT password file, the web configuration): a regular file owned by root or by the user this
+// process runs as, that neither its group nor others may write, else whoever owns or can write it
+// grants themselves a role. Checked with fstat on the opened descriptor, so that
 // the file read is the file checked. At most `max_size` bytes.
 Expected<std::string, std::string> read_protected_file(const std::string& path, Secrecy secrecy,
                                                        std::size_t max_size);

@@ -1,14 +1,16 @@
 // Who asks the HTTP side (gateway.md §7.1): Basic authentication against the web
 // configuration's bcrypt hashes, the failure limiter, and the credentials remembered once
 // verified, so that a scrape a second costs no bcrypt. A bcrypt takes tens of milliseconds by
-// design: it runs on the daemon's hashing thread, never on the loop, at most
-// max_pending_verifications at once.
+// design: it runs on the daemon's hashing thread, never on the loop, one at a time, each client
+// address's in turn (gateway.md §7.5).
 #pragma once
 
 #include <array>
 #include <chrono>
 #include <cstdint>
+#include <deque>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -34,84 +36,129 @@ std::optional<BasicCredentials> parse_basic_credentials(std::string_view authori
 // compared in constant time. Blocking: tens of milliseconds at cost 10.
 bool bcrypt_matches(const std::string& hash, std::string_view password);
 
-// Of each client address (an IPv6 one by its /64, which one machine usually has whole), the
-// failures of the running minute: after max_failures the address is refused until the minute
-// since its first failure is over. At most max_addresses are followed: when full, the one whose
-// minute began first makes room.
-class FailureLimiter {
+// Where a request comes from, for the limits that count per address (gateway.md §7.5): an IPv4
+// address (an IPv4-mapped IPv6 one as itself), or an IPv6 address by its first `ipv6_prefix` bits
+// (64..128; a plant's hosts may share a /64, one machine usually has one whole).
+using ClientKey = std::array<unsigned char, 17>;
+ClientKey client_key(const asio::ip::address& address, int ipv6_prefix);
+struct ClientKeyHash {
+    std::size_t operator()(const ClientKey& key) const;
+};
+
+// Of each client address, the password checks of the last minute, whether one is in flight and
+// whether one failed: at most max_checks within any minute, queued or running ones included, and
+// one at a time. At most max_addresses are followed: when full, those with nothing in the last
+// minute make room, then the one whose last check is oldest (never one with a check in flight).
+class CheckLimiter {
   public:
     using Clock = std::chrono::steady_clock;
-    static constexpr int max_failures = 5;
+    static constexpr int max_checks = 5;
     static constexpr std::chrono::seconds window{60};
     static constexpr std::size_t max_addresses = 4096;
+    // What a 429 for a check in flight says: it ends within a few bcrypt times.
+    static constexpr std::chrono::seconds in_flight_retry{1};
 
-    // When the address may try again; nullopt when it may now.
+    void set_ipv6_prefix(int bits) { ipv6_prefix_ = bits; }
+    // When the address may start a check; nullopt when it may now.
     std::optional<Clock::time_point> refused_until(const asio::ip::address& address,
                                                    Clock::time_point now) const;
-    void failed(const asio::ip::address& address, Clock::time_point now);
-    std::size_t addresses() const { return failures_.size(); }
+    // A check begins (queued): counted now, not when its verdict is known.
+    void started(const asio::ip::address& address, Clock::time_point now);
+    // Its verdict: a failure puts the address behind the others until its minute is over.
+    void finished(const asio::ip::address& address, bool failed, Clock::time_point now);
+    // A check of this address failed within the last minute.
+    bool failing(const asio::ip::address& address, Clock::time_point now) const;
+    std::size_t addresses() const { return clients_.size(); }
 
   private:
-    using Key = std::array<unsigned char, 16>;
-    struct Minute {
-        Clock::time_point began;
-        int failures = 0;
+    struct Client {
+        std::array<Clock::time_point, max_checks> checks{};  // the newest max_checks, oldest first
+        int count = 0;                                       // of checks[] in use
+        bool in_flight = false;
+        std::optional<Clock::time_point> failed{};
     };
-    struct KeyHash {
-        std::size_t operator()(const Key& key) const;
-    };
-    static Key key_of(const asio::ip::address& address);
-    std::unordered_map<Key, Minute, KeyHash> failures_;
+    const Client* find(const asio::ip::address& address) const;
+    void make_room(Clock::time_point now);
+    std::unordered_map<ClientKey, Client, ClientKeyHash> clients_;
+    int ipv6_prefix_ = config::default_ipv6_prefix;
 };
 
 enum class AuthVerdict {
     authenticated,
     missing,  // no credentials: 401, not a failure (a browser's first request sends none)
     refused,  // wrong or malformed: 401, counted
-    limited,  // the address failed too often: 429 until retry_at
-    busy,     // max_pending_verifications are hashing: 503
+    limited,  // the address checked too often, or has a check in flight: 429 until retry_at
+    busy,     // max_waiting_checks other addresses are waiting: 503
 };
 
 struct AuthOutcome {
     AuthVerdict verdict = AuthVerdict::missing;
     std::string user{};  // of authenticated
-    FailureLimiter::Clock::time_point retry_at{};
+    CheckLimiter::Clock::time_point retry_at{};
 };
+
+// A digest of a password keyed with `key` (HMAC-SHA-256), as a verified password is remembered:
+// without the key, which never leaves the process, it tells nothing about the password.
+using DigestKey = std::array<unsigned char, 32>;
+std::string keyed_digest(const DigestKey& key, std::string_view password);
+
+// The hash an unknown user's password is checked against, so that refusing one costs what
+// refusing a known user costs: of the cost most of `users` have (the highest of those tied), 10
+// when there are none.
+std::string decoy_hash(const std::map<std::string, std::string>& users);
 
 // Owned by the HTTP output, so that a reload that moves the listener keeps the limiter, the
 // remembered credentials (while their hash stays) and the count.
+//
+// One bcrypt at a time runs on the hashing thread; the checks waiting for it are served in two
+// queues, addresses without a failure in the last minute first, each address at most once: an
+// attacker with many addresses never keeps a user from signing in (gateway.md §7.5).
 class Authenticator {
   public:
-    using Clock = FailureLimiter::Clock;
-    static constexpr int max_pending_verifications = 8;
+    using Clock = CheckLimiter::Clock;
+    static constexpr std::size_t max_waiting_checks = 32;
 
     Authenticator(const asio::any_io_executor& loop, WorkerThread& hashing, Log& log);
 
     // basic_auth_users (user: bcrypt hash); none: no authentication. A user whose hash changed is
     // verified anew.
     void set_users(std::map<std::string, std::string> users);
+    void set_ipv6_prefix(int bits) { limiter_.set_ipv6_prefix(bits); }
     bool required() const { return !users_.empty(); }
     // The request from `from` with this Authorization header ("" when it has none).
     asio::awaitable<AuthOutcome> check(asio::ip::address from, std::string authorization);
     // Requests refused for wrong credentials: ioportd_http_auth_failures_total.
     std::uint64_t failures() const { return failures_; }
+    // Requests refused unchecked: ioportd_http_auth_refused_total{reason}.
+    std::uint64_t limited() const { return limited_; }
+    std::uint64_t busy() const { return busy_; }
 
   private:
+    struct Waiter;
     AuthOutcome refuse(const asio::ip::address& from, std::string_view user, Clock::time_point now);
+    // Waits for the hashing thread's turn; false when a better placed check took the place.
+    asio::awaitable<bool> take_turn(bool failing);
+    void next_turn();
 
     asio::any_io_executor loop_;
     WorkerThread& hashing_;
     Log& log_;
     std::map<std::string, std::string> users_;
+    std::string decoy_;
+    DigestKey key_{};
     struct Verified {
         std::string hash;    // the bcrypt hash it was verified against
-        std::string digest;  // SHA-256 of the password, never the password itself
+        std::string digest;  // keyed_digest of the password, never the password itself
     };
     std::map<std::string, Verified> verified_;  // one per user at most: bounded by the file
-    FailureLimiter limiter_;
+    CheckLimiter limiter_;
     LogLimiter logged_;
-    int pending_ = 0;
+    std::deque<std::shared_ptr<Waiter>> clean_;    // addresses without a recent failure
+    std::deque<std::shared_ptr<Waiter>> failing_;  // the others
+    bool hashing_busy_ = false;
     std::uint64_t failures_ = 0;
+    std::uint64_t limited_ = 0;
+    std::uint64_t busy_ = 0;
 };
 
 }  // namespace ioport::daemon

@@ -55,13 +55,18 @@ HttpOutput::HttpOutput(const asio::any_io_executor& executor, Log& log, EventBus
 std::shared_ptr<HttpServer> HttpOutput::make(const config::HttpSettings& settings, TlsContext tls) {
     // The output outlives its servers' requests: the gateway stops them before it goes.
     return std::make_shared<HttpServer>(executor_, settings, std::move(tls), auth_, host_name_,
-                                        log_,
+                                        log_, connections_refused_,
                                         [this](HttpCall call) { return answer(std::move(call)); });
+}
+
+void HttpOutput::set_users() {
+    auth_->set_users(users_of(settings_));
+    auth_->set_ipv6_prefix(settings_ ? settings_->ipv6_prefix : config::default_ipv6_prefix);
 }
 
 Result<> HttpOutput::start(const config::GatewayConfig& config, const Links& /*links*/) {
     settings_ = config.http;
-    auth_->set_users(users_of(settings_));
+    set_users();
     if (!settings_) return {};
     auto tls = make_http_tls_context(*settings_);
     if (!tls) return Unexpected(tls.error());
@@ -99,7 +104,7 @@ void HttpOutput::abandon() {
 bool HttpOutput::apply(const config::GatewayConfig& next, const Links& /*links*/) {
     const bool changed = next.http != settings_;
     settings_ = next.http;
-    auth_->set_users(users_of(settings_));
+    set_users();
     if (!next.http || next_) {
         if (server_) {
             server_->stop();
@@ -119,10 +124,24 @@ void HttpOutput::stop(std::chrono::milliseconds /*deadline*/, std::function<void
 }
 
 void HttpOutput::metrics(Exposition& out) const {
-    if (!settings_ || !settings_->web) return;
+    if (!settings_) return;
+    const auto& refused = connections_refused_;
+    out.family("ioportd_http_connections_refused_total", "counter",
+               "HTTP connections closed unserved, by reason");
+    for (const auto& [reason, count] :
+         {std::pair{"not_allowed", refused.not_allowed}, std::pair{"too_many", refused.too_many},
+          std::pair{"per_address", refused.per_address},
+          std::pair{"too_many_handshakes", refused.too_many_handshakes},
+          std::pair{"tls_handshake", refused.tls_handshake}})
+        out.sample("ioportd_http_connections_refused_total", {{"reason", reason}}, count);
+    if (!settings_->web) return;
     out.family("ioportd_http_auth_failures_total", "counter",
                "HTTP requests refused for wrong or malformed credentials");
     out.sample("ioportd_http_auth_failures_total", {}, auth_->failures());
+    out.family("ioportd_http_auth_refused_total", "counter",
+               "HTTP requests refused without a password check, by reason");
+    out.sample("ioportd_http_auth_refused_total", {{"reason", "limited"}}, auth_->limited());
+    out.sample("ioportd_http_auth_refused_total", {{"reason", "busy"}}, auth_->busy());
 }
 
 asio::awaitable<HttpResponse> HttpOutput::answer(HttpCall call) {

@@ -31,11 +31,15 @@ class HttpOutput final : public Output, public std::enable_shared_from_this<Http
     void abandon() override;
     bool apply(const config::GatewayConfig& next, const Links& links) override;
     void stop(std::chrono::milliseconds deadline, std::function<void()> done) override;
-    // ioportd_http_auth_failures_total; the HTTP side has no state members of its own.
+    // ioportd_http_connections_refused_total; with a web configuration
+    // ioportd_http_auth_failures_total and ioportd_http_auth_refused_total. The HTTP side has no
+    // state members of its own.
     void metrics(Exposition& out) const override;
     void state(Json& /*out*/) const override {}
 
   private:
+    // The web configuration's users and http.ipv6_prefix, to the authenticator.
+    void set_users();
     std::shared_ptr<HttpServer> make(const config::HttpSettings& settings, TlsContext tls);
     asio::awaitable<HttpResponse> answer(HttpCall call);
     asio::awaitable<HttpResponse> write(HttpCall call);
@@ -53,6 +57,7 @@ class HttpOutput final : public Output, public std::enable_shared_from_this<Http
     std::shared_ptr<HttpServer> next_;    // bound by prepare(), taken by apply()
     TlsContext next_tls_;                 // made by prepare(), taken by apply()
     LogLimiter refusals_;
+    HttpRefusals connections_refused_;
     std::size_t metrics_bytes_ = 0;  // the last /metrics, reserved for the next (render_page)
 };
 

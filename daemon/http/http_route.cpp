@@ -208,7 +208,8 @@ Expected<Route, Refusal> route(std::string_view method, std::string_view target,
     else if (format == "md")
         route.format = MapFormat::markdown;
     else
-        return Unexpected(Refusal{400, fmt::format("format: '{}' is not html, csv or md", format)});
+        return Unexpected(Refusal{
+            400, fmt::format("format: '{}' is not html, csv or md", printable(format, 40))});
     return route;
 }
 

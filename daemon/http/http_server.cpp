@@ -160,6 +160,8 @@ struct HttpServer::Connection {
 
     std::variant<std::monostate, PlainStream, SecureStream> stream;
     asio::ip::address address;
+    ClientKey key{};      // its address's, as counted when it was accepted
+    bool served = false;  // counted in served_: past its handshake, or plain
     std::string peer;
     TlsContext tls;                // kept while the connection lives; null for plain HTTP
     std::string certificate_user;  // certificate_user()
@@ -175,7 +177,7 @@ struct HttpServer::Exchange {
 
 HttpServer::HttpServer(const asio::any_io_executor& executor, config::HttpSettings settings,
                        TlsContext tls, std::shared_ptr<Authenticator> auth, std::string host_name,
-                       Log& log, HttpHandler handler)
+                       Log& log, HttpRefusals& refusals, HttpHandler handler)
     : executor_(executor),
       settings_(std::move(settings)),
       tls_(std::move(tls)),
@@ -183,7 +185,8 @@ HttpServer::HttpServer(const asio::any_io_executor& executor, config::HttpSettin
       host_name_(std::move(host_name)),
       log_(log),
       handler_(std::move(handler)),
-      accept_retry_(executor) {
+      accept_retry_(executor),
+      refused_(refusals) {
     set_names();
 }
 
@@ -252,20 +255,79 @@ asio::awaitable<void> HttpServer::accept_loop(Acceptor acceptor) {
         }
         const auto peer = socket.remote_endpoint(ec);
         if (ec) continue;
-        if (connections_.size() >= max_http_connections) {
-            log_refusal(host_port(peer),
-                        fmt::format("{} HTTP connections open", max_http_connections));
+        const auto key = client_key(peer.address(), settings_.ipv6_prefix);
+        auto& from = client(key);
+        if (const auto why = refusal_of(peer, from); !why.empty()) {
+            log_refusal(host_port(peer), why);
             continue;  // the socket closes as it goes out of scope
-        }
-        if (!allowed(settings_.allow, peer.address())) {
-            log_refusal(host_port(peer), "not in http.allow");
-            continue;
         }
         socket.set_option(tcp::no_delay(true), ec);
         auto connection = std::make_shared<Connection>(std::move(socket), peer, tls_);
+        connection->key = key;
+        ++from.connections;
+        if (tls_) {
+            ++from.handshakes;
+            ++handshakes_;
+        } else {
+            connection->served = true;
+            ++served_;
+        }
         connections_.insert(connection.get());
         asio::co_spawn(executor_, serve(std::move(connection)), asio::detached);
     }
+}
+
+HttpServer::Client& HttpServer::client(const ClientKey& key) {
+    // Bounded by what is open (at most max_http_connections + max_http_handshakes addresses hold
+    // something) and by the addresses whose handshake tokens are still refilling.
+    constexpr std::size_t max_clients = 1024;
+    if (clients_.size() >= max_clients && !clients_.contains(key))
+        std::erase_if(clients_, [](const auto& entry) { return entry.second.connections == 0; });
+    return clients_[key];
+}
+
+std::string HttpServer::refusal_of(const tcp::endpoint& peer, Client& from) {
+    if (!allowed(settings_.allow, peer.address())) {
+        ++refused_.not_allowed;
+        return "not in http.allow";
+    }
+    if (from.connections >= max_http_connections_per_address) {
+        ++refused_.per_address;
+        return fmt::format("{} HTTP connections open from its address",
+                           max_http_connections_per_address);
+    }
+    if (!tls_) {
+        if (served_ < max_http_connections) return {};
+        ++refused_.too_many;
+        return fmt::format("{} HTTP connections open", max_http_connections);
+    }
+    const auto now = std::chrono::steady_clock::now();
+    const std::chrono::duration<double> since = now - from.refilled;
+    from.tokens =
+        std::min(http_handshake_burst, from.tokens + since.count() * http_handshakes_per_second);
+    from.refilled = now;
+    std::string why;
+    if (handshakes_ >= max_http_handshakes)
+        why = fmt::format("{} TLS handshakes under way", max_http_handshakes);
+    else if (from.handshakes >= max_http_handshakes_per_address)
+        why = fmt::format("{} TLS handshakes under way from its address",
+                          max_http_handshakes_per_address);
+    else if (from.tokens < 1)
+        why = fmt::format("more than {} TLS handshakes a second from its address",
+                          http_handshakes_per_second);
+    if (why.empty()) {
+        from.tokens -= 1;
+        return {};
+    }
+    ++refused_.too_many_handshakes;
+    return why;
+}
+
+void HttpServer::closed(Connection& c) {
+    const auto from = clients_.find(c.key);
+    if (from != clients_.end()) --from->second.connections;
+    if (c.served) --served_;
+    connections_.erase(&c);
 }
 
 asio::awaitable<void> HttpServer::serve(std::shared_ptr<Connection> c) {
@@ -275,10 +337,19 @@ asio::awaitable<void> HttpServer::serve(std::shared_ptr<Connection> c) {
         c->transport().expires_after(http_request_timeout);
         co_await secure->async_handshake(asio::ssl::stream_base::server,
                                          redirect_error(use_awaitable, ec));
+        --handshakes_;
+        if (const auto from = clients_.find(c->key); from != clients_.end())
+            --from->second.handshakes;
         if (ec) {
+            ++refused_.tls_handshake;
             log_refusal(c->peer, fmt::format("TLS handshake failed: {}",
                                              handshake_failure(ec, secure->native_handle())));
+        } else if (served_ >= max_http_connections) {
+            ++refused_.too_many;
+            log_refusal(c->peer, fmt::format("{} HTTP connections open", max_http_connections));
         } else {
+            c->served = true;
+            ++served_;
             c->certificate_user = certificate_user(secure->native_handle(), settings_);
             co_await exchange(*c, *secure);
         }
@@ -286,7 +357,7 @@ asio::awaitable<void> HttpServer::serve(std::shared_ptr<Connection> c) {
         co_await exchange(*c, std::get<PlainStream>(c->stream));
     }
     c->close();
-    connections_.erase(c.get());
+    closed(*c);
 }
 
 template <class Stream>
@@ -323,6 +394,9 @@ asio::awaitable<void> HttpServer::exchange(Connection& c, Stream& stream) {
         } else {
             version = x.parser.get().version();
             keep_alive = x.parser.get().keep_alive();
+            // Headers only, whatever the answer (a refusal too): a body after them would be read
+            // as the next answer on a kept-alive connection.
+            x.head = x.parser.get().method() == http::verb::head;
             x.unread_body = !x.parser.is_done();
             page = co_await answer(c, stream, x);
         }
@@ -376,7 +450,6 @@ asio::awaitable<HttpResponse> HttpServer::answer(Connection& c, Stream& stream, 
     if (write) co_return co_await read_write(c, stream, x, call);
     // A page's request with a body (a form's POST is refused above for its method).
     if (x.unread_body) co_return text(413, "this page takes no request body");
-    x.head = routed->head;
     co_return co_await handler_(std::move(call));
 }
 
@@ -401,14 +474,16 @@ asio::awaitable<std::optional<HttpResponse>> HttpServer::authenticate(
             const auto wait = std::chrono::ceil<std::chrono::seconds>(outcome.retry_at -
                                                                       Authenticator::Clock::now());
             auto refused = refusal(write, 429, "limited",
-                                   "too many failed sign-ins from this address: try again later");
+                                   "too many password checks from this address (five a minute, "
+                                   "one at a time): try again later");
             refused.headers.emplace_back(
                 "Retry-After", std::to_string(std::max(wait, std::chrono::seconds{1}).count()));
             co_return refused;
         }
         case AuthVerdict::busy: {
             auto refused = refusal(write, 503, "busy",
-                                   "too many sign-ins being checked: try again in a second");
+                                   "too many addresses are signing in at once: try again in a "
+                                   "second");
             refused.headers.emplace_back("Retry-After", "1");
             co_return refused;
         }

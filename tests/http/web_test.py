@@ -16,9 +16,12 @@ import re
 import shutil
 import socket
 import ssl
+import statistics
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 import unittest
 
 IOPORTD, IOPORT_SIM, PROMETHEUS = sys.argv[1:4]
@@ -26,7 +29,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 from certificates import Certificates  # noqa: E402
 from prometheus import Prometheus  # noqa: E402
-from rig import Rig, die_with_parent, eventually  # noqa: E402
+from rig import SLOWDOWN, Rig, die_with_parent, eventually  # noqa: E402
 
 CONFIG = """modbus: {{ listen: "127.0.0.1:0", read_only: {read_only} }}
 http:
@@ -191,6 +194,13 @@ class Passwords(WebRig):
         log = self.rig.reload(self.config())
         self.assertRegex(log, r"web\.yml is writable by every user")
         self.assertEqual(self.request("GET", "/metrics", ("bob", "new-pw")).status, 200)
+        # So is one that another user owns (gateway.md §7.5), who could make themselves an operator.
+        if os.geteuid() == 0:
+            os.chmod(self.web, 0o600)
+            os.chown(self.web, 65534, -1)
+            log = self.rig.reload(self.config())
+            self.assertRegex(log, r"web\.yml is owned by nobody \(uid 65534\), neither root nor")
+            self.assertEqual(self.request("GET", "/metrics", ("bob", "new-pw")).status, 200)
 
 
 class Writes(WebRig):
@@ -303,6 +313,29 @@ class ClientCertificates(WebRig):
         viewer = self.write("out3", "OFF", auth=None, connection=self.tls("viewer"))
         self.assertEqual(viewer.status, 403, viewer.body)
 
+    def test_connections_that_never_start_tls_keep_no_one_out(self):
+        """gateway.md §7.5: handshakes have a budget per address, and never take the places of
+        connections being served."""
+        silent = []
+        for _ in range(64):
+            s = socket.socket()
+            s.bind(("127.0.0.7", 0))
+            s.settimeout(10)
+            try:
+                s.connect(("127.0.0.1", self.port))
+            except OSError:
+                s.close()
+                continue
+            silent.append(s)
+        self.addCleanup(lambda: [s.close() for s in silent])
+        for _ in range(3):
+            served = self.request("GET", "/api/v1/state", connection=self.tls("operator"))
+            self.assertEqual(served.status, 200)
+        text = self.request("GET", "/metrics", connection=self.tls("viewer")).body
+        # Four handshakes of that address at once; the other sixty closed at accept.
+        self.assertGreaterEqual(metric(text, 'ioportd_http_connections_refused_total'
+                                             '{reason="too_many_handshakes"}'), 60)
+
     def test_prometheus_scrapes_over_https_with_its_client_certificate(self):
         prometheus = Prometheus(PROMETHEUS, self.dir, self.port, scrape=(
             "    scheme: https\n    tls_config:\n"
@@ -313,6 +346,132 @@ class ClientCertificates(WebRig):
         self.addCleanup(prometheus.stop)
         eventually(lambda: prometheus.query('up{job="ioportd"} == 1'), 30,
                    prometheus.scrape_errors)
+
+
+def metric(rig_text, name):
+    match = re.search(rf"(?m)^{re.escape(name)} (\S+)$", rig_text)
+    return float(match.group(1)) if match else None
+
+
+class Limits(WebRig):
+    """gateway.md §7.5 against the real daemon: what one address, or many, can do to sign-in.
+    Hashes of cost 10, as htpasswd -nBC 10 makes them and docs/http.md says to."""
+    users = ["alice", "bob", "prom", "u1", "u2", "u3", "u4", "u5"]
+
+    @classmethod
+    def setUpClass(cls):
+        def cost10(user):
+            out = subprocess.run(["htpasswd", "-nbBC", "10", user, f"{user}-pw"],
+                                 capture_output=True, text=True, check=True, timeout=30).stdout
+            return user, out.strip().split(":", 1)[1]
+        with concurrent.futures.ThreadPoolExecutor(4) as pool:
+            cls.hashes = dict(pool.map(cost10, cls.users))
+
+    def scrape(self):
+        """/metrics as prom from 127.0.0.1, whose password is remembered after the first time."""
+        reply = self.request("GET", "/metrics", ("prom", "prom-pw"))
+        self.assertEqual(reply.status, 200, reply.body)
+        return reply.body
+
+    def test_a_burst_from_one_address_is_one_check_and_five_a_minute_is_all(self):
+        before = metric(self.scrape(), "ioportd_http_auth_failures_total")
+        # Eight connections, the most one address may hold, two requests each.
+        connections = [self.connection("127.0.0.9") for _ in range(8)]
+        for c in connections:
+            c.connect()
+        barrier = threading.Barrier(len(connections))
+
+        def attempts(c):
+            barrier.wait(timeout=10)
+            return [self.request("GET", "/metrics", ("bob", f"guess{i}"), connection=c).status
+                    for i in range(2)]
+        with concurrent.futures.ThreadPoolExecutor(len(connections)) as pool:
+            burst = sum(pool.map(attempts, connections), [])
+        for c in connections:
+            c.close()
+        # One at a time: all but the checks that fit (one, or more on a machine too slow to send
+        # the burst within one bcrypt) are 429 at once.
+        self.assertGreaterEqual(burst.count(429), 11, burst)
+        self.assertEqual(burst.count(401) + burst.count(429), 16, burst)
+        later = [self.request("GET", "/metrics", ("bob", f"guess{i}"), source="127.0.0.9").status
+                 for i in range(8)]
+        self.assertEqual(burst.count(401) + later.count(401), 5, (burst, later))
+        limited = self.request("GET", "/metrics", ("bob", "bob-pw"), source="127.0.0.9")
+        self.assertEqual(limited.status, 429)
+        text = self.scrape()
+        self.assertEqual(metric(text, "ioportd_http_auth_failures_total") - before, 5)
+        self.assertGreaterEqual(
+            metric(text, 'ioportd_http_auth_refused_total{reason="limited"}'), 11 + 3 + 1)
+
+    def test_users_sign_in_while_130_addresses_attack(self):
+        self.scrape()  # prom is remembered: its scrapes cost no check from here on
+        attackers = [f"127.0.1.{i}" for i in range(1, 131)]
+        stop = threading.Event()
+        counter = iter(range(10**9))
+        attacked = {"requests": 0}
+
+        def attack():
+            deadline = time.monotonic() + 120 * SLOWDOWN
+            while not stop.is_set() and time.monotonic() < deadline:
+                source = attackers[next(counter) % len(attackers)]
+                try:
+                    self.request("GET", "/metrics", ("mallory", "guess"), source=source)
+                    attacked["requests"] += 1
+                except OSError:
+                    pass
+        pool = concurrent.futures.ThreadPoolExecutor(24)
+        workers = [pool.submit(attack) for _ in range(24)]
+        self.addCleanup(pool.shutdown)
+        self.addCleanup(stop.set)
+        # Every attacking address has failed: all 130 are behind whoever has not.
+        eventually(lambda: metric(self.scrape(), "ioportd_http_auth_failures_total") >= 130, 90,
+                   "130 addresses failed once", interval=0.5)
+        times = []
+        for i in range(1, 6):
+            started = time.monotonic()
+            reply = self.request("GET", "/api/v1/state", (f"u{i}", f"u{i}-pw"),
+                                 source=f"127.0.0.{10 + i}")
+            times.append(time.monotonic() - started)
+            self.assertEqual(reply.status, 200, reply.body)
+            self.assertEqual(reply.json()["user"]["name"], f"u{i}")
+        stop.set()
+        for worker in workers:
+            worker.result(timeout=30)
+        text = self.scrape()
+        failures = metric(text, "ioportd_http_auth_failures_total")
+        limited = metric(text, 'ioportd_http_auth_refused_total{reason="limited"}')
+        busy = metric(text, 'ioportd_http_auth_refused_total{reason="busy"}')
+        print(f"[ figure ] 5 of 5 users signed in under an attack from 130 addresses "
+              f"({attacked['requests']} requests), slowest {max(times) * 1000:.0f} ms; "
+              f"failures {failures:.0f}, 429 {limited:.0f}, 503 {busy:.0f}")
+        self.assertLess(max(times), 5 * SLOWDOWN)
+
+
+class Timing(WebRig):
+    """gateway.md §7.5: an unknown user costs what a known user's wrong password costs."""
+
+    @classmethod
+    def setUpClass(cls):
+        out = subprocess.run(["htpasswd", "-nbBC", "12", "alice", "alice-pw"], capture_output=True,
+                             text=True, check=True, timeout=30).stdout
+        cls.hashes = {"alice": out.strip().split(":", 1)[1]}
+
+    def test_refusing_an_unknown_user_takes_as_long_as_a_wrong_password(self):
+        def refusal(user, source):
+            started = time.monotonic()
+            self.assertEqual(self.request("GET", "/metrics", (user, "wrong"),
+                                          source=source).status, 401)
+            return time.monotonic() - started
+        known, unknown = [], []
+        for i in range(5):  # alternately, each from an address of its own
+            known.append(refusal("alice", f"127.0.2.{2 * i + 1}"))
+            unknown.append(refusal("nobody-here", f"127.0.2.{2 * i + 2}"))
+        ratio = statistics.median(unknown) / statistics.median(known)
+        print(f"[ figure ] refusal at cost 12: known user {statistics.median(known) * 1000:.0f} "
+              f"ms, unknown user {statistics.median(unknown) * 1000:.0f} ms (median of 5)")
+        # The decoy of cost 10 took a quarter of cost 12's time.
+        self.assertGreater(ratio, 0.6, (known, unknown))
+        self.assertLess(ratio, 1.6, (known, unknown))
 
 
 class PrometheusWithPasswords(WebRig):

@@ -209,6 +209,7 @@ TEST_F(Http, MetricsHasEveryFamilyOfTheContractWithHelpAndTypeAndPassesPromtool)
         {"ioportd_modbus_request_duration_seconds", "histogram"},
         {"ioportd_writes_total", "counter"},
         {"ioportd_input_value", "gauge"},
+        {"ioportd_http_connections_refused_total", "counter"},
         {"process_cpu_seconds_total", "counter"},
         {"process_resident_memory_bytes", "gauge"},
         {"process_open_fds", "gauge"},
@@ -590,6 +591,35 @@ TEST_F(Http, HeadGivesTheHeadersWithContentLengthAndNoBody) {
               std::to_string(http_get(http_port(), "/map?format=csv").body.size()));
 }
 
+// gateway.md §7.5: a refusal to HEAD is headers only too, on a connection kept alive; and no
+// answer quotes the client's text unescaped (a CR LF in the format would be a header of its own
+// in a careless client's log, or the start of another answer).
+TEST_F(Http, HeadIsHeadersOnlyWhateverTheStatus) {
+    HttpConnection connection(http_port());
+    const std::vector<std::pair<std::string, int>> refusals{
+        {"/nonexistent", 404},
+        {"/map?format=x%0D%0AHTTP/1.1%20200%20OK%0D%0A", 400},
+        {"/map?format=%zz", 400},
+        {"/api/v1/write", 405},
+        {"metrics", 400}};
+    for (const auto& [target, status] : refusals) {
+        const auto head = connection.request("HEAD", target);
+        ASSERT_EQ(head.status, status) << target << ": " << head.error;
+        EXPECT_GT(std::stoul(head.header("Content-Length").value_or("0")), 0U) << target;
+        const auto get = connection.request("GET", "/healthz");
+        ASSERT_EQ(get.status, 200) << target << ": " << get.error;
+        EXPECT_EQ(get.body, "ok\n") << target;
+    }
+    const auto other_host = connection.request("HEAD", "/metrics", 5s, "Host: elsewhere\r\n");
+    EXPECT_EQ(other_host.status, 400);  // two Host headers
+    EXPECT_EQ(connection.request("GET", "/healthz").status, 200);
+    EXPECT_EQ(connection.received(), "");
+    const auto quoted = http_get(http_port(), "/map?format=x%0D%0AHTTP/1.1%20200%20OK%0D%0A");
+    EXPECT_EQ(quoted.status, 400);
+    EXPECT_NE(quoted.body.find("'x\\r\\nHTTP/1.1 200 OK\\r\\n' is not html"), std::string::npos)
+        << quoted.body;
+}
+
 TEST_F(Http, TheMapIsPrintMapsAndABadFormatIs400) {
     const auto csv = http_get(http_port(), "/map?format=csv");
     ASSERT_EQ(csv.status, 200);
@@ -879,6 +909,8 @@ TEST_F(Http, ASlowlorisIsClosedTenSecondsAfterItsFirstByteWhileModbusKeepsAnswer
     EXPECT_TRUE(gateway.running());
 }
 
+// From 125 addresses of the loopback, eight connections each: at most 64 are served at once, and
+// the rest are closed at accept.
 TEST_F(Http, AThousandConnectionsAtOnceCostModbusNothingAndTheServerRecovers) {
     rlimit limit{};
     ASSERT_EQ(::getrlimit(RLIMIT_NOFILE, &limit), 0);
@@ -893,7 +925,8 @@ TEST_F(Http, AThousandConnectionsAtOnceCostModbusNothingAndTheServerRecovers) {
     flood.reserve(1000);
     const auto started = Clock::now();
     for (int i = 0; i < 1000; ++i) {
-        flood.push_back(std::make_unique<HttpConnection>(http_port()));
+        const auto source = fmt::format("127.0.1.{}", 1 + i / 8);
+        flood.push_back(std::make_unique<HttpConnection>(http_port(), "127.0.0.1", source));
         if (i % 50 == 0) probe.read(client);
     }
     const auto connecting = since(started);
@@ -931,6 +964,49 @@ TEST_F(Http, AThousandConnectionsAtOnceCostModbusNothingAndTheServerRecovers) {
     EXPECT_TRUE(client.read_input_registers(0, 1));
     EXPECT_TRUE(gateway.running());
     EXPECT_TRUE(gateway.wait_for_log("64 HTTP connections open"));
+}
+
+// gateway.md §7.5: one address holds at most eight connections, idle or kept alive, and never
+// keeps another address out; what it held is counted by reason.
+TEST_F(Http, OneAddressHoldsEightConnectionsAndNeverKeepsAnotherOut) {
+    std::vector<std::unique_ptr<HttpConnection>> idle;
+    for (int i = 0; i < 64; ++i)
+        idle.push_back(std::make_unique<HttpConnection>(http_port(), "127.0.0.1", "127.0.0.7"));
+    std::size_t still_open = 0;
+    EXPECT_TRUE(eventually(
+        [&] {
+            still_open = static_cast<std::size_t>(std::count_if(
+                idle.begin(), idle.end(), [](const auto& c) { return !c->wait_closed(0ms); }));
+            return still_open <= 8;
+        },
+        5s))
+        << still_open << " connections of one address still open";
+    EXPECT_EQ(still_open, 8U);
+    // Another address is served at once, on a connection kept alive, again and again.
+    HttpConnection other(http_port(), "127.0.0.1", "127.0.0.8");
+    for (int i = 0; i < 3; ++i) {
+        const auto reply = other.request("GET", "/metrics");
+        ASSERT_EQ(reply.status, 200) << reply.error;
+        if (i == 2) {
+            EXPECT_NE(reply.body.find(
+                          R"(ioportd_http_connections_refused_total{reason="per_address"} 56)"),
+                      std::string::npos);
+        }
+    }
+    EXPECT_TRUE(gateway.wait_for_log("8 HTTP connections open from its address"));
+}
+
+// gateway.md §7.5: a connection that sends no request is closed 10 s after it opened; one kept
+// alive, 10 s after its last answer.
+TEST_F(Http, AConnectionWithoutARequestIsClosedAfterTenSeconds) {
+    HttpConnection silent(http_port());
+    HttpConnection kept(http_port());
+    ASSERT_EQ(kept.request("GET", "/metrics").status, 200);
+    const auto opened = Clock::now();
+    EXPECT_FALSE(kept.wait_closed(9s));
+    EXPECT_TRUE(kept.wait_closed(milliseconds(2000 * slowdown)));
+    EXPECT_TRUE(silent.wait_closed(milliseconds(2000 * slowdown)));
+    EXPECT_GE(since(opened), 9s);
 }
 
 }  // namespace

@@ -65,9 +65,19 @@ std::optional<std::string> HttpReply::header(std::string_view name) const {
     return std::nullopt;
 }
 
-HttpConnection::HttpConnection(std::uint16_t port, const std::string& host) {
+HttpConnection::HttpConnection(std::uint16_t port, const std::string& host,
+                               const std::string& source) {
     const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
     if (fd < 0) return;
+    if (!source.empty()) {
+        sockaddr_in from{};
+        from.sin_family = AF_INET;
+        ::inet_pton(AF_INET, source.c_str(), &from.sin_addr);
+        if (::bind(fd, reinterpret_cast<sockaddr*>(&from), sizeof from) != 0) {
+            ::close(fd);
+            return;
+        }
+    }
     sockaddr_in address{};
     address.sin_family = AF_INET;
     address.sin_port = htons(port);

@@ -29,7 +29,10 @@ struct HttpReply {
 // One TCP connection to an HTTP server; closed on destruction.
 class HttpConnection {
   public:
-    explicit HttpConnection(std::uint16_t port, const std::string& host = "127.0.0.1");
+    // `source`: the address it connects from ("": the kernel's choice), such as 127.0.0.9 for
+    // another client of the loopback.
+    explicit HttpConnection(std::uint16_t port, const std::string& host = "127.0.0.1",
+                            const std::string& source = "");
     ~HttpConnection();
     HttpConnection(const HttpConnection&) = delete;
     HttpConnection& operator=(const HttpConnection&) = delete;

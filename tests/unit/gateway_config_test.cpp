@@ -10,6 +10,7 @@
 #include <vector>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "config/check_text.hpp"
 #include "config/gateway_config.hpp"
@@ -1718,6 +1719,9 @@ struct WebFiles {
 
 constexpr const char* alice_hash = "$2y$04$sGO5GKf0dpvOcga0RM2/Ye037FPBgYeYLDPwBpx1VY2vk.4fZO5JW";
 constexpr const char* bob_hash = "$2b$10$d7enEMjJTTVxEJCW4OtbheqMos5ISD.cKh7EOO3YKSbYPpclm3qVa";
+// bob's salt and checksum under cost 4 and 13: what is read of a hash is its form and its cost.
+constexpr const char* grafana_hash = "$2b$04$d7enEMjJTTVxEJCW4OtbheqMos5ISD.cKh7EOO3YKSbYPpclm3qVa";
+constexpr const char* slow_hash = "$2b$13$d7enEMjJTTVxEJCW4OtbheqMos5ISD.cKh7EOO3YKSbYPpclm3qVa";
 
 // The errors of a main file whose web configuration is `web`: each must name the web file.
 std::vector<ConfigError> web_errors(const WebFiles& files,
@@ -1753,7 +1757,7 @@ TEST(GatewayConfig, TheWebConfigurationAsTheExporterToolkitWritesIt) {
                          "    Strict-Transport-Security: max-age=31536000\n"
                          "    X-Frame-Options: \"\"\n"
                          "basic_auth_users:\n  alice: " +
-                         std::string(alice_hash) + "\n  grafana: " + bob_hash + "\n");
+                         std::string(alice_hash) + "\n  grafana: " + grafana_hash + "\n");
     const auto config = parse(files.yaml("[alice]", "0.0.0.0:8443"));
     ASSERT_TRUE(config) << describe(config.error());
     ASSERT_TRUE(config->http && config->http->web);
@@ -1770,11 +1774,12 @@ TEST(GatewayConfig, TheWebConfigurationAsTheExporterToolkitWritesIt) {
     // A blank value unsets the header, as the exporter-toolkit says.
     EXPECT_EQ(web.headers, (std::vector<std::pair<std::string, std::string>>{
                                {"Strict-Transport-Security", "max-age=31536000"}}));
-    EXPECT_EQ(web.users,
-              (std::map<std::string, std::string>{{"alice", alice_hash}, {"grafana", bob_hash}}));
+    EXPECT_EQ(web.users, (std::map<std::string, std::string>{{"alice", alice_hash},
+                                                             {"grafana", grafana_hash}}));
     EXPECT_EQ(config->http->operators, (std::vector<std::string>{"alice"}));
-    // Passwords off loopback: nothing to warn of.
-    EXPECT_TRUE(warnings(*config).empty());
+    EXPECT_EQ(config->http->ipv6_prefix, 64);
+    // Passwords over TLS off loopback, of one cost: nothing to warn of.
+    EXPECT_TRUE(warnings(*config).empty()) << fmt::format("{}", fmt::join(warnings(*config), "\n"));
 
     // An empty file is one without TLS and users: plain, anyone reads, no one writes.
     const WebFiles empty("");
@@ -1813,6 +1818,84 @@ TEST(GatewayConfig, AnHttpSideOffLoopbackWithoutUsersIsAWarning) {
     EXPECT_FALSE(warned(verified.yaml("[]", "0.0.0.0:8502")));
     const WebFiles optional(certificates("VerifyClientCertIfGiven"));
     EXPECT_TRUE(warned(optional.yaml("[]", "0.0.0.0:8502")));
+}
+
+// gateway.md §7.5: what a password check costs, and passwords that cross the network readable.
+TEST(GatewayConfig, PasswordsInClearMixedCostsAndSlowHashesAreWarnings) {
+    const auto warned = [](const WebFiles& files, const std::string& listen,
+                           const std::string& fragment) {
+        const auto config = parse(files.yaml("[]", listen));
+        EXPECT_TRUE(config) << describe(config.error());
+        return config && std::ranges::any_of(warnings(*config), [&](const std::string& w) {
+                   return w.find(fragment) != std::string::npos;
+               });
+    };
+    const std::string users = "basic_auth_users:\n  alice: " + std::string(alice_hash) + "\n";
+    const WebFiles plain(users);
+    constexpr auto readable = "cross the network readable";
+    EXPECT_TRUE(warned(plain, "0.0.0.0:8502", readable));
+    EXPECT_TRUE(warned(plain, "[::]:8502", readable));
+    EXPECT_FALSE(warned(plain, "127.0.0.1:8502", readable));
+    EXPECT_FALSE(warned(plain, "[::1]:8502", readable));
+    const TlsFiles tls;
+    const WebFiles secure("tls_server_config:\n  cert_file: " + tls.certificate.path() +
+                          "\n  key_file: " + tls.key.path() + "\n" + users);
+    EXPECT_FALSE(warned(secure, "0.0.0.0:8502", readable));
+
+    const WebFiles mixed(users + "  bob: " + bob_hash + "\n  grafana: " + grafana_hash + "\n");
+    EXPECT_TRUE(
+        warned(mixed, "127.0.0.1:8502", "have different costs: 4 (alice, grafana), 10 (bob)"));
+    EXPECT_FALSE(warned(plain, "127.0.0.1:8502", "different costs"));
+    const WebFiles slow("basic_auth_users:\n  carol: " + std::string(slow_hash) + "\n");
+    EXPECT_TRUE(warned(slow, "127.0.0.1:8502",
+                       "the bcrypt hash of carol in " + slow.web->path() +
+                           " has cost 13: each check of its password is "
+                           "8 times the work of cost 10"));
+    EXPECT_FALSE(warned(mixed, "127.0.0.1:8502", "has cost"));
+}
+
+TEST(GatewayConfig, Ipv6PrefixIs64To128) {
+    const auto with = [](const std::string& prefix) {
+        return parse("http:\n  listen: \"127.0.0.1:8502\"\n  ipv6_prefix: " + prefix + "\n" + hub);
+    };
+    ASSERT_TRUE(with("128"));
+    EXPECT_EQ(with("128")->http->ipv6_prefix, 128);
+    EXPECT_EQ(with("72")->http->ipv6_prefix, 72);
+    expect_one_error({"http:\n  ipv6_prefix: 48\n" + hub, 2, "http.ipv6_prefix", "64..128"});
+    expect_one_error({"http:\n  ipv6_prefix: 129\n" + hub, 2, "http.ipv6_prefix", "64..128"});
+}
+
+// As sshd checks its files: a file that grants rights owned by anyone but root or this process's
+// user is one its owner can change (its mode too), and so an error naming it and its owner.
+TEST(GatewayConfigErrors, AFileThatGrantsRightsOwnedByAnotherUserIsAnError) {
+    if (::geteuid() != 0) GTEST_SKIP() << "giving a file to another user needs root";
+    constexpr uid_t nobody = 65534;
+    const auto give = [](const TempFile& file) {
+        ASSERT_EQ(::chown(file.path().c_str(), nobody, static_cast<gid_t>(-1)), 0);
+    };
+    const TempFile config(hub, owner_only);
+    give(config);
+    const auto loaded = load_config(config.path(), identity);
+    ASSERT_FALSE(loaded);
+    ASSERT_EQ(loaded.error().size(), 1u);
+    EXPECT_EQ(loaded.error()[0].file, config.path());
+    EXPECT_EQ(loaded.error()[0].message.find("is owned by nobody (uid 65534), neither root nor "
+                                             "root (uid 0), the user ioportd runs as"),
+              0u)
+        << to_string(loaded.error()[0]);
+    EXPECT_NE(loaded.error()[0].message.find("chown root " + config.path()), std::string::npos);
+    const WebFiles web("basic_auth_users:\n  alice: " + std::string(alice_hash) + "\n");
+    give(*web.web);
+    const auto errors = web_errors(web);
+    ASSERT_EQ(errors.size(), 1u) << describe(errors);
+    EXPECT_NE(errors[0].message.find("is owned by nobody (uid 65534)"), std::string::npos);
+    const TlsFiles tls;
+    give(tls.key);
+    expect_one_error({"modbus:\n  tls:\n    listen: \"127.0.0.1:802\"\n    certificate: " +
+                          tls.certificate.path() + "\n    key: " + tls.key.path() +
+                          "\n    client_ca: " + tls.ca.path() +
+                          "\n    roles: { op: { units: all, access: read } }\n" + hub,
+                      5, "modbus.tls.key", tls.key.path() + " is owned by nobody"});
 }
 
 TEST(GatewayConfigErrors, TheWebConfigurationIsReadStrictlyAndItsErrorsNameIt) {

@@ -1,14 +1,17 @@
 // Who asks the HTTP side (gateway.md §7.1): Basic credentials, bcrypt through libxcrypt, the
 // failure limiter, and the Authenticator that remembers what it verified. The hashes are
 // htpasswd's (-nbBC 4: cost 4, so that the tests hash in a millisecond).
+#include <array>
 #include <chrono>
 #include <future>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <openssl/evp.h>
 
 #include "daemon/http/http_auth.hpp"
 
@@ -75,75 +78,150 @@ TEST(Bcrypt, TheRightPasswordOfEachPrefixMatchesAndNothingElse) {
     EXPECT_FALSE(bcrypt_matches("$2y$04$short", "secret"));
 }
 
-// --- FailureLimiter ---------------------------------------------------------------------------
+// --- client_key -------------------------------------------------------------------------------
 
-using Clock = FailureLimiter::Clock;
+TEST(ClientKey, AnIpv6AddressIsItsPrefixAndAMappedIpv4Itself) {
+    const auto key = [](const char* text, int prefix = 64) {
+        return client_key(address(text), prefix);
+    };
+    EXPECT_EQ(key("2001:db8:1:2::1"), key("2001:db8:1:2:ffff::9"));
+    EXPECT_NE(key("2001:db8:1:2::1"), key("2001:db8:1:3::1"));
+    // A plant LAN's hosts share a /64: with 128 each is its own.
+    EXPECT_NE(key("2001:db8:1:2::1", 128), key("2001:db8:1:2::2", 128));
+    EXPECT_EQ(key("2001:db8:1:2::1", 128), key("2001:db8:1:2::1", 128));
+    // A prefix that is not a whole number of bytes keeps its bits and no more.
+    EXPECT_EQ(key("2001:db8:1:2:f000::", 68), key("2001:db8:1:2:ffff::", 68));
+    EXPECT_NE(key("2001:db8:1:2:f000::", 68), key("2001:db8:1:2:e000::", 68));
+    EXPECT_NE(key("2001:db8:1:2:f000::", 68), key("2001:db8:1:2:f000::", 72));
+    EXPECT_EQ(key("::ffff:192.0.2.9"), key("192.0.2.9"));
+    // An IPv4 address is not the IPv6 address whose first bytes are the same.
+    EXPECT_NE(key("192.0.2.0"), key("c000:200::", 128));
+    EXPECT_NE(key("0.0.0.0"), key("::", 128));
+}
+
+// --- CheckLimiter -----------------------------------------------------------------------------
+
+using Clock = CheckLimiter::Clock;
 const Clock::time_point t0{};
 
-TEST(FailureLimiter, FiveFailuresInAMinuteRefuseThatAddressUntilTheMinuteIsOver) {
-    FailureLimiter limiter;
+// One check from `a` at `at`, failed.
+void failed_check(CheckLimiter& limiter, const asio::ip::address& a, Clock::time_point at) {
+    limiter.started(a, at);
+    limiter.finished(a, true, at);
+}
+
+TEST(CheckLimiter, FiveChecksInAnyMinuteRefuseThatAddressUntilTheOldestIsAMinuteOld) {
+    CheckLimiter limiter;
     const auto a = address("192.0.2.1");
     for (int i = 0; i < 4; ++i)
-        limiter.failed(a, t0 + i * 1s);
+        failed_check(limiter, a, t0 + i * 1s);
     EXPECT_FALSE(limiter.refused_until(a, t0 + 5s));
-    limiter.failed(a, t0 + 10s);
+    failed_check(limiter, a, t0 + 10s);
     EXPECT_EQ(limiter.refused_until(a, t0 + 10s), t0 + 60s);
     EXPECT_EQ(limiter.refused_until(a, t0 + 59s), t0 + 60s);
     EXPECT_FALSE(limiter.refused_until(a, t0 + 60s));
     // Others are served meanwhile.
     EXPECT_FALSE(limiter.refused_until(address("192.0.2.2"), t0 + 10s));
-    // A new minute begins with its first failure.
-    limiter.failed(a, t0 + 61s);
-    EXPECT_FALSE(limiter.refused_until(a, t0 + 61s));
+    // A sliding minute, not one that starts anew: the next check at 60 s makes five within the
+    // minute again (1 s … 60 s), so the address waits for its second oldest.
+    failed_check(limiter, a, t0 + 60s);
+    EXPECT_EQ(limiter.refused_until(a, t0 + 60s), t0 + 61s);
 }
 
-TEST(FailureLimiter, FailuresSpreadOverMinutesNeverAddUp) {
-    FailureLimiter limiter;
+TEST(CheckLimiter, ACheckInFlightRefusesTheNextOfThatAddressUntilItsVerdict) {
+    CheckLimiter limiter;
     const auto a = address("192.0.2.1");
-    for (int i = 0; i < 20; ++i)
-        limiter.failed(a, t0 + i * 15s);  // four a minute
-    EXPECT_FALSE(limiter.refused_until(a, t0 + 300s));
+    limiter.started(a, t0);
+    EXPECT_EQ(limiter.refused_until(a, t0 + 1s), t0 + 1s + CheckLimiter::in_flight_retry);
+    EXPECT_FALSE(limiter.refused_until(address("192.0.2.2"), t0 + 1s));
+    limiter.finished(a, false, t0 + 1s);
+    EXPECT_FALSE(limiter.refused_until(a, t0 + 1s));
+    EXPECT_FALSE(limiter.failing(a, t0 + 1s));
 }
 
-TEST(FailureLimiter, AnIpv6AddressCountsByItsSlash64AndAMappedIpv4AsItself) {
-    FailureLimiter limiter;
-    for (int i = 1; i <= 5; ++i)
-        limiter.failed(address(fmt::format("2001:db8:1:2::{:x}", i).c_str()), t0);
-    EXPECT_TRUE(limiter.refused_until(address("2001:db8:1:2:ffff::1"), t0));
-    EXPECT_FALSE(limiter.refused_until(address("2001:db8:1:3::1"), t0));
-    EXPECT_EQ(limiter.addresses(), 1U);
-    for (int i = 0; i < 5; ++i)
-        limiter.failed(address("::ffff:192.0.2.9"), t0);
-    EXPECT_TRUE(limiter.refused_until(address("192.0.2.9"), t0));
-    // An IPv4 address is not the IPv6 /64 whose first bytes are the same.
-    EXPECT_FALSE(limiter.refused_until(address("c000:209::"), t0));
+TEST(CheckLimiter, ChecksSpreadOverMinutesNeverAddUp) {
+    CheckLimiter limiter;
+    const auto a = address("192.0.2.1");
+    for (int i = 0; i < 20; ++i) {
+        EXPECT_FALSE(limiter.refused_until(a, t0 + i * 15s));
+        failed_check(limiter, a, t0 + i * 15s);  // four a minute
+    }
 }
 
-TEST(FailureLimiter, ItFollowsABoundedNumberOfAddressesAndMakesRoomWithTheOldest) {
-    FailureLimiter limiter;
+TEST(CheckLimiter, AFailureMakesTheAddressFailingForAMinute) {
+    CheckLimiter limiter;
+    const auto a = address("2001:db8::1");
+    EXPECT_FALSE(limiter.failing(a, t0));
+    failed_check(limiter, a, t0);
+    EXPECT_TRUE(limiter.failing(a, t0 + 59s));
+    EXPECT_TRUE(limiter.failing(address("2001:db8::2"), t0 + 59s));  // the same /64
+    EXPECT_FALSE(limiter.failing(a, t0 + 60s));
+    limiter.set_ipv6_prefix(128);
+    EXPECT_FALSE(limiter.failing(address("2001:db8::2"), t0 + 1s));
+}
+
+TEST(CheckLimiter, ItFollowsABoundedNumberOfAddressesAndMakesRoomWithTheOldest) {
+    CheckLimiter limiter;
     const auto nth = [](std::size_t i) {
         return asio::ip::address(asio::ip::address_v4(static_cast<std::uint32_t>(0x0A000000 + i)));
     };
     const auto attacker = address("198.51.100.7");
     for (int i = 0; i < 5; ++i)
-        limiter.failed(attacker, t0 + 30s);
-    for (std::size_t i = 0; i < FailureLimiter::max_addresses + 1000; ++i)
-        limiter.failed(nth(i), t0 + 31s);
-    EXPECT_EQ(limiter.addresses(), FailureLimiter::max_addresses);
-    // The newest are followed; the one made room for first was the oldest: the attacker, whose
-    // minute began first. (Flooding the table frees an address: it gains what the flood cost.)
+        failed_check(limiter, attacker, t0 + 30s);
+    // One with a check in flight is never made room with: its count would be lost.
+    const auto waiting = address("198.51.100.8");
+    limiter.started(waiting, t0);
+    for (std::size_t i = 0; i < CheckLimiter::max_addresses + 1000; ++i)
+        failed_check(limiter, nth(i), t0 + 31s);
+    EXPECT_EQ(limiter.addresses(), CheckLimiter::max_addresses);
+    EXPECT_TRUE(limiter.refused_until(waiting, t0 + 32s));
+    // The newest are followed; the attacker, whose last check was the oldest, made room.
     for (int i = 0; i < 4; ++i)
-        limiter.failed(nth(FailureLimiter::max_addresses + 999), t0 + 32s);
-    EXPECT_TRUE(limiter.refused_until(nth(FailureLimiter::max_addresses + 999), t0 + 32s));
+        failed_check(limiter, nth(CheckLimiter::max_addresses + 999), t0 + 32s);
+    EXPECT_TRUE(limiter.refused_until(nth(CheckLimiter::max_addresses + 999), t0 + 32s));
     EXPECT_FALSE(limiter.refused_until(attacker, t0 + 32s));
     // Minutes that are over make room before anyone else's.
-    FailureLimiter other;
-    for (std::size_t i = 0; i < FailureLimiter::max_addresses; ++i)
-        other.failed(nth(i), t0);
+    CheckLimiter other;
+    for (std::size_t i = 0; i < CheckLimiter::max_addresses; ++i)
+        failed_check(other, nth(i), t0);
     for (int i = 0; i < 5; ++i)
-        other.failed(attacker, t0 + 61s);
+        failed_check(other, attacker, t0 + 61s);
     EXPECT_TRUE(other.refused_until(attacker, t0 + 61s));
-    EXPECT_LE(other.addresses(), FailureLimiter::max_addresses);
+    EXPECT_LE(other.addresses(), CheckLimiter::max_addresses);
+}
+
+// --- keyed_digest and decoy_hash --------------------------------------------------------------
+
+TEST(KeyedDigest, ThePasswordUnderTheProcesssKeyTellsNothingWithoutIt) {
+    DigestKey one{};
+    DigestKey two{};
+    two[0] = 1;
+    EXPECT_EQ(keyed_digest(one, "secret"), keyed_digest(one, "secret"));
+    EXPECT_NE(keyed_digest(one, "secret"), keyed_digest(one, "Secret"));
+    EXPECT_NE(keyed_digest(one, "secret"), keyed_digest(two, "secret"));
+    EXPECT_EQ(keyed_digest(one, "secret").size(), 32U);
+    // Not the plain SHA-256 of the password, which a table of common passwords would reverse.
+    std::array<unsigned char, 32> plain{};
+    unsigned size = 0;
+    EVP_Digest("secret", 6, plain.data(), &size, EVP_sha256(), nullptr);
+    EXPECT_NE(keyed_digest(one, "secret"),
+              std::string(reinterpret_cast<const char*>(plain.data()), plain.size()));
+}
+
+TEST(DecoyHash, TheCostMostUsersHaveSoAnUnknownUserCostsWhatAKnownOneDoes) {
+    const auto cost = [](const std::map<std::string, std::string>& users) {
+        const auto hash = decoy_hash(users);
+        EXPECT_EQ(hash.size(), 60U);
+        return hash.substr(0, 7);
+    };
+    EXPECT_EQ(cost({}), "$2b$10$");
+    EXPECT_EQ(cost({{"alice", alice_hash}, {"bob", bob_hash}}), "$2b$04$");
+    const std::string twelve = "$2y$12$" + std::string(alice_hash).substr(7);
+    EXPECT_EQ(cost({{"alice", alice_hash}, {"bob", twelve}, {"carol", twelve}}), "$2b$12$");
+    EXPECT_EQ(cost({{"alice", alice_hash}, {"bob", twelve}}), "$2b$12$");  // a tie: the higher
+    // It is a hash libxcrypt takes, which no password matches.
+    EXPECT_FALSE(bcrypt_matches(decoy_hash({{"alice", alice_hash}}), "secret"));
+    EXPECT_FALSE(bcrypt_matches(decoy_hash({{"alice", alice_hash}}), ""));
 }
 
 // --- Authenticator ----------------------------------------------------------------------------
@@ -190,12 +268,13 @@ TEST_F(AuthenticatorTest, TheRightPasswordIsTheUserAndAnythingElseAFailureCounte
     EXPECT_EQ(right->user, "alice");
     EXPECT_EQ(check(bob_right)->user, "bob");
     EXPECT_EQ(auth.failures(), 0U);
-    EXPECT_EQ(check(alice_wrong)->verdict, AuthVerdict::refused);
-    EXPECT_EQ(check("Basic bWFsbG9yeTpzZWNyZXQ=")->verdict, AuthVerdict::refused);  // mallory
-    EXPECT_EQ(check("Bearer x")->verdict, AuthVerdict::refused);
+    EXPECT_EQ(check(alice_wrong, "127.0.0.2")->verdict, AuthVerdict::refused);
+    EXPECT_EQ(check("Basic bWFsbG9yeTpzZWNyZXQ=", "127.0.0.3")->verdict,  // mallory
+              AuthVerdict::refused);
+    EXPECT_EQ(check("Bearer x", "127.0.0.4")->verdict, AuthVerdict::refused);
     EXPECT_EQ(auth.failures(), 3U);
     // None at all is a browser's first request: asked for, not counted.
-    EXPECT_EQ(check("")->verdict, AuthVerdict::missing);
+    EXPECT_EQ(check("", "127.0.0.5")->verdict, AuthVerdict::missing);
     EXPECT_EQ(auth.failures(), 3U);
 }
 
@@ -225,8 +304,8 @@ TEST_F(AuthenticatorTest, AReloadThatChangesAUsersHashForgetsWhatWasVerified) {
     EXPECT_EQ(check("Basic YWxpY2U6aHVudGVyMg==")->verdict, AuthVerdict::refused);
 }
 
-TEST_F(AuthenticatorTest, FiveFailuresLimitThatAddressEvenWithTheRightPasswordOthersAreServed) {
-    for (int i = 0; i < FailureLimiter::max_failures; ++i)
+TEST_F(AuthenticatorTest, FiveChecksLimitThatAddressEvenWithTheRightPasswordOthersAreServed) {
+    for (int i = 0; i < CheckLimiter::max_checks; ++i)
         ASSERT_EQ(check(alice_wrong)->verdict, AuthVerdict::refused);
     const auto limited = check(alice_right);
     EXPECT_EQ(limited->verdict, AuthVerdict::limited);
@@ -234,23 +313,68 @@ TEST_F(AuthenticatorTest, FiveFailuresLimitThatAddressEvenWithTheRightPasswordOt
     EXPECT_EQ(check("")->verdict, AuthVerdict::limited);
     EXPECT_EQ(check(alice_right, "127.0.0.2")->verdict, AuthVerdict::authenticated);
     EXPECT_EQ(auth.failures(), 5U);  // a limited request is not checked, so not counted
+    EXPECT_EQ(auth.limited(), 2U);
 }
 
-TEST_F(AuthenticatorTest, AtMostEightVerificationsWaitForTheHashingThread) {
+// gateway.md §7.5: checks in flight count, so a burst from one address gets one check, not as
+// many as run at once; and five within the minute in all.
+TEST_F(AuthenticatorTest, ABurstFromOneAddressIsOneCheckAndTheMinuteStillHoldsFive) {
     auto release = hold_hashing();
-    std::vector<std::optional<AuthOutcome>> waiting(Authenticator::max_pending_verifications);
-    for (auto& outcome : waiting)
-        start(bob_right, "127.0.0.1", outcome);
+    std::vector<std::optional<AuthOutcome>> burst(16);
+    for (auto& outcome : burst)
+        start(alice_wrong, "127.0.0.1", outcome);
     io.poll();
-    const auto busy = check(alice_right, "127.0.0.1", 0ms);
-    ASSERT_TRUE(busy);
-    EXPECT_EQ(busy->verdict, AuthVerdict::busy);
+    const auto limited = std::ranges::count_if(
+        burst, [](const auto& o) { return o && o->verdict == AuthVerdict::limited; });
+    EXPECT_EQ(limited, 15);
     release.set_value();
-    for (auto& outcome : waiting) {
+    for (auto& outcome : burst)
         while (!outcome)
             io.run_one_for(10ms);
-        EXPECT_EQ(outcome->verdict, AuthVerdict::authenticated);
-    }
+    EXPECT_EQ(auth.failures(), 1U);
+    int refused = 0;
+    for (int i = 0; i < 8; ++i)
+        if (check(alice_wrong)->verdict == AuthVerdict::refused) ++refused;
+    EXPECT_EQ(refused, 4);
+    EXPECT_EQ(auth.failures(), 5U);
+}
+
+// gateway.md §7.5: addresses that have not failed go first, so that a user signs in while many
+// addresses that failed keep the hashing thread busy; when the waiting room is full, such a user
+// takes the place of the newest failing one, and nobody takes theirs.
+TEST_F(AuthenticatorTest, AnAddressThatHasNotFailedGoesBeforeEveryFailingOne) {
+    const auto attacker = [](std::size_t i) { return fmt::format("10.0.{}.{}", i / 200, i % 200); };
+    const std::size_t attackers = Authenticator::max_waiting_checks + 1;  // one running, 32 waiting
+    for (std::size_t i = 0; i <= attackers; ++i)
+        ASSERT_EQ(check(alice_wrong, attacker(i).c_str())->verdict, AuthVerdict::refused);
+    auto release = hold_hashing();
+    std::vector<std::optional<AuthOutcome>> attacks(attackers);
+    for (std::size_t i = 0; i < attackers; ++i)
+        start(alice_wrong, attacker(i).c_str(), attacks[i]);
+    io.poll();
+    EXPECT_TRUE(std::ranges::none_of(attacks, [](const auto& o) { return o.has_value(); }));
+    // The room is full: one more failing address is told to come back.
+    const auto late_attack = check(alice_wrong, attacker(attackers).c_str(), 0ms);
+    ASSERT_TRUE(late_attack);
+    EXPECT_EQ(late_attack->verdict, AuthVerdict::busy);
+    std::optional<AuthOutcome> user;
+    start(bob_right, "192.0.2.10", user);
+    io.poll();
+    // The newest failing check made room for it.
+    ASSERT_TRUE(attacks.back());
+    EXPECT_EQ(attacks.back()->verdict, AuthVerdict::busy);
+    // Served after the check already running, before the waiting failing ones.
+    release.set_value();
+    while (!user)
+        io.run_one_for(10ms);
+    EXPECT_EQ(user->verdict, AuthVerdict::authenticated);
+    const auto finished_before = std::ranges::count_if(
+        attacks, [](const auto& o) { return o && o->verdict == AuthVerdict::refused; });
+    EXPECT_LE(finished_before, 1);
+    for (auto& outcome : attacks)
+        while (!outcome)
+            io.run_one_for(10ms);
+    EXPECT_EQ(auth.busy(), 2U);
 }
 
 }  // namespace
