@@ -45,10 +45,15 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
     std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, bus));
     node->next_bdseq_ = next_bdseq % 256;
     std::weak_ptr<SparkplugNode> weak = node;
-    // MQTT 3.1.1: the Sparkplug hosts and the TCK rules this node is held to (MQTT 5 would make
-    // every DISCONNECT carry the will as well); docs/sparkplug.md says what bounds the broker.
+    // MQTT 5, so that the broker sends nothing larger than a command can be (a 3.1.1 client
+    // cannot ask: libmosquitto would read a 64 MiB DCMD whole); its DISCONNECT with the will
+    // (tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt50). 3.1.1 where the broker
+    // refuses 5: docs/sparkplug.md says what bounds that broker.
     auto client = MqttClient::create(
-        executor, settings, MqttClient::Protocol::mqtt311(), "mqtt", log,
+        executor, settings,
+        MqttClient::Protocol::mqtt5(sparkplug_maximum_packet_size,
+                                    MqttClient::Disconnect::with_will),
+        "mqtt", log,
         {.connecting =
              [weak] {
                  if (auto self = weak.lock()) self->connecting();
@@ -226,8 +231,9 @@ std::vector<std::uint8_t> SparkplugNode::death_payload() const {
         {Metric{"bdSeq", std::nullopt, std::nullopt, wire(DataType::int64), Value(bdseq_)}}});
 }
 
-// Queued even beyond the client's bound: the DISCONNECT that follows discards the will, so an
-// NDEATH dropped here would leave the host believing the node alive.
+// Queued even beyond the client's bound: in MQTT 3.1.1 the DISCONNECT that follows discards the
+// will, so an NDEATH dropped here would leave the host believing the node alive. (In MQTT 5 the
+// DISCONNECT asks for the will as well; this one, made now, still comes first.)
 void SparkplugNode::publish_death() {
     if (!client_->publish(
             sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id),
