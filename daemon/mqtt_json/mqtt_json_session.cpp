@@ -335,6 +335,11 @@ void MqttJsonSession::home_assistant_online() {
                   "the next republication when they are over (logged once a minute){}",
                   settings_.discovery_prefix, home_assistant_birth_interval.count(),
                   held_back(*held));
+    wait_for_held_birth();
+}
+
+// The timer for a held-back birth, when one waits and none is set.
+void MqttJsonSession::wait_for_held_birth() {
     const auto due = births_.due_at();
     if (!due || std::exchange(birth_timer_armed_, true)) return;
     birth_timer_.expires_at(*due);
@@ -343,9 +348,14 @@ void MqttJsonSession::home_assistant_online() {
         if (!self) return;
         self->birth_timer_armed_ = false;
         if (ec || self->stopping_) return;
-        // Not connected: the next session's start publishes everything anyway.
-        if (self->births_.due(std::chrono::steady_clock::now()) && self->client_->connected())
-            self->serve_home_assistant();
+        if (self->births_.due(std::chrono::steady_clock::now())) {
+            // Not connected: the next session's start publishes everything anyway.
+            if (self->client_->connected()) self->serve_home_assistant();
+            return;
+        }
+        // A birth served at once while this timer was late moved the time on; one held back
+        // after it waits for the new time.
+        self->wait_for_held_birth();
     });
 }
 

@@ -121,6 +121,7 @@ class MqttJsonSession : public std::enable_shared_from_this<MqttJsonSession> {
     void message(std::string_view topic, std::span<const std::uint8_t> payload, bool retained);
     void stale_config(std::string_view topic);
     void home_assistant_online();
+    void wait_for_held_birth();
     // Every discovery config and every module's state and availability, for Home Assistant.
     void serve_home_assistant();
     void set(const mqtt_json::SetTopic& topic, std::string_view payload, bool retained);
