@@ -10,14 +10,19 @@
 namespace ioport::daemon {
 namespace {
 
-// CONNECT's Maximum Packet Size (MQTT 5, 3.1.2.11.4). libmosquitto 2.0 takes CONNECT properties
+// CONNECT's Maximum Packet Size (MQTT 5, 3.1.2.11.4), and its Session Expiry Interval 0
+// (3.1.2.11.2; what an absent one means too, said outright as Sparkplug 3.0 asks of an edge node:
+// tck-id-principles-persistence-clean-session-50). libmosquitto 2.0 takes CONNECT properties
 // only in mosquitto_connect_bind_v5(), which connects blocking; it keeps them for every later
 // connect, the asynchronous ones too, and keeps them before it looks at the host. So they are
 // given by a call without a host, which connects nowhere (MOSQ_ERR_INVAL, as meant). The
-// huge-PUBLISH tests (tests/mqtt_json) fail if a libmosquitto stops sending them so.
+// huge-PUBLISH tests (tests/mqtt_json, tests/sparkplug) fail if a libmosquitto stops sending
+// them so.
 Result<> announce_maximum_packet_size(mosquitto* client, std::uint32_t bytes) {
     mosquitto_property* properties = nullptr;
     int rc = mosquitto_property_add_int32(&properties, MQTT_PROP_MAXIMUM_PACKET_SIZE, bytes);
+    if (rc == MOSQ_ERR_SUCCESS)
+        rc = mosquitto_property_add_int32(&properties, MQTT_PROP_SESSION_EXPIRY_INTERVAL, 0);
     if (rc == MOSQ_ERR_SUCCESS) {
         rc = mosquitto_connect_bind_v5(client, nullptr, 0, 0, nullptr, properties);
         if (rc == MOSQ_ERR_INVAL) rc = MOSQ_ERR_SUCCESS;
@@ -290,10 +295,23 @@ void MqttClient::lost(const std::string& why, bool same_broker) {
 void MqttClient::walk() {
     if (!connected_ || stopping_) return;
     reconnect_delay_ = first_reconnect_delay;
-    // DISCONNECT: the broker discards the will; the caller has said NDEATH itself. on_disconnect
-    // then takes it from there, as for any lost connection, on to the next broker.
-    mosquitto_disconnect(client_);
+    // DISCONNECT: the caller has said NDEATH itself, and the will goes as Protocol::disconnect
+    // says. on_disconnect then takes it from there, as for any lost connection, on to the next
+    // broker.
+    disconnect();
     watch();
+}
+
+int MqttClient::disconnect() {
+    switch (protocol_.disconnect) {
+        case Disconnect::with_will:
+            if (mqtt5())
+                return mosquitto_disconnect_v5(client_, MQTT_RC_DISCONNECT_WITH_WILL_MSG, nullptr);
+            return mosquitto_disconnect(client_);  // 3.1.1 has no such DISCONNECT
+        case Disconnect::discard_will:
+            return mosquitto_disconnect(client_);
+    }
+    return mosquitto_disconnect(client_);
 }
 
 void MqttClient::schedule_reconnect() {
@@ -361,8 +379,8 @@ void MqttClient::stop(std::chrono::milliseconds deadline, std::function<void()> 
     stop_deadline_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
         if (!ec) self->finish_stop();
     });
-    // DISCONNECT after what is queued; the broker then discards the will (a clean end).
-    mosquitto_disconnect(client_);
+    // DISCONNECT after what is queued: a clean end, whose will goes as Protocol::disconnect says.
+    disconnect();
     if (!stopped_) return;  // finished already
     watch();
 }
@@ -381,7 +399,7 @@ void MqttClient::on_connect(mosquitto* /*client*/, void* self, int rc) {
         me.mqtt311_only_[me.current_] = true;
         me.log_.warn({},
                      "{}: {} refused MQTT 5, so MQTT 3.1.1, which cannot ask it to send nothing "
-                     "larger than {} bytes: set its message_size_limit (docs/mqtt-json.md)",
+                     "larger than {} bytes: set its message_size_limit",
                      me.section_, me.broker(), me.protocol_.maximum_packet_size);
         me.lost(fmt::format("{} refused MQTT 5", me.broker()), true);
         return;

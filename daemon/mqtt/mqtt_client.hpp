@@ -9,10 +9,12 @@
 // decides what that means (the edge node rebirths when the connection is back).
 //
 // What a broker sends is read whole by libmosquitto before anyone sees it, whatever its size (a
-// 250 MB PUBLISH took the daemon past MemoryMax=). With MQTT 5 the client announces a Maximum
-// Packet Size in CONNECT and a broker (Mosquitto 2 does) sends it nothing larger; MQTT 3.1.1
-// cannot say so, and the broker's own limit (message_size_limit) is then the only bound. A
-// client made for MQTT 5 falls back to 3.1.1 for a broker that refuses version 5, and says so.
+// 250 MB PUBLISH took the daemon past MemoryMax=): once it has a packet's remaining length it
+// allocates that much and reads on, with no limit of its own for a client (libmosquitto 2.0,
+// packet__read). With MQTT 5 the client announces a Maximum Packet Size in CONNECT and a broker
+// (Mosquitto 2 does) sends it nothing larger; MQTT 3.1.1 cannot say so, and the broker's own
+// limit (message_size_limit) is then the only bound. A client made for MQTT 5 falls back to
+// 3.1.1 for a broker that refuses version 5, and says so.
 //
 // Owned through a shared_ptr: its completions keep it alive.
 #pragma once
@@ -58,11 +60,22 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
         std::function<void(int mid)> subscribed;
     };
 
-    // 3.1.1, or 5 announcing the largest packet this client takes.
+    // What this client's own DISCONNECT (stop(), walk()) asks of the broker. MQTT 3.1.1 has
+    // one DISCONNECT, which discards the will; MQTT 5 may ask for the will (reason code 0x04),
+    // and Sparkplug 3.0 requires that of an edge node (NDEATH published, then the will too).
+    enum class Disconnect { discard_will, with_will };
+
+    // 3.1.1, or 5 announcing the largest packet this client takes, with Clean Start and a
+    // Session Expiry Interval of 0 (the session ends with the connection, as 3.1.1's Clean
+    // Session does).
     struct Protocol {
         static Protocol mqtt311() { return {}; }
-        static Protocol mqtt5(std::uint32_t maximum_packet_size) { return {maximum_packet_size}; }
+        static Protocol mqtt5(std::uint32_t maximum_packet_size,
+                              Disconnect disconnect = Disconnect::discard_will) {
+            return {maximum_packet_size, disconnect};
+        }
         std::uint32_t maximum_packet_size = 0;  // 0: MQTT 3.1.1
+        Disconnect disconnect = Disconnect::discard_will;
     };
 
     // Fails when libmosquitto cannot make the client or take the settings (a CA file it
@@ -79,7 +92,8 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     // Connects, and reconnects whenever the connection is lost (1 s doubling to 30 s); with
     // several brokers, to the next in the list each time.
     void start();
-    // Leaves this broker for the next (gateway.md §6.2): DISCONNECT now, the next one in 1 s.
+    // Leaves this broker for the next (gateway.md §6.2): DISCONNECT now (Protocol::disconnect
+    // says what becomes of the will), the next one in 1 s.
     void walk();
     // Sets the will of the next CONNECT; fails when libmosquitto refuses it (a topic or payload
     // it does not take).
@@ -94,8 +108,9 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     // The SUBSCRIBE's message id (Handlers::subscribed gets it back with the SUBACK); fails when
     // it cannot be queued (not connected, out of memory).
     Result<int> subscribe(std::string_view pattern, int qos);
-    // The clean end: what is queued is sent, then DISCONNECT (so the broker keeps the will), then
-    // `done`; at once when not connected. Not within `deadline`: the socket is closed anyway.
+    // The clean end: what is queued is sent, then DISCONNECT (Protocol::disconnect says whether
+    // the broker publishes the will), then `done`; at once when not connected. Not within
+    // `deadline`: the socket is closed anyway.
     void stop(std::chrono::milliseconds deadline, std::function<void()> done);
 
     bool connected() const { return connected_; }
@@ -115,6 +130,8 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     void resolve_then_connect();
     void watch();
     void forget_socket();
+    // DISCONNECT as Protocol::disconnect says: libmosquitto's return code.
+    int disconnect();
     void after_io(int rc, std::string_view during);
     // What on_disconnect's rc means, for the log.
     std::string disconnect_reason(int rc) const;

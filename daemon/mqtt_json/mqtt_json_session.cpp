@@ -62,7 +62,8 @@ MqttJsonSession::MqttJsonSession(const asio::any_io_executor& executor,
       status_topic_(mqtt_json::status_topic(settings_.topic_prefix)),
       log_(log),
       bus_(bus),
-      ticker_(executor) {}
+      ticker_(executor),
+      birth_timer_(executor) {}
 
 void MqttJsonSession::start(const Links& links) {
     build(links);
@@ -136,6 +137,7 @@ void MqttJsonSession::set_links(const Links& links) {
 void MqttJsonSession::stop(std::chrono::milliseconds deadline, std::function<void()> done) {
     stopping_ = true;
     ticker_.cancel();
+    birth_timer_.cancel();
     subscription_.reset();
     // The will is for an unexpected end; a clean one says so itself.
     if (client_->connected())
@@ -235,7 +237,6 @@ void MqttJsonSession::publish_discovery() {
     for (const auto& module : modules_)
         for (const auto& config : module.discovery)
             if (!publish(config.topic, config.payload, 1, true)) discovery_due_ = true;
-    discovery_sent_ = std::chrono::steady_clock::now();
 }
 
 bool MqttJsonSession::publish(const std::string& topic, std::string_view payload, int qos,
@@ -280,7 +281,6 @@ void MqttJsonSession::tick() {
         if (ec || !self || self->stopping_) return;
         if (self->client_->connected()) {
             if (self->discovery_due_) self->publish_discovery();
-            if (std::exchange(self->states_due_, false)) self->publish_states_again();
             if (std::exchange(self->info_due_, false)) self->publish_bridge_info();
             for (auto& module : self->modules_)
                 if (module.state_due || !module.online) self->update(module);
@@ -320,15 +320,47 @@ void MqttJsonSession::stale_config(std::string_view topic) {
                   shown(topic), held_back(*held));
 }
 
-// Home Assistant came (back) online: it asks integrations to send their configs again. Served
-// at most once a second; the configs are retained anyway.
+// Home Assistant came (back) online: it asks integrations to send their configs again. Anyone
+// on the broker can say so, as often as they like: served at once, then at most once every
+// home_assistant_birth_interval, the births in between by one republication when it ends.
 void MqttJsonSession::home_assistant_online() {
     const auto now = std::chrono::steady_clock::now();
-    if (discovery_sent_ && now - *discovery_sent_ < min_discovery_interval) {
-        discovery_due_ = true;  // the next tick serves both
-        states_due_ = true;
+    if (births_.asked(now)) {
+        serve_home_assistant();
         return;
     }
+    if (const auto held = refusals_.admit("home assistant birth", now))
+        log_.info({},
+                  "MQTT JSON: Home Assistant's birth on {}/status served at most once every {} s; "
+                  "the next republication when they are over (logged once a minute){}",
+                  settings_.discovery_prefix, home_assistant_birth_interval.count(),
+                  held_back(*held));
+    wait_for_held_birth();
+}
+
+// The timer for a held-back birth, when one waits and none is set.
+void MqttJsonSession::wait_for_held_birth() {
+    const auto due = births_.due_at();
+    if (!due || std::exchange(birth_timer_armed_, true)) return;
+    birth_timer_.expires_at(*due);
+    birth_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
+        auto self = weak.lock();
+        if (!self) return;
+        self->birth_timer_armed_ = false;
+        if (ec || self->stopping_) return;
+        if (self->births_.due(std::chrono::steady_clock::now())) {
+            // Not connected: the next session's start publishes everything anyway.
+            if (self->client_->connected()) self->serve_home_assistant();
+            return;
+        }
+        // A birth served at once while this timer was late moved the time on; one held back
+        // after it waits for the new time.
+        self->wait_for_held_birth();
+    });
+}
+
+void MqttJsonSession::serve_home_assistant() {
+    // The configs are retained, but a broker restarted without persistence has lost them too.
     publish_discovery();
     // A Home Assistant restarted on a broker that keeps no retained messages has no state until
     // a value changes, and shows "unknown" meanwhile: give it every one now.

@@ -28,7 +28,8 @@
 // the transaction echoed, at most max_bridge_requests_per_second (more are dropped, counted and
 // logged once a minute); with discovery, a connectivity sensor per link on
 // `bridge/connectivity/<link>`, and Home Assistant's birth makes every module's state and
-// availability published again, for a Home Assistant on a broker that keeps no retained messages.
+// availability published again, for a Home Assistant on a broker that keeps no retained messages:
+// at once, then at most once every home_assistant_birth_interval, as any client can send one.
 #pragma once
 
 #include <chrono>
@@ -46,12 +47,14 @@
 #include "daemon/core/link_scheduler.hpp"
 #include "daemon/log.hpp"
 #include "daemon/mqtt/mqtt_client.hpp"
+#include "daemon/mqtt_json/birth_pacer.hpp"
 #include "protocol/mqtt_json.hpp"
 
 namespace ioport::daemon {
 
-// Home Assistant's birth messages closer than this are served by one republication.
-inline constexpr std::chrono::seconds min_discovery_interval{1};
+// Home Assistant's birth is served at once, then at most once this often (gateway.md §7.5):
+// births in between are served by one republication when it ends (BirthPacer).
+inline constexpr std::chrono::seconds home_assistant_birth_interval{30};
 // Bridge requests answered a second; a client asking more often is answered no more.
 inline constexpr int max_bridge_requests_per_second = 10;
 // The largest packet the broker may send this connection (MQTT 5's Maximum Packet Size): what
@@ -118,6 +121,9 @@ class MqttJsonSession : public std::enable_shared_from_this<MqttJsonSession> {
     void message(std::string_view topic, std::span<const std::uint8_t> payload, bool retained);
     void stale_config(std::string_view topic);
     void home_assistant_online();
+    void wait_for_held_birth();
+    // Every discovery config and every module's state and availability, for Home Assistant.
+    void serve_home_assistant();
     void set(const mqtt_json::SetTopic& topic, std::string_view payload, bool retained);
     void request(const std::string& name, std::string_view payload, bool retained);
     void publish_bridge_info();
@@ -147,9 +153,10 @@ class MqttJsonSession : public std::enable_shared_from_this<MqttJsonSession> {
     std::map<const LinkScheduler*, std::pair<std::size_t, std::size_t>> modules_of_;
     std::set<std::string> config_topics_;  // every discovery config this node publishes now
     bool discovery_due_ = false;           // not (all) published in this session yet
-    bool states_due_ = false;              // a Home Assistant birth the last tick did not serve
     bool info_due_ = false;                // a module's status changed since bridge/info
-    std::optional<std::chrono::steady_clock::time_point> discovery_sent_;
+    BirthPacer births_{home_assistant_birth_interval};
+    asio::steady_timer birth_timer_;  // a held-back birth: served when births_ says it is due
+    bool birth_timer_armed_ = false;
     // Of each link, the connectivity last published in this session.
     std::map<const LinkScheduler*, bool> connectivity_;
     // The bridge requests of the running second.

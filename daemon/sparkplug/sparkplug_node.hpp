@@ -10,7 +10,11 @@
 // what it drops makes the node rebirth once there is room again, so a host never keeps a value
 // that was lost.
 //
-// A session: CONNECT with NDEATH as the will, carrying bdSeq (one more for every CONNECT);
+// A session: CONNECT with NDEATH as the will, carrying bdSeq (one more for every CONNECT), in
+// MQTT 5 with Clean Start, a Session Expiry Interval of 0 and a Maximum Packet Size, so that a
+// command too large for any host never reaches this process (Sparkplug 3.0 allows MQTT 5); in
+// 3.1.1 with Clean Session to a broker that refuses 5, whose message_size_limit is then the only
+// bound (docs/sparkplug.md);
 // NBIRTH (seq 0) with the node metrics, then a DBIRTH per module that is online; from then on
 // seq counts every message 0..255. With primary_host_id the births wait for that host's STATE
 // {"online": true}; an offline STATE ends the session (NDEATH, DISCONNECT, a new CONNECT), and
@@ -21,7 +25,8 @@
 // counted and audited by the link like a Modbus write; the new value is published when the device
 // confirmed it, not before. With modbus.read_only nothing is written; a DCMD naming more metrics
 // than the device has writable ones is refused whole, before it is decoded. A clean stop publishes
-// NDEATH, then disconnects.
+// NDEATH, then disconnects; in MQTT 5 its DISCONNECT asks the broker for the will too, as
+// Sparkplug 3.0 requires, so a host sees the end twice with the same bdSeq.
 //
 // Store-and-forward (gateway.md §6.2, with mqtt.store): while no session can publish, what would
 // have gone out as DDATA goes to the store (SparkplugStore) with its acquisition time; after the
@@ -66,6 +71,10 @@ inline constexpr std::chrono::seconds min_rebirth_interval{1};
 // An NCMD may name the Node Control metrics of Sparkplug 3.0 (Rebirth, Reboot, Next Server, Scan
 // rate) together; only Rebirth acts. More is refused whole, like an oversized DCMD.
 inline constexpr std::size_t node_command_metrics = 4;
+// The largest packet the broker may send this node (MQTT 5's Maximum Packet Size): what arrives
+// is a DCMD (18 KiB at most, sparkplug::decode_command), an NCMD or a STATE (1 KiB); a 64 MiB
+// DCMD once took the daemon from 15 to 146 MB before it was refused.
+inline constexpr std::uint32_t sparkplug_maximum_packet_size = 64 << 10;
 // A STATE whose timestamp is further ahead of this node's clock than this does not order the
 // STATEs after it (docs/sparkplug.md: clocks set by NTP agree to milliseconds; a forged
 // timestamp must not make the host's real offline look stale).

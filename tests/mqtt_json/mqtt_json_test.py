@@ -15,8 +15,6 @@ import os
 import re
 import shutil
 import signal
-import socket
-import struct
 import sys
 import tempfile
 import threading
@@ -33,6 +31,7 @@ import paho.mqtt.client as mqtt  # noqa: E402
 import node_red  # noqa: E402
 from broker import Broker  # noqa: E402
 from process_memory import RSS_TELLS, MemoryLimit, peak_rss  # noqa: E402
+from raw_mqtt import Mqtt311Broker, RawClient, ScriptedBroker, read_packet  # noqa: E402
 from rig import SLOWDOWN, Rig, eventually  # noqa: E402
 
 PREFIX = "ioportd/box7"
@@ -641,130 +640,6 @@ class Bridge(JsonCase):
         self.assertTrue(self.sub.since(mark, topic("hub0/dim16_0", "availability")))
 
 
-def read_packet(conn):
-    """One MQTT control packet from `conn`: (first byte, body), or (None, b"") at its end."""
-    header = conn.recv(1)
-    if not header:
-        return None, b""
-    length, shift = 0, 0
-    while True:
-        byte = conn.recv(1)[0]
-        length |= (byte & 0x7F) << shift
-        shift += 7
-        if not byte & 0x80:
-            break
-    body = bytearray()
-    while len(body) < length:
-        chunk = conn.recv(min(length - len(body), 1 << 20))
-        if not chunk:
-            return None, b""
-        body += chunk
-    return header[0], bytes(body)
-
-
-def remaining_length(n):
-    out = bytearray()
-    while True:
-        out.append((n & 0x7F) | (0x80 if n > 0x7F else 0))
-        n >>= 7
-        if not n:
-            return bytes(out)
-
-
-def str16(text):
-    raw = text.encode()
-    return struct.pack(">H", len(raw)) + raw
-
-
-class RawClient:
-    """An MQTT 3.1.1 client of a few lines: it connects, publishes at QoS 1 waiting for each
-    PUBACK, and disconnects.
-    paho 1.6 copies the rest of an outgoing packet at every send(), which makes a 250 MB
-    publish quadratic and, on a loaded machine, minutes long; sendall() here is linear."""
-
-    def __init__(self, port, client_id):
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=10 * SLOWDOWN)
-        body = str16("MQTT") + bytes([4, 0x02]) + struct.pack(">H", 60) + str16(client_id)
-        self.sock.sendall(bytes([0x10]) + remaining_length(len(body)) + body)
-        kind, body = read_packet(self.sock)
-        if kind != 0x20 or body[1:2] != b"\x00":
-            raise AssertionError(f"CONNACK expected, got {kind} {body!r}")
-        self.mid = 0
-
-    def publish(self, topic_name, payload, seconds):
-        """Publishes at QoS 1 and returns once the broker has acknowledged it within `seconds`
-        (the socket's timeout bounds the whole sendall and each wait for a packet)."""
-        self.mid += 1
-        head = str16(topic_name) + struct.pack(">H", self.mid)
-        self.sock.settimeout(seconds)
-        self.sock.sendall(bytes([0x32]) + remaining_length(len(head) + len(payload)) + head)
-        self.sock.sendall(payload)
-        kind, body = read_packet(self.sock)
-        if kind != 0x40 or struct.unpack(">H", body[:2])[0] != self.mid:
-            raise AssertionError(f"PUBACK of {self.mid} expected, got {kind} {body!r}")
-
-    def close(self):
-        try:
-            self.sock.sendall(bytes([0xE0, 0]))
-        except OSError:
-            pass  # the broker has closed it already (a session taken over)
-        self.sock.close()
-
-
-class ScriptedBroker(threading.Thread):
-    """A listener on a free loopback port whose serve(conn) plays one part of a broker, on each
-    connection in a thread of its own."""
-
-    def __init__(self):
-        super().__init__(daemon=True)
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.port = self.server.getsockname()[1]
-
-    def run(self):
-        while True:
-            try:
-                conn, _ = self.server.accept()
-            except OSError:
-                return
-            threading.Thread(target=self.serve, args=(conn,), daemon=True).start()
-
-    def close(self):
-        self.server.close()
-
-
-class Mqtt311Broker(ScriptedBroker):
-    """A broker that speaks MQTT 3.1.1 only, as brokers from before MQTT 5 do: a CONNECT of
-    another protocol level gets CONNACK 0x01 (unacceptable protocol level) and the connection
-    closed; a 3.1.1 one gets CONNACK 0, then SUBACKs, PUBACKs and PINGRESPs, and what is published
-    to it is dropped. `levels`: the protocol level of every CONNECT, in order."""
-
-    def __init__(self):
-        super().__init__()
-        self.levels = []
-
-    def serve(self, conn):
-        with conn:
-            try:
-                kind, body = read_packet(conn)
-                level = body[2 + struct.unpack(">H", body[:2])[0]]
-                self.levels.append(level)
-                if level != 4:
-                    conn.sendall(bytes([0x20, 2, 0, 1]))
-                    return
-                conn.sendall(bytes([0x20, 2, 0, 0]))
-                while (packet := read_packet(conn))[0] is not None:
-                    kind, body = packet
-                    if kind >> 4 == 8:  # SUBSCRIBE: granted QoS 1 for each filter
-                        conn.sendall(bytes([0x90, 3]) + body[:2] + b"\x01")
-                    elif kind >> 4 == 3 and (kind >> 1) & 3 == 1:  # PUBLISH at QoS 1
-                        at = 2 + struct.unpack(">H", body[:2])[0]
-                        conn.sendall(bytes([0x40, 2]) + body[at:at + 2])
-                    elif kind >> 4 == 12:  # PINGREQ
-                        conn.sendall(bytes([0xD0, 0]))
-            except (OSError, IndexError):
-                pass
-
-
 class TakingOverBroker(ScriptedBroker):
     """Answers an MQTT 5 CONNECT with CONNACK, then at once DISCONNECT with reason code 0x8E
     (Session taken over), as MQTT 5 brokers do when another client connects with the same
@@ -816,7 +691,7 @@ class FromOutside(unittest.TestCase):
         sub = Subscriber(self.broker.port, (f"{PREFIX}/status",), client_id="hostile-watch")
         sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online")
         rss = peak_rss(pid)
-        attacker = RawClient(self.broker.port, "hostile")
+        attacker = RawClient(self.broker.port, "hostile", 10 * SLOWDOWN)
         attacker.publish(topic("hub0/dom16_0", "out3/set"), b"1" * (250 << 20), 60 * SLOWDOWN)
         sub.close()
 
@@ -839,6 +714,44 @@ class FromOutside(unittest.TestCase):
         metrics = self.rig.metrics()  # had it come, it would be counted refused (too long)
         self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="accepted"\} [1-9]')
         self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="refused"\} 0$')
+
+    def test_a_burst_of_home_assistant_births_republishes_once(self):
+        # Before: every birth a second after the last republication republished every config
+        # and state: 295 births in 6 s made 710 messages of 207 kB (five modules). Now the first
+        # is served at once, the rest by one republication when 30 s have passed
+        # (gateway.md §7.5; BirthPacer's unit tests wait the 30 s on a clock of their own).
+        self.rig.start_daemon()
+        sub = Subscriber(self.broker.port, (f"{HA}/+/{NODE}/+/config", f"{PREFIX}/#"),
+                         client_id="birth-watch")
+        attacker = RawClient(self.broker.port, "hostile", 10 * SLOWDOWN)
+        try:
+            sub.wait(f"{PREFIX}/status", lambda m: m.payload == "online")
+            configs = set(retained(self.broker.port, f"{HA}/+/{NODE}/+/config"))
+            self.assertGreater(len(configs), 40)
+            mark = sub.mark()
+            births, end = 0, time.monotonic() + 6
+            while time.monotonic() < end:
+                attacker.publish(f"{HA}/status", b"online", 10 * SLOWDOWN)
+                births += 1
+            # A request after the births: its answer comes after whatever they made.
+            attacker.publish(f"{PREFIX}/bridge/request/health_check", b"{}", 10 * SLOWDOWN)
+            sub.wait(f"{PREFIX}/bridge/response/health_check", since=mark, timeout=20)
+            made = [m for m in sub.since(mark) if not m.retain and "/bridge/response/" not in
+                    m.topic]
+            size = sum(len(m.topic) + len(m.payload.encode()) for m in made)
+            print(f"\n{births} Home Assistant births in 6 s: {len(made)} messages, "
+                  f"{size / 1000:.1f} kB", file=sys.stderr)
+            sent = [m.topic for m in made if m.topic.endswith("/config")]
+            self.assertEqual(sorted(sent), sorted(configs), "every config once, no more")
+            self.assertEqual(len(made) - len(sent), len({m.topic for m in made}) - len(configs),
+                             "every state and availability once, no more")
+            self.assertIsNone(self.rig.daemon.poll(), "ioportd is running")
+            self.rig.wait_log(r"MQTT JSON: Home Assistant's birth on homeassistant/status served "
+                              r"at most once every 30 s; the next republication when they are "
+                              r"over \(logged once a minute\)")
+        finally:
+            attacker.close()
+            sub.close()
 
     def test_hostile_bridge_requests_are_answered_in_a_few_bytes_and_the_daemon_lives(self):
         # Before: a number beyond a double's range anywhere in a request made the JSON parser

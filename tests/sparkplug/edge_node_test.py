@@ -32,6 +32,7 @@ from host_app import BrokerLog, HostApp, encode_value  # noqa: E402
 from tck import covers  # noqa: E402
 from broker import Broker  # noqa: E402
 from process_memory import RSS_TELLS, MemoryLimit, cpu_seconds, peak_rss  # noqa: E402
+from raw_mqtt import Mqtt311Front, RawClient  # noqa: E402
 from rig import SLOWDOWN, Rig, eventually, free_port  # noqa: E402
 
 GROUP, NODE = "plant1", "box7"
@@ -544,14 +545,18 @@ class HostileCommands(OwnDaemon):
         try:
             log = self.rig.log_mark()
             refused = r"Sparkplug DCMD to hub0\.dom16\.0 refused: refused whole"
-            flood = command_payload([("out/0", "Boolean", True)] * 100_000)
+            # 4,000 metrics, 51 KiB: over MQTT 5 the broker drops a command beyond 64 KiB for
+            # the node (test_a_huge_command_never_reaches_the_daemon); one within it but beyond
+            # a dom16's 18 KiB is refused by its size, unread.
+            flood = command_payload([("out/0", "Boolean", True)] * 4_000)
+            self.assertLess(len(flood), 60 << 10)
             self.host.publish_raw(dcmd_topic("hub0.dom16.0"), flood)
             reads = iter(range(20))  # at least 20, and on until the refusal is logged
             slowest = self.timed_reads(
                 client, lambda: next(reads, None) is None and
                 re.search(refused, self.rig.log_text()[log:]))
             line = self.rig.wait_log(refused + r": (\d+) bytes, .*", since=log)
-            print(f"\n  DCMD of 100,000 out/0 ({len(flood)} bytes): {line.group(0)!r}; slowest "
+            print(f"\n  DCMD of 4,000 out/0 ({len(flood)} bytes): {line.group(0)!r}; slowest "
                   f"Modbus read meanwhile {slowest * 1000:.1f} ms", file=sys.stderr)
             self.assertLess(slowest, 0.2, "Modbus waited for the DCMD")
             # one metric more than a dom16 writes (17): refused by count, logged with the first
@@ -732,12 +737,10 @@ class HostileCommands(OwnDaemon):
 class Lifecycle(OwnDaemon):
     """A daemon of its own for each test: ends, restarts, the broker's comings and goings."""
 
-    @covers("tck-id-operational-behavior-edge-node-intentional-disconnect-ndeath",
-            "tck-id-operational-behavior-edge-node-intentional-disconnect-packet",
-            "tck-id-payloads-ndeath-will-message-publisher",
-            "tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt311")
-    def test_sigterm_publishes_ndeath_with_the_session_bdseq(self):
-        nbirth = self.start()
+    def deaths_after_sigterm(self, nbirth):
+        """SIGTERM: the NDEATHs it brought (all of them: the barrier is a message of our own
+        after them, on a topic we subscribe to), the node's own first, with the session's bdSeq
+        and the time of the stop, not the will's of the CONNECT."""
         mark = self.host.mark()
         sent = time.time()
         took, code = self.rig.stop_daemon(signal.SIGTERM)
@@ -746,13 +749,54 @@ class Lifecycle(OwnDaemon):
         self.assertEqual(ndeath.metric("bdSeq").value, nbirth.metric("bdSeq").value)
         self.assertGreaterEqual(ndeath.timestamp, int(sent * 1000) - 1,
                                 "published at the stop, not the will made at CONNECT")
-        # a clean stop: the broker discarded the will, so one NDEATH only (the barrier: a
-        # message of our own after it, on a topic we subscribe to)
-        self.host.state("barrier", True, retain=False)
-        self.host.wait_message("STATE", since=mark, node="barrier")
-        self.assertEqual(len(self.host.since(mark, "NDEATH")), 1)
         print(f"\n  SIGTERM to exit: {took * 1000:.0f} ms", file=sys.stderr)
         self.assertLess(took, 0.45, "stop waited for the Sparkplug stop deadline (500 ms)")
+        self.host.state("barrier", True, retain=False)
+        self.host.wait_message("STATE", since=mark, node="barrier")
+        return self.host.since(mark, "NDEATH")
+
+    @covers("tck-id-operational-behavior-edge-node-intentional-disconnect-ndeath",
+            "tck-id-operational-behavior-edge-node-intentional-disconnect-packet",
+            "tck-id-payloads-ndeath-will-message-publisher",
+            "tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt50")
+    def test_sigterm_publishes_ndeath_with_the_session_bdseq(self):
+        nbirth = self.start()
+        self.rig.wait_log(r"mqtt: connected to \S+ as ioportd-plant1-box7 \(MQTT 5\)")
+        # MQTT 5: the DISCONNECT after the node's NDEATH asks the broker for the will too
+        # (Sparkplug 3.0), the same bdSeq, made at CONNECT.
+        own, will = self.deaths_after_sigterm(nbirth)
+        self.assertEqual(will.metric("bdSeq").value, own.metric("bdSeq").value)
+        self.assertLess(will.timestamp, nbirth.timestamp + 1, "the will, made at CONNECT")
+
+    @covers("tck-id-principles-persistence-clean-session-50",
+            "tck-id-principles-persistence-clean-session-311",
+            "tck-id-operational-behavior-edge-node-intentional-disconnect-ndeath",
+            "tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt311")
+    def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
+        # The class's Mosquitto behind a front that refuses MQTT 5, as a broker from before it
+        # does: the node asks for 5 (Clean Start, no session after the connection, nothing
+        # larger than 64 KiB), then speaks 3.1.1 with Clean Session, which cannot ask for a
+        # bound, and says so.
+        front = Mqtt311Front(self.broker.port)
+        front.start()
+        self.addCleanup(front.close)
+        self.rig.broker_url = f"mqtt://127.0.0.1:{front.port}"
+        self.rig.configure(HUB_MODULES)
+        nbirth = self.start()
+        self.rig.wait_log(rf"mqtt: mqtt://127\.0\.0\.1:{front.port} refused MQTT 5, so MQTT "
+                          r"3\.1\.1, which cannot ask it to send nothing larger than 65536 "
+                          r"bytes: set its message_size_limit")
+        self.rig.wait_log(r"mqtt: connected to \S+ as ioportd-plant1-box7 \(MQTT 3\.1\.1\)")
+        v5, v311 = front.connects[:2]
+        self.assertEqual((v5["level"], v5["clean"], v5["client_id"]), (5, True, CLIENT_ID))
+        self.assertEqual({k: v5["properties"].get(k) for k in (0x11, 0x27)},
+                         {0x11: 0, 0x27: 65536}, "Session Expiry Interval, Maximum Packet Size")
+        self.assertEqual((v311["level"], v311["clean"], v311["client_id"]), (4, True, CLIENT_ID))
+        for connect in (v5, v311):
+            self.assertEqual((connect["will"], connect["will_qos"], connect["will_retain"]),
+                             (True, 1, False))
+        # MQTT 3.1.1: its DISCONNECT discards the will, so one NDEATH, the node's own.
+        self.assertEqual(len(self.deaths_after_sigterm(nbirth)), 1)
 
     @covers("tck-id-payloads-ndeath-will-message",
             "tck-id-message-flow-edge-node-birth-publish-will-message",
@@ -1387,7 +1431,9 @@ class Templates(OwnDaemon):
         mark = self.host.mark()
         self.rig.daemon.send_signal(signal.SIGHUP)
         flat = self.host.wait_message("NBIRTH", since=mark, node=NODE, timeout=10)
-        self.assertEqual(len(self.host.since(mark, "NDEATH")), 1)
+        # the old session's end: its NDEATH and, in MQTT 5, the will its DISCONNECT asked for
+        self.assertEqual([m.metric("bdSeq").value for m in self.host.since(mark, "NDEATH")],
+                         [bdseq, bdseq])
         self.assertEqual(flat.metric("bdSeq").value, (bdseq + 1) % 256)
         self.assertEqual(self.definitions(flat), {})
         dim = self.host.wait_message("DBIRTH", "hub0.dim16.0", since=flat.index, timeout=10)
@@ -1500,6 +1546,51 @@ class FromOutside(OwnDaemon):
         self.assertFalse(client.read_input_registers(0, 1, slave=1).isError())
         client.close()
 
+    def test_a_huge_command_never_reaches_the_daemon(self):
+        # Before: MQTT 3.1.1, and libmosquitto read a 64 MiB DCMD whole before decode_command
+        # refused it (RSS from 15 to 146 MB; a larger one went past MemoryMax=256M). Now the
+        # CONNECT says 64 KiB at most (MQTT 5), and Mosquitto drops what is larger for the node.
+        self.start_online()
+        pid = self.rig.daemon.pid
+        rss = peak_rss(pid)
+        huge = pb.Payload(timestamp=int(time.time() * 1000))
+        encode_value(huge.metrics.add(name="out/0"), "String", "1" * (64 << 20))
+        huge = huge.SerializeToString()
+        attacker = RawClient(self.broker.port, "hostile", 10 * SLOWDOWN)
+        try:
+            attacker.publish(dcmd_topic("hub0.dom16.0"), huge, 60 * SLOWDOWN)
+            attacker.publish(f"spBv1.0/{GROUP}/NCMD/{NODE}", huge, 60 * SLOWDOWN)
+        finally:
+            attacker.close()
+        huge = None
+        # The node still serves: a DCMD after them acts. Mosquitto reads each whole before it
+        # serves anyone else, which on a loaded machine can hold it past the node's keepalive
+        # (5 s here): the node connects again, and a DCMD sent before it has subscribed again is
+        # gone with its clean session. So the DCMD is sent until it acts.
+        sent = [float("-inf")]
+
+        def out5_set():
+            if time.monotonic() - sent[0] >= 1:
+                self.host.dcmd(GROUP, NODE, "hub0.dom16.0", [{"name": "out/5", "value": True}])
+                sent[0] = time.monotonic()
+            return int(self.rig.ctl("get dom16:0"), 0) & 0x0020
+        eventually(out5_set, 20, lambda: f"out/5 on; ioportd's log:\n{self.rig.log_text()[-3000:]}",
+                   interval=0.2)
+        self.assertIsNone(self.rig.daemon.poll(), "ioportd is running")
+        peak = peak_rss(pid)
+        grown = peak - rss
+        print(f"\na 64 MiB DCMD and NCMD: peak RSS {rss / 1048576:.1f} -> {peak / 1048576:.1f} "
+              f"MiB ({grown / 1048576:+.1f})", file=sys.stderr)
+        if RSS_TELLS:
+            self.assertLess(grown, 4 << 20)
+        self.assertEqual(int(self.rig.ctl("get dom16:0"), 0) & 0x0001, 0, "out/0 never written")
+        client = self.modbus(self.rig)
+        self.assertFalse(client.read_input_registers(0, 1, slave=1).isError())
+        client.close()
+        # Had either come, it would have been refused as too large, and counted.
+        self.assertRegex(self.rig.metrics(),
+                         r'(?m)^ioportd_sparkplug_commands_total\{result="refused"\} 0$')
+
     def test_a_forged_timestamp_does_not_hide_the_host_going_offline(self):
         # Before: every genuine STATE after this one was "older", the host's real offline was
         # ignored, and the node published live into a host that was down, storing nothing.
@@ -1610,6 +1701,8 @@ class BrokerLogRules(unittest.TestCase):
 
     def test_every_broken_rule_is_found(self):
         self.assertEqual(self.changed(0, self.GOOD[0].replace("c1", "c0")), ["[connect]"])
+        self.assertEqual(self.changed(0, self.GOOD[0].replace("p2", "p1")), ["[connect]"])
+        self.assertEqual(self.changed(0, self.GOOD[0].replace("p2", "p5")), [])  # MQTT 5
         self.assertEqual(self.changed(1, self.GOOD[1].replace("r0", "r1")), ["[will]"])
         self.assertEqual(self.changed(1, self.GOOD[1].replace("q1", "q0")), ["[will]"])
         self.assertEqual(self.changed(2, "1: \tspBv1.0/plant1/NDEATH/other"), ["[will]"])
@@ -1806,7 +1899,8 @@ password_file {d}/passwd
         try:
             rig.start_daemon()
             # a wrong password: refused, said once, retried; Modbus as ever
-            rig.wait_log(r"refused the connection: .*not authori[sz]ed", 10)
+            # "Not authorized" in MQTT 5's reason string, "not authorised" in 3.1.1's CONNACK
+            rig.wait_log(r"refused the connection: .*[Nn]ot authori[sz]ed", 10)
             client = ModbusTcpClient("127.0.0.1", port=rig.port, timeout=3)
             assert client.connect()
             self.assertFalse(client.read_input_registers(1000, 1, slave=1).isError())

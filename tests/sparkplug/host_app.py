@@ -147,8 +147,12 @@ RULES = {
     "host app": ("the host app itself did not fail on a message", []),
     # BrokerLog: what mosquitto saw of the node's client.
     "connect": (
-        "the node connects with MQTT 3.1.1 and Clean Session",
-        ["tck-id-principles-persistence-clean-session-311"]),
+        "the node connects with MQTT 5 and Clean Start, or with MQTT 3.1.1 and Clean Session to "
+        "a broker that refuses 5 (the Session Expiry Interval 0 of MQTT 5, which the broker does "
+        "not log, is read from the CONNECT by `Lifecycle.test_a_broker_without_mqtt5_is_spoken_"
+        "to_in_3_1_1`)",
+        ["tck-id-principles-persistence-clean-session-311",
+         "tck-id-principles-persistence-clean-session-50"]),
     "will": (
         "every CONNECT registers a will: QoS 1, not retained, on `spBv1.0/<group>/NDEATH/<node>`",
         ["tck-id-payloads-ndeath-will-message-qos", "tck-id-payloads-ndeath-will-message-retain",
@@ -933,9 +937,10 @@ class BrokerLog:
         if (m := self.CONNECTED.match(line)) and m.group(1) == self.client_id:
             self.connects += 1
             self.connected, self.filters, self.expect = True, {}, "will"
-            if (m.group(2), m.group(3)) != ("2", "1"):
-                violation("connect", f"CONNECT p{m.group(2)}, c{m.group(3)}: not MQTT 3.1.1 "
-                                     f"with Clean Session")
+            # mosquitto's p: 2 for MQTT 3.1.1, 5 for MQTT 5; c: Clean Session, or Clean Start
+            if m.group(2) not in ("2", "5") or m.group(3) != "1":
+                violation("connect", f"CONNECT p{m.group(2)}, c{m.group(3)}: neither MQTT 5 "
+                                     f"with Clean Start nor MQTT 3.1.1 with Clean Session")
         elif (m := self.SUBSCRIBE.match(line)) and m.group(1) == self.client_id:
             self.expect = "filters"
         elif (m := self.PUBLISH.match(line)) and m.group(1) == self.client_id:

@@ -39,11 +39,8 @@ _PARAMETERS = ("ioportd's templates have no parameters (gateway.md §7.2: a modu
                "are its §5.5 metrics)")
 _DATASETS = "ioportd publishes no DataSet"
 _QUALITY = "ioportd sends no quality property (its metrics' properties are gateway.md §6.1's)"
-_MQTT5 = "ioportd connects with MQTT 3.1.1 only (the -311 twin of this id is checked)"
 
 NOT_APPLICABLE = {
-    "tck-id-principles-persistence-clean-session-50": _MQTT5,
-    "tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt50": _MQTT5,
     **{i: _PARAMETERS for i in IDS if "-template-parameter-" in i},
     "tck-id-payloads-template-definition-parameters-default": _PARAMETERS,
     "tck-id-payloads-template-instance-parameters": _PARAMETERS,

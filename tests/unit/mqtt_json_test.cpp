@@ -1,6 +1,8 @@
 // Plain MQTT with JSON and Home Assistant discovery (gateway.md §6.3) as pure functions.
 #include "protocol/mqtt_json.hpp"
 
+#include "daemon/mqtt_json/birth_pacer.hpp"
+
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
@@ -291,3 +293,49 @@ TEST(MqttJsonBridge, ALinksConnectivityIsASensorOfTheGatewaysDevice) {
 
 }  // namespace
 }  // namespace ioport::mqtt_json
+
+// Home Assistant's birth (gateway.md §7.5), on a clock of the test's: no waiting.
+namespace ioport::daemon {
+namespace {
+
+using std::chrono::milliseconds;
+using std::chrono::seconds;
+
+TEST(BirthPacer, AtOnceThenAtMostOnceAnIntervalTheLastHeldBackServedWhenItEnds) {
+    BirthPacer pacer(seconds(30));
+    const BirthPacer::Clock::time_point t0{std::chrono::hours(1)};
+    EXPECT_FALSE(pacer.due_at());
+    EXPECT_FALSE(pacer.due(t0));
+    EXPECT_TRUE(pacer.asked(t0));  // the first: at once
+    EXPECT_FALSE(pacer.due_at());
+    // A burst (295 births in 6 s once made 710 messages): none served, one due at t0 + 30 s.
+    for (int i = 1; i <= 295; ++i)
+        EXPECT_FALSE(pacer.asked(t0 + milliseconds(20 * i)));
+    EXPECT_EQ(pacer.due_at(), t0 + seconds(30));
+    EXPECT_FALSE(pacer.due(t0 + seconds(29)));
+    EXPECT_TRUE(pacer.due(t0 + seconds(30)));  // once, when the 30 s end
+    EXPECT_FALSE(pacer.due(t0 + seconds(31)));
+    EXPECT_FALSE(pacer.due_at());
+    // That republication counts: a birth right after it waits a whole interval again.
+    EXPECT_FALSE(pacer.asked(t0 + seconds(31)));
+    EXPECT_EQ(pacer.due_at(), t0 + seconds(60));
+    EXPECT_TRUE(pacer.due(t0 + seconds(61)));
+    // Quiet for longer than the interval: the next birth is served at once, nothing held back.
+    EXPECT_TRUE(pacer.asked(t0 + seconds(100)));
+    EXPECT_FALSE(pacer.due(t0 + seconds(200)));
+}
+
+TEST(BirthPacer, ABirthServedAtOnceCancelsNothingDue) {
+    BirthPacer pacer(seconds(30));
+    const BirthPacer::Clock::time_point t0{std::chrono::hours(1)};
+    EXPECT_TRUE(pacer.asked(t0));
+    EXPECT_FALSE(pacer.asked(t0 + seconds(10)));
+    // The timer that serves it was late (a busy loop): a birth after the interval is served
+    // at once and the held-back one with it, not a second time.
+    EXPECT_TRUE(pacer.asked(t0 + seconds(45)));
+    EXPECT_FALSE(pacer.due_at());
+    EXPECT_FALSE(pacer.due(t0 + seconds(50)));
+}
+
+}  // namespace
+}  // namespace ioport::daemon
