@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
+#include "daemon/base/worker_thread.hpp"
 #include "daemon/core/bus.hpp"
 #include "daemon/core/comm_loss.hpp"
 #include "daemon/core/events.hpp"
@@ -20,7 +21,6 @@
 #include "daemon/core/output.hpp"
 #include "daemon/http/http_output.hpp"
 #include "daemon/modbus/modbus_output.hpp"
-#include "daemon/worker_thread.hpp"
 
 namespace ioport::daemon {
 

@@ -12,9 +12,9 @@
 
 #include "config/check_text.hpp"
 #include "config/gateway_config.hpp"
+#include "daemon/base/log.hpp"
 #include "daemon/gateway.hpp"
 #include "daemon/http/render.hpp"
-#include "daemon/log.hpp"
 #include "daemon/options.hpp"
 #include "daemon/service_notifier.hpp"
 

@@ -7,7 +7,7 @@
 #include <functional>
 #include <string>
 
-#include "daemon/log.hpp"
+#include "daemon/base/log.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {

@@ -12,9 +12,9 @@
 #include <functional>
 #include <memory>
 
+#include "daemon/base/log.hpp"
 #include "daemon/core/bus.hpp"
 #include "daemon/core/poll_plan.hpp"  // Clock
-#include "daemon/log.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {

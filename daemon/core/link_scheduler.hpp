@@ -20,11 +20,11 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
+#include "daemon/base/log.hpp"
 #include "daemon/core/bus.hpp"
 #include "daemon/core/model.hpp"
 #include "daemon/core/poll_plan.hpp"
 #include "daemon/core/trend.hpp"
-#include "daemon/log.hpp"
 #include "link/asio.hpp"
 #include "link/serial_link.hpp"
 #include "protocol/gateway_map.hpp"

@@ -16,8 +16,8 @@
 #include <string_view>
 #include <unordered_map>
 
-#include "daemon/log.hpp"
-#include "daemon/worker_thread.hpp"
+#include "daemon/base/log.hpp"
+#include "daemon/base/worker_thread.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {

@@ -9,12 +9,12 @@
 #include <optional>
 #include <string>
 
+#include "daemon/base/worker_thread.hpp"
 #include "daemon/core/bus.hpp"
 #include "daemon/core/output.hpp"
 #include "daemon/http/http_auth.hpp"
 #include "daemon/http/http_server.hpp"
 #include "daemon/http/render.hpp"
-#include "daemon/worker_thread.hpp"
 
 namespace ioport::daemon {
 

@@ -28,11 +28,11 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
+#include "daemon/base/listener.hpp"
+#include "daemon/base/log.hpp"
+#include "daemon/base/tls_server.hpp"
 #include "daemon/http/http_auth.hpp"
 #include "daemon/http/http_route.hpp"
-#include "daemon/listener.hpp"
-#include "daemon/log.hpp"
-#include "daemon/tls_server.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {

@@ -12,8 +12,8 @@
 #include <openssl/ssl.h>
 
 #include "config/duration.hpp"
-#include "daemon/file_descriptors.hpp"
-#include "daemon/listener.hpp"
+#include "daemon/base/file_descriptors.hpp"
+#include "daemon/base/listener.hpp"
 #include "protocol/device_identification.hpp"
 
 namespace ioport::daemon {

@@ -24,10 +24,10 @@
 #include <modbus/modbus.h>
 
 #include "config/gateway_config.hpp"
+#include "daemon/base/listener.hpp"
 #include "daemon/core/comm_loss.hpp"
 #include "daemon/core/histogram.hpp"
 #include "daemon/core/link_scheduler.hpp"
-#include "daemon/listener.hpp"
 #include "daemon/modbus/modbus_reply.hpp"
 #include "daemon/modbus/modbus_tls.hpp"
 #include "daemon/modbus/modbus_unit.hpp"

@@ -9,7 +9,7 @@
 #include <string>
 
 #include "config/gateway_config.hpp"
-#include "daemon/tls_server.hpp"
+#include "daemon/base/tls_server.hpp"
 #include "link/asio.hpp"
 #include "protocol/error.hpp"
 #include "protocol/modbus_security.hpp"

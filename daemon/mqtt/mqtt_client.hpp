@@ -29,7 +29,7 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
-#include "daemon/log.hpp"
+#include "daemon/base/log.hpp"
 #include "link/asio.hpp"
 #include "protocol/exposition.hpp"
 

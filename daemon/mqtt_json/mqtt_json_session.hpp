@@ -43,9 +43,9 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
+#include "daemon/base/log.hpp"
 #include "daemon/core/events.hpp"
 #include "daemon/core/link_scheduler.hpp"
-#include "daemon/log.hpp"
 #include "daemon/mqtt/mqtt_client.hpp"
 #include "daemon/mqtt_json/birth_pacer.hpp"
 #include "protocol/mqtt_json.hpp"

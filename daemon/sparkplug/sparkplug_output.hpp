@@ -8,9 +8,9 @@
 #include <memory>
 #include <optional>
 
+#include "daemon/base/worker_thread.hpp"
 #include "daemon/core/output.hpp"
 #include "daemon/sparkplug/sparkplug_node.hpp"
-#include "daemon/worker_thread.hpp"
 
 namespace ioport::daemon {
 

@@ -19,9 +19,9 @@
 #include <vector>
 
 #include "config/gateway_config.hpp"
-#include "daemon/log.hpp"
+#include "daemon/base/log.hpp"
+#include "daemon/base/worker_thread.hpp"
 #include "daemon/sparkplug/store_files.hpp"
-#include "daemon/worker_thread.hpp"
 #include "link/asio.hpp"
 
 namespace ioport::daemon {

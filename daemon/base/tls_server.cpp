@@ -1,4 +1,4 @@
-#include "daemon/tls_server.hpp"
+#include "daemon/base/tls_server.hpp"
 
 #include <fmt/format.h>
 #include <openssl/err.h>

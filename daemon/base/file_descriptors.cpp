@@ -1,4 +1,4 @@
-#include "daemon/file_descriptors.hpp"
+#include "daemon/base/file_descriptors.hpp"
 
 #include <sys/resource.h>
 

@@ -1,4 +1,4 @@
-#include "daemon/listener.hpp"
+#include "daemon/base/listener.hpp"
 
 #include <algorithm>
 
