@@ -25,6 +25,8 @@ std::vector<Verdict> footprint(const Environment& env);
 std::vector<Verdict> http_cost(const Environment& env);
 // 6b-c alone: one scrape's CPU and page faults with 8 links × 72 modules, and the memory.
 std::vector<Verdict> http_scrape_cost(const Environment& env);
+// 6f alone: Modbus beside a TLS handshake flood of the HTTPS port from one address.
+std::vector<Verdict> http_flood_cost(const Environment& env);
 // 7. The Sparkplug B edge node (issue 17): input change → DDATA latency against the poll cycle,
 // ioportd's CPU with MQTT on and off and Modbus beside it, with every analog value changing.
 std::vector<Verdict> sparkplug_cost(const Environment& env);

@@ -20,6 +20,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cctype>
 #include <cerrno>
 #include <cstring>
@@ -30,6 +31,7 @@
 #include <numeric>
 #include <random>
 #include <sstream>
+#include <thread>
 #include <tuple>
 
 #include <fmt/format.h>
@@ -1325,7 +1327,129 @@ std::vector<Verdict> beside_writes(const Environment& env) {
              "<= 1.05×", ok && r.p99_median[1] <= 1.05}};
 }
 
+// --- f. A TLS handshake flood from one address (issue 47) ------------------------------------
+
+// Threads that make TLS connections to `port` from 127.0.0.1, each closed after its handshake:
+// what one address can throw at the HTTPS port. Each starts one every `pace` at most, so that a
+// server that refuses at once does not turn the flood into a loop that takes the CPU of the
+// Modbus clients beside it (they share this process's CPU): the same attempts against every
+// server, more than any of them completes.
+class HandshakeFlood {
+  public:
+    HandshakeFlood(std::uint16_t port, const TlsClientContext& tls) : port_(port), tls_(tls) {}
+    void run(Clock::time_point to) {
+        std::vector<std::jthread> threads;
+        for (int i = 0; i < flooders; ++i)
+            threads.emplace_back([this, to] {
+                for (auto next = Clock::now(); next < to; next += pace) {
+                    {
+                        const TlsConnection connection(tls_, port_, nullptr, 1s);
+                        ++(connection.connected() ? completed_ : refused_);
+                    }
+                    std::this_thread::sleep_until(std::max(next + pace, Clock::now()));
+                }
+            });
+    }
+    int completed() const { return completed_; }
+    int refused() const { return refused_; }
+    static constexpr int flooders = 8;
+    static constexpr auto pace = 4ms;  // 250 attempts a second each, 2,000 in all
+
+  private:
+    std::uint16_t port_;
+    const TlsClientContext& tls_;
+    std::atomic<int> completed_{0};
+    std::atomic<int> refused_{0};
+};
+
+struct FloodFigures {
+    BesideRounds rounds;
+    int completed = 0;
+    int refused = 0;
+    bool ok = false;
+};
+
+// Benchmark 4's reads at `connections` against an ioportd of `env` with HTTPS, in rounds with and
+// without the flood beside them.
+std::optional<FloodFigures> flood_rounds(const Environment& env, int connections, int rounds,
+                                         std::chrono::milliseconds window) {
+    const TempDir dir;
+    const Certificates certificates(env, dir);
+    if (!certificates.ok()) return std::nullopt;
+    WebGateway daemon(env,
+                      fmt::format("tls_server_config:\n  cert_file: {}\n  key_file: {}\n",
+                                  certificates.path("server.pem"), certificates.path("server.key")),
+                      "", 0ms);
+    if (!daemon.ready()) return std::nullopt;
+    const TlsClientContext tls({certificates.path("ca.pem"), {}, {}});
+    if (!tls.ok()) return std::nullopt;
+    HandshakeFlood flood(daemon.http_port, tls);
+    FloodFigures out;
+    out.rounds = rounds_beside(
+        env, daemon.gateway, connections, rounds, window, "flood", "handshakes",
+        {{"no", "no flood", ""},
+         {"yes", "handshake flood", "flood ÷ none", [&](Clock::time_point to) { flood.run(to); }}},
+        [&] { return flood.completed(); });
+    out.completed = flood.completed();
+    out.refused = flood.refused();
+    out.ok = std::ranges::all_of(out.rounds.sides, [](const Side& side) {
+        return side.load->connected && side.load->errors == 0;
+    });
+    return out;
+}
+
+std::vector<Verdict> handshake_flood(const Environment& env) {
+    constexpr int connections = 64;
+    const int rounds = env.quick ? 1 : 7;
+    const auto window = env.window(3s);
+    fmt::print(
+        "\n### 6f. Modbus at {} connections while one address floods the HTTPS port with TLS "
+        "handshakes ({} rounds of each kind, {} ms each, the order rotated)\n\nThe reads of "
+        "benchmark 4 against ioportd polling the bus of 6a as fast as the line goes, with "
+        "tls_server_config (an EC P-256 certificate, no client certificates, no passwords). "
+        "Flood rounds: {} threads of this process make TLS connections to the HTTP port from "
+        "127.0.0.1, each a full TLS 1.3 handshake then closed, each thread one every {} ms at "
+        "most (2,000 attempts a second, more than a server completes: gateway.md §7.5 budgets "
+        "them per address). Server CPU per request counts everything ioportd did in the window, "
+        "the handshakes and refusals included.{}\n",
+        connections, rounds, window.count(), HandshakeFlood::flooders, HandshakeFlood::pace.count(),
+        env.binaries.baseline.empty() ? ""
+                                      : " Then the same with --baseline's ioportd, whose "
+                                        "handshakes have no budget of their own.");
+    const auto figures = flood_rounds(env, connections, rounds, window);
+    if (!figures) return {{"6f. handshake flood", "ioportd or the certificates failed", "", false}};
+    const auto& r = figures->rounds;
+    const double seconds = static_cast<double>(window.count()) / 1000.0 * rounds;
+    fmt::print("\nHandshakes completed in the flood rounds: {} ({:.0f}/s); refused: {}.\n",
+               figures->completed, figures->completed / seconds, figures->refused);
+    std::string baseline_text;
+    if (!env.binaries.baseline.empty()) {
+        fmt::print("\nThe same with --baseline's ioportd:\n");
+        if (const auto before = flood_rounds(env.baseline(), connections, rounds, window)) {
+            fmt::print("\nHandshakes completed in the flood rounds: {} ({:.0f}/s); refused: {}.\n",
+                       before->completed, before->completed / seconds, before->refused);
+            baseline_text =
+                fmt::format("; --baseline: {:.3f}× ({:.0f} vs {:.0f} µs), {:.0f} handshakes/s",
+                            before->rounds.p99_median[1], before->rounds.sides[1].latency.p99,
+                            before->rounds.sides[0].latency.p99, before->completed / seconds);
+        }
+    }
+    machine_line(fmt::format(
+        R"({{"bench":"https_handshake_flood","connections":{},"rounds":{},"quiet_p99_us":{:.0f},"flood_p99_us":{:.0f},"p99_ratio_median":{:.3f},"cpu_ratio_median":{:.3f},"handshakes":{},"refused":{}}})",
+        connections, rounds, r.sides[0].latency.p99, r.sides[1].latency.p99, r.p99_median[1],
+        r.cpu_median[1], figures->completed, figures->refused));
+    return {{"6f. p99 latency, 64 conn., handshake flood from one address ÷ none",
+             fmt::format("median of {} rounds {:.3f}× ({:.0f} vs {:.0f} µs), {:.0f} handshakes/s{}",
+                         rounds, r.p99_median[1], r.sides[1].latency.p99, r.sides[0].latency.p99,
+                         figures->completed / seconds, baseline_text),
+             "<= 1.05×", figures->ok && r.p99_median[1] <= 1.05}};
+}
+
 }  // namespace
+
+std::vector<Verdict> http_flood_cost(const Environment& env) {
+    return handshake_flood(env);
+}
 
 std::vector<Verdict> http_scrape_cost(const Environment& env) {
     return eight_links(env);
@@ -1338,7 +1462,8 @@ std::vector<Verdict> http_cost(const Environment& env) {
         "rings; what a password and HTTPS add to a scrape, and what an operator's writes from the "
         "web cost the Modbus side (issue 39).\n");
     auto verdicts = beside_modbus(env);
-    for (const auto& more : {eight_links(env), scrape_security(env), beside_writes(env)})
+    for (const auto& more :
+         {eight_links(env), scrape_security(env), beside_writes(env), handshake_flood(env)})
         verdicts.insert(verdicts.end(), more.begin(), more.end());
     return verdicts;
 }

@@ -19,9 +19,10 @@ namespace {
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, scrape (6b-c alone), sparkplug (7a-h), fleet (7c alone),
-outage (7d alone), crash (7e alone), backlog (7f alone), store (7g alone), templates (7h
-alone), tls, mqtt_json (9), curve (10: 1 to 16 links with every path on), or all (the default).
+write, modbus, footprint, http, scrape (6b-c alone), flood (6f alone), sparkplug (7a-h), fleet
+(7c alone), outage (7d alone), crash (7e alone), backlog (7f alone), store (7g alone),
+templates (7h alone), tls, mqtt_json (9), curve (10: 1 to 16 links with every path on), or all
+(the default).
 Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
 its target. Asserts nothing: exit status 0 unless a program could not be started.
 
@@ -29,10 +30,10 @@ its target. Asserts nothing: exit status 0 unless a program could not be started
                     figures mean nothing
   --scale X         multiply every measured window by X (default 1)
   --ioportd PATH    the ioportd to measure (default: the one built beside this program)
-  --baseline PATH   benchmarks 4, 6b and 7b also measure this ioportd (an earlier build) in
-                    the same run: 4 in the same alternating rounds (CPU per request and rate
-                    against it), 6b its CPU per scrape right after, 7b its CPU with MQTT on over
-                    the same windows
+  --baseline PATH   benchmarks 4, 6b, 6f and 7b also measure this ioportd (an earlier build)
+                    in the same run: 4 in the same alternating rounds (CPU per request and rate
+                    against it), 6b its CPU per scrape right after, 6f its rounds right after,
+                    7b its CPU with MQTT on over the same windows
   --links N,M,...   benchmark 10's sizes, a row each (default 1,2,4,8,16; --quick: 1,2)
   --no-pin          do not pin servers and clients to CPUs 1 and 0
   --no-latency-hold let idle CPUs halt during benchmarks 1-4 as well (see WakeupLatencyHold
@@ -159,10 +160,10 @@ int main(int argc, char** argv) {
             std::cout << usage;
             return 0;
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
-                   arg == "footprint" || arg == "http" || arg == "scrape" || arg == "sparkplug" ||
-                   arg == "fleet" || arg == "outage" || arg == "crash" || arg == "backlog" ||
-                   arg == "store" || arg == "templates" || arg == "tls" || arg == "mqtt_json" ||
-                   arg == "curve" || arg == "all") {
+                   arg == "footprint" || arg == "http" || arg == "scrape" || arg == "flood" ||
+                   arg == "sparkplug" || arg == "fleet" || arg == "outage" || arg == "crash" ||
+                   arg == "backlog" || arg == "store" || arg == "templates" || arg == "tls" ||
+                   arg == "mqtt_json" || arg == "curve" || arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -201,6 +202,9 @@ int main(int argc, char** argv) {
         // 6b-c alone (`all` runs them within http).
         if (std::find(chosen.begin(), chosen.end(), "scrape") != chosen.end())
             add(http_scrape_cost(env));
+        // 6f alone.
+        if (std::find(chosen.begin(), chosen.end(), "flood") != chosen.end())
+            add(http_flood_cost(env));
         // Latency and the Modbus load of benchmark 4 again, under the same conditions.
         if (wanted("sparkplug")) add(sparkplug_cost(env));
         // Benchmark 4's load again, over TLS and plain.

@@ -103,12 +103,15 @@ const CheckLimiter::Client* CheckLimiter::find(const asio::ip::address& address)
 std::optional<CheckLimiter::Clock::time_point> CheckLimiter::refused_until(
     const asio::ip::address& address, Clock::time_point now) const {
     const auto* client = find(address);
-    if (client == nullptr) return std::nullopt;
-    if (client->in_flight) return now + in_flight_retry;
-    if (client->count < max_checks) return std::nullopt;
+    if (client == nullptr || client->count < max_checks) return std::nullopt;
     const auto until = client->checks.front() + window;  // the oldest of the last five
     if (now >= until) return std::nullopt;
     return until;
+}
+
+bool CheckLimiter::in_flight(const asio::ip::address& address) const {
+    const auto* client = find(address);
+    return client != nullptr && client->in_flight;
 }
 
 void CheckLimiter::make_room(Clock::time_point now) {
@@ -242,17 +245,23 @@ asio::awaitable<AuthOutcome> Authenticator::check(asio::ip::address from,
     }
     if (authorization.empty()) co_return AuthOutcome{AuthVerdict::missing};
     auto credentials = parse_basic_credentials(authorization);
+    const auto user = credentials ? users_.find(credentials->user) : users_.end();
+    const auto digest = credentials ? keyed_digest(key_, credentials->password) : std::string();
+    // A password verified before is no check, so a check of this address in flight (another
+    // user's at the same workstation, say) holds it up no more than the limit does.
+    if (user != users_.end())
+        if (const auto seen = verified_.find(user->first);
+            seen != verified_.end() && same(seen->second.digest, digest))
+            co_return AuthOutcome{AuthVerdict::authenticated, user->first};
+    if (limiter_.in_flight(from)) {
+        ++limited_;
+        co_return AuthOutcome{AuthVerdict::limited, {}, now + CheckLimiter::in_flight_retry};
+    }
     if (!credentials) {
         limiter_.started(from, now);
         limiter_.finished(from, true, now);
         co_return refuse(from, "", now);
     }
-    const auto user = users_.find(credentials->user);
-    const auto digest = keyed_digest(key_, credentials->password);
-    if (user != users_.end())
-        if (const auto seen = verified_.find(user->first);
-            seen != verified_.end() && same(seen->second.digest, digest))
-            co_return AuthOutcome{AuthVerdict::authenticated, user->first};
     const std::string hash = user != users_.end() ? user->second : decoy_;
     limiter_.started(from, now);
     // Made apart from the co_await: g++ 12 destroys a temporary of the co_await's full

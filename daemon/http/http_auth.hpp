@@ -59,9 +59,12 @@ class CheckLimiter {
     static constexpr std::chrono::seconds in_flight_retry{1};
 
     void set_ipv6_prefix(int bits) { ipv6_prefix_ = bits; }
-    // When the address may start a check; nullopt when it may now.
+    // When the address may be served again, having had max_checks checks within the minute;
+    // nullopt when it may now.
     std::optional<Clock::time_point> refused_until(const asio::ip::address& address,
                                                    Clock::time_point now) const;
+    // A check of this address is queued or running: it may start no other.
+    bool in_flight(const asio::ip::address& address) const;
     // A check begins (queued): counted now, not when its verdict is known.
     void started(const asio::ip::address& address, Clock::time_point now);
     // Its verdict: a failure puts the address behind the others until its minute is over.

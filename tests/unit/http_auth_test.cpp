@@ -132,10 +132,11 @@ TEST(CheckLimiter, ACheckInFlightRefusesTheNextOfThatAddressUntilItsVerdict) {
     CheckLimiter limiter;
     const auto a = address("192.0.2.1");
     limiter.started(a, t0);
-    EXPECT_EQ(limiter.refused_until(a, t0 + 1s), t0 + 1s + CheckLimiter::in_flight_retry);
-    EXPECT_FALSE(limiter.refused_until(address("192.0.2.2"), t0 + 1s));
+    EXPECT_TRUE(limiter.in_flight(a));
+    EXPECT_FALSE(limiter.refused_until(a, t0 + 1s));  // one check is not the limit
+    EXPECT_FALSE(limiter.in_flight(address("192.0.2.2")));
     limiter.finished(a, false, t0 + 1s);
-    EXPECT_FALSE(limiter.refused_until(a, t0 + 1s));
+    EXPECT_FALSE(limiter.in_flight(a));
     EXPECT_FALSE(limiter.failing(a, t0 + 1s));
 }
 
@@ -174,7 +175,7 @@ TEST(CheckLimiter, ItFollowsABoundedNumberOfAddressesAndMakesRoomWithTheOldest) 
     for (std::size_t i = 0; i < CheckLimiter::max_addresses + 1000; ++i)
         failed_check(limiter, nth(i), t0 + 31s);
     EXPECT_EQ(limiter.addresses(), CheckLimiter::max_addresses);
-    EXPECT_TRUE(limiter.refused_until(waiting, t0 + 32s));
+    EXPECT_TRUE(limiter.in_flight(waiting));
     // The newest are followed; the attacker, whose last check was the oldest, made room.
     for (int i = 0; i < 4; ++i)
         failed_check(limiter, nth(CheckLimiter::max_addresses + 999), t0 + 32s);
@@ -289,6 +290,13 @@ TEST_F(AuthenticatorTest, AVerifiedPasswordIsRememberedAndAnotherOneIsHashed) {
     start(alice_wrong, "127.0.0.1", wrong);
     io.poll();
     EXPECT_FALSE(wrong) << "a wrong password must be hashed, never compared with the remembered";
+    // A check of the address in flight holds up no remembered password, and any other check.
+    const auto meanwhile = check(alice_right, "127.0.0.1", 0ms);
+    ASSERT_TRUE(meanwhile);
+    EXPECT_EQ(meanwhile->verdict, AuthVerdict::authenticated);
+    const auto other = check(bob_right, "127.0.0.1", 0ms);
+    ASSERT_TRUE(other);
+    EXPECT_EQ(other->verdict, AuthVerdict::limited);
     release.set_value();
     while (!wrong)
         io.run_one_for(10ms);
