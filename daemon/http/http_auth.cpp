@@ -129,7 +129,7 @@ void CheckLimiter::make_room(Clock::time_point now) {
     if (oldest != clients_.end()) clients_.erase(oldest);
 }
 
-void CheckLimiter::started(const asio::ip::address& address, Clock::time_point now) {
+ClientKey CheckLimiter::started(const asio::ip::address& address, Clock::time_point now) {
     const auto key = client_key(address, ipv6_prefix_);
     auto it = clients_.find(key);
     if (it == clients_.end()) {
@@ -143,11 +143,12 @@ void CheckLimiter::started(const asio::ip::address& address, Clock::time_point n
     }
     client.checks[static_cast<std::size_t>(client.count++)] = now;
     client.in_flight = true;
+    return key;
 }
 
-void CheckLimiter::finished(const asio::ip::address& address, bool failed, Clock::time_point now) {
-    const auto it = clients_.find(client_key(address, ipv6_prefix_));
-    if (it == clients_.end()) return;  // the prefix changed meanwhile
+void CheckLimiter::finished(const ClientKey& key, bool failed, Clock::time_point now) {
+    const auto it = clients_.find(key);
+    if (it == clients_.end()) return;
     it->second.in_flight = false;
     if (failed) it->second.failed = now;
 }
@@ -258,17 +259,16 @@ asio::awaitable<AuthOutcome> Authenticator::check(asio::ip::address from,
         co_return AuthOutcome{AuthVerdict::limited, {}, now + CheckLimiter::in_flight_retry};
     }
     if (!credentials) {
-        limiter_.started(from, now);
-        limiter_.finished(from, true, now);
+        limiter_.finished(limiter_.started(from, now), true, now);
         co_return refuse(from, "", now);
     }
     const std::string hash = user != users_.end() ? user->second : decoy_;
-    limiter_.started(from, now);
+    const auto key = limiter_.started(from, now);
     // Made apart from the co_await: g++ 12 destroys a temporary of the co_await's full
     // expression twice.
     auto turn = take_turn(limiter_.failing(from, now));
     if (!co_await std::move(turn)) {
-        limiter_.finished(from, false, Clock::now());
+        limiter_.finished(key, false, Clock::now());
         ++busy_;
         co_return AuthOutcome{AuthVerdict::busy};
     }
@@ -281,7 +281,7 @@ asio::awaitable<AuthOutcome> Authenticator::check(asio::ip::address from,
     // A reload may have changed the users meanwhile: what counts is the hash still there.
     const auto now_user = users_.find(credentials->user);
     const bool authenticated = matches && now_user != users_.end() && now_user->second == hash;
-    limiter_.finished(from, !authenticated, Clock::now());
+    limiter_.finished(key, !authenticated, Clock::now());
     if (!authenticated) co_return refuse(from, credentials->user, Clock::now());
     verified_[now_user->first] = {hash, digest};
     co_return AuthOutcome{AuthVerdict::authenticated, now_user->first};

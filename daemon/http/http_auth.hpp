@@ -65,10 +65,11 @@ class CheckLimiter {
                                                    Clock::time_point now) const;
     // A check of this address is queued or running: it may start no other.
     bool in_flight(const asio::ip::address& address) const;
-    // A check begins (queued): counted now, not when its verdict is known.
-    void started(const asio::ip::address& address, Clock::time_point now);
+    // A check begins (queued): counted now, not when its verdict is known. Its key, for
+    // finished(): a reload may change the prefix meanwhile.
+    ClientKey started(const asio::ip::address& address, Clock::time_point now);
     // Its verdict: a failure puts the address behind the others until its minute is over.
-    void finished(const asio::ip::address& address, bool failed, Clock::time_point now);
+    void finished(const ClientKey& key, bool failed, Clock::time_point now);
     // A check of this address failed within the last minute.
     bool failing(const asio::ip::address& address, Clock::time_point now) const;
     std::size_t addresses() const { return clients_.size(); }

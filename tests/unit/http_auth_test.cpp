@@ -106,8 +106,7 @@ const Clock::time_point t0{};
 
 // One check from `a` at `at`, failed.
 void failed_check(CheckLimiter& limiter, const asio::ip::address& a, Clock::time_point at) {
-    limiter.started(a, at);
-    limiter.finished(a, true, at);
+    limiter.finished(limiter.started(a, at), true, at);
 }
 
 TEST(CheckLimiter, FiveChecksInAnyMinuteRefuseThatAddressUntilTheOldestIsAMinuteOld) {
@@ -131,13 +130,21 @@ TEST(CheckLimiter, FiveChecksInAnyMinuteRefuseThatAddressUntilTheOldestIsAMinute
 TEST(CheckLimiter, ACheckInFlightRefusesTheNextOfThatAddressUntilItsVerdict) {
     CheckLimiter limiter;
     const auto a = address("192.0.2.1");
-    limiter.started(a, t0);
+    const auto key = limiter.started(a, t0);
     EXPECT_TRUE(limiter.in_flight(a));
     EXPECT_FALSE(limiter.refused_until(a, t0 + 1s));  // one check is not the limit
     EXPECT_FALSE(limiter.in_flight(address("192.0.2.2")));
-    limiter.finished(a, false, t0 + 1s);
+    limiter.finished(key, false, t0 + 1s);
     EXPECT_FALSE(limiter.in_flight(a));
     EXPECT_FALSE(limiter.failing(a, t0 + 1s));
+    // A reload that changes the prefix while a check runs: its end is still its address's.
+    const auto v6 = address("2001:db8::1");
+    const auto v6_key = limiter.started(v6, t0);
+    limiter.set_ipv6_prefix(128);
+    limiter.finished(v6_key, true, t0 + 1s);
+    limiter.set_ipv6_prefix(64);
+    EXPECT_FALSE(limiter.in_flight(v6));
+    EXPECT_TRUE(limiter.failing(v6, t0 + 1s));
 }
 
 TEST(CheckLimiter, ChecksSpreadOverMinutesNeverAddUp) {
