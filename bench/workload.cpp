@@ -381,6 +381,10 @@ bool Workload::write_in_flight() const {
     return write_in_flight_.load() > 0;
 }
 
+std::uint64_t Workload::writes_failed() const {
+    return writes_failed_.load();
+}
+
 Report Workload::finish() {
     stop_ = true;
     {
@@ -568,6 +572,7 @@ void Workload::run_client(int index) {
             }
             op.received = Clock::now();
             op.outcome = outcome_of(rc);
+            if (op.outcome > 0) ++writes_failed_;
             --write_in_flight_;
             if (op.outcome == 0)
                 for (std::size_t t = 0; t < job.targets.size(); ++t) {

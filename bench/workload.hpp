@@ -184,6 +184,8 @@ class Workload {
     std::uint64_t completed() const { return completed_.load(); }
     // Some client waits for the answer to a write now.
     bool write_in_flight() const;
+    // Writes answered with an exception so far (checked or not).
+    std::uint64_t writes_failed() const;
 
     // A communication loss (gateway.md §5.3; needs settings.comm_loss_timeout): every client
     // stops sending (a write it waits for is still answered, and applied first); nothing is
@@ -258,6 +260,7 @@ class Workload {
     std::atomic<bool> inputs_stop_{false};
     std::atomic<std::uint64_t> completed_{0};
     std::atomic<int> write_in_flight_{0};
+    std::atomic<std::uint64_t> writes_failed_{0};
     Clock::time_point started_ = Clock::now();
     std::vector<std::thread> clients_;
     // silence(): clients wait here before each request while it is closed.

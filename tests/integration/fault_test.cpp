@@ -16,6 +16,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <csignal>
 #include <filesystem>
 #include <iostream>
 #include <random>
@@ -171,6 +172,42 @@ TEST_F(Faults, RandomGarbageShortLongLateErrorAckAndSilenceOn1To10PercentOfTrans
         EXPECT_GT(count, 0U) << kind << " was never injected";
     EXPECT_GT(failed, 0U);
     EXPECT_GT(report.writes_04, 0U);  // error acks reached clients as 04
+}
+
+// A device that reads its commands seconds late, as a starved machine makes the simulator do
+// (gateway.md §3.2, issue 47): stopped with SIGSTOP while the clients write, it reads nothing;
+// the gateway answers the writes it sent meanwhile 0B after their timeouts and goes on with
+// refreshes, poll reads and the clients' next writes (often the same bit again), all waiting on
+// the line. Resumed, the device applies them at once, in the order the gateway sent them,
+// seconds after the failed writes were answered. Each word the gateway sent was the desired
+// state of its moment (or a write merged into it), so the device must never see a confirmed
+// write undone by an older word nor a failed value in a word sent after the failure: judged by
+// the order of the line, not by how late the device read it.
+TEST_F(Faults, ADeviceThatReadsCommandsSecondsLateGetsThemInTheOrderTheGatewaySentThem) {
+    ASSERT_TRUE(all_online(diagnostics));
+    auto load = workload(6, 0.5);
+    ASSERT_TRUE(load->start());
+    for (int round = 0; round < 3; ++round) {
+        SCOPED_TRACE(round);
+        const auto before = load->completed();
+        ASSERT_TRUE(eventually([&] { return load->completed() >= before + 100; }, 10s * slowdown));
+        const auto failed = load->writes_failed();
+        ASSERT_EQ(::kill(hub.pid(), SIGSTOP), 0);
+        // Stopped until six writes have failed, each after its two timeouts and a silence: over
+        // a second, and the owners have sent their next writes.
+        const bool starved = eventually(
+            [&] { return load->writes_failed() >= failed + 6 && load->write_in_flight(); },
+            20s * slowdown);
+        ASSERT_EQ(::kill(hub.pid(), SIGCONT), 0);
+        ASSERT_TRUE(starved) << "the writes to a stopped device did not fail";
+    }
+    EXPECT_TRUE(all_online(diagnostics));
+    // A refresh period with every module online, so that the last states are checked too.
+    pace_until(Clock::now() + 500ms);
+    const auto report = load->finish();
+    expect_three_things(report, gateway);
+    // The device did read failed writes after their answers: the interleaving was forced.
+    EXPECT_GT(report.failed_writes_applied_late, 0U);
 }
 
 // --- The port -------------------------------------------------------------------------------
