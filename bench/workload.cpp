@@ -277,8 +277,8 @@ struct Window {
     std::uint16_t value;
     enum class Outcome { acknowledged, failed, unknown } outcome;
     bool spans_modules;
-    bool timed_out;
-    int seen = 0;  // commands carrying `value` applied inside the window
+    bool timed_out;  // answered 0B: its attempts may still be read (LateTransmissions)
+    int seen = 0;    // commands carrying `value` applied inside the window
     Clock::time_point last_seen{};
     std::uint64_t last_seen_request = 0;  // its place in the device's log, and its whole word
     std::uint16_t last_seen_word = 0;
@@ -794,10 +794,12 @@ void Workload::finalize_windows(Target& target, Clock::time_point until) {
             case Window::Outcome::failed:
                 target.last_failed = window.value;
                 if (window.spans_modules) target.allowed.push_back(window.value);
-                // Only a write that timed out (0B after every attempt's timeout) leaves
-                // transmissions behind; a 0B for a closed port sent nothing, and an error ack
-                // means the device read the command. None are left when the device has read one
-                // and then another request: its attempts went out one after the other.
+                // Only a write answered 0B leaves transmissions behind: an error ack means the
+                // device read the command. Any 0B, not only one as long as its timeouts: an
+                // attempt that took a starved device's late answer to an earlier request for a
+                // malformed one failed at once, its command still unread (a 0B for a closed port
+                // sent nothing, or nothing that is read later). None are left when the device
+                // has read one and then another request: its attempts went out back to back.
                 if (!window.timed_out || window.seen > settings_.retries) break;
                 if (window.seen == 0)
                     target.late = LateTransmissions{window.value, settings_.retries + 1,
@@ -1065,9 +1067,7 @@ void Workload::check() {
             for (std::size_t t = 0; t < job.targets.size(); ++t) {
                 auto& target = targets_[static_cast<std::size_t>(job.targets[t])];
                 const bool spans = job.targets.size() > 1;
-                const bool timed_out =
-                    op.outcome == MODBUS_EXCEPTION_GATEWAY_TARGET &&
-                    op.received - op.sent >= (settings_.retries + 1) * settings_.timeout;
+                const bool timed_out = op.outcome == MODBUS_EXCEPTION_GATEWAY_TARGET;
                 target.windows.push_back(
                     {op.sent, op.received, op.words[t], outcome, spans, timed_out, 0});
                 // What the image may show from now on: a value the device acknowledged.

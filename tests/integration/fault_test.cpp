@@ -190,7 +190,7 @@ TEST_F(Faults, ADeviceThatReadsCommandsSecondsLateGetsThemInTheOrderTheGatewaySe
     for (int round = 0; round < 3; ++round) {
         SCOPED_TRACE(round);
         const auto before = load->completed();
-        ASSERT_TRUE(eventually([&] { return load->completed() >= before + 100; }, 10s * slowdown));
+        ASSERT_TRUE(eventually([&] { return load->completed() >= before + 100; }, 30s * slowdown));
         const auto failed = load->writes_failed();
         ASSERT_EQ(::kill(hub.pid(), SIGSTOP), 0);
         // Stopped until six writes have failed, each after its two timeouts and a silence: over
