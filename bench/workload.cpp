@@ -298,7 +298,10 @@ struct Window {
 // was sent after the gateway gave up; and a write sent after the answer (its word unique, see
 // fence()) was sent after them too. How late the device read them says nothing: a wall-clock
 // grace here once took a starved simulator's reading of words sent in order for lost and pushed
-// writes (issue 47).
+// writes (issue 47). Several failed writes of one owner may wait at once (a device stopped for
+// seconds reads the attempts of all of them after their answers): they are kept in the order of
+// their answers, which is the order of their attempts on the line, and the device reading an
+// attempt of one means every earlier one's attempts are over.
 struct LateTransmissions {
     std::uint16_t value;
     int remaining;
@@ -312,7 +315,7 @@ struct Workload::Target {
     std::vector<std::uint16_t> allowed;  // outside the windows: what commands may carry
     std::unordered_set<std::uint16_t> confirmable;
     std::optional<std::uint16_t> last_failed;
-    std::optional<LateTransmissions> late;
+    std::deque<LateTransmissions> late;  // oldest first
     // Communication loss: the safe bits (comm loss on), and whether they may be sent since the
     // possible loss `period` began (until a write sent after it ended is acknowledged).
     std::optional<std::uint16_t> safe;
@@ -802,12 +805,12 @@ void Workload::finalize_windows(Target& target, Clock::time_point until) {
                 // has read one and then another request: its attempts went out back to back.
                 if (!window.timed_out || window.seen > settings_.retries) break;
                 if (window.seen == 0)
-                    target.late = LateTransmissions{window.value, settings_.retries + 1,
-                                                    window.received, std::nullopt};
+                    target.late.push_back(LateTransmissions{window.value, settings_.retries + 1,
+                                                            window.received, std::nullopt});
                 else if (window.last_seen_request == requests_read_)
-                    target.late =
+                    target.late.push_back(
                         LateTransmissions{window.value, settings_.retries + 1 - window.seen,
-                                          window.received, window.last_seen_word};
+                                          window.received, window.last_seen_word});
                 break;
             case Window::Outcome::unknown:
                 target.allowed.push_back(window.value);
@@ -826,9 +829,9 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
     };
     // The next attempt of a failed write whose late transmissions the device is reading: they
     // went out one after the other, before anything the gateway sent later.
-    if (target.late && target.late->word && *target.late->word == value &&
-        target.late->remaining > 0) {
-        --target.late->remaining;
+    if (!target.late.empty() && target.late.front().word && *target.late.front().word == value &&
+        target.late.front().remaining > 0) {
+        --target.late.front().remaining;
         ++report_.failed_writes_applied_late;
         return;
     }
@@ -852,10 +855,15 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
     // Before the rest: the owner may have sent its next write before the late transmission of
     // the one that failed reached the device. Allowed or not: a request spanning two modules
     // leaves its failed value allowed, yet its late transmission is no desired state.
-    if (target.late && bits == target.late->value && target.late->remaining > 0 &&
-        (!target.late->word || *target.late->word == value)) {
-        --target.late->remaining;
-        target.late->word = value;
+    // The first failed write this can be an attempt of; the attempts of those before it were
+    // sent before it, so they are over.
+    const auto late = std::ranges::find_if(target.late, [&](const LateTransmissions& l) {
+        return bits == l.value && l.remaining > 0 && (!l.word || *l.word == value);
+    });
+    if (late != target.late.end()) {
+        --late->remaining;
+        late->word = value;
+        target.late.erase(target.late.begin(), late);
         ++report_.failed_writes_applied_late;
         return;
     }
@@ -867,7 +875,7 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
         target.safe_seen_at = at;
         if (!inside) {
             target.allowed = {bits};
-            target.late.reset();
+            target.late.clear();
         }
         return;
     }
@@ -876,11 +884,11 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
         // The owner's failed write before this one had the same value: what the device took
         // inside this window can have been that write's late transmissions, which the desired
         // (old) value may follow before this write is sent.
-        if (allowed && target.late && target.late->value == window.value && window.seen > 0 &&
-            window.seen <= target.late->remaining) {
+        if (allowed && !target.late.empty() && target.late.back().value == window.value &&
+            window.seen > 0 && window.seen <= target.late.back().remaining) {
             report_.failed_writes_applied_late += static_cast<std::uint64_t>(window.seen);
             window.seen = 0;
-            target.late.reset();  // the desired value again: no late one after it
+            target.late.clear();  // the desired value again: no late one after it
             return;
         }
         // An acknowledged write that reached the device keeps it until its owner's next write
@@ -927,10 +935,10 @@ void Workload::read_request(Target& target, const Applied& request) {
         const auto& window = target.windows.front();
         if (window.sent <= request.at && request.value == window.value) fence(window.sent);
     }
-    if (target.late && target.late->word &&
-        !(own && request.applied && request.value == *target.late->word &&
-          target.late->remaining > 0))
-        target.late.reset();  // its attempts, one after the other on the line, are over
+    if (!target.late.empty() && target.late.front().word &&
+        !(own && request.applied && request.value == *target.late.front().word &&
+          target.late.front().remaining > 0))
+        target.late.pop_front();  // its attempts, one after the other on the line, are over
     if (own && request.applied) apply_command(target, request.at, request.value);
 }
 
@@ -938,7 +946,8 @@ void Workload::read_request(Target& target, const Applied& request) {
 // answered before then has no transmission left to come.
 void Workload::fence(Clock::time_point sent) {
     for (auto& target : targets_)
-        if (target.late && target.late->answered < sent) target.late.reset();
+        std::erase_if(target.late,
+                      [&](const LateTransmissions& late) { return late.answered < sent; });
 }
 
 void Workload::finalize_windows_before(Target& target, Clock::time_point at) {
