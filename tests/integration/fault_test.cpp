@@ -20,6 +20,7 @@
 #include <filesystem>
 #include <iostream>
 #include <random>
+#include <sstream>
 #include <thread>
 
 #include <fmt/format.h>
@@ -179,28 +180,59 @@ TEST_F(Faults, RandomGarbageShortLongLateErrorAckAndSilenceOn1To10PercentOfTrans
 // the gateway answers the writes it sent meanwhile 0B after their timeouts and goes on with
 // refreshes, poll reads and the clients' next writes (often the same bit again), all waiting on
 // the line. Resumed, the device applies them at once, in the order the gateway sent them,
-// seconds after the failed writes were answered. Each word the gateway sent was the desired
-// state of its moment (or a write merged into it), so the device must never see a confirmed
-// write undone by an older word nor a failed value in a word sent after the failure: judged by
-// the order of the line, not by how late the device read it.
+// seconds after the failed writes were answered, and sends all their answers in one burst.
+// Checked:
+//   - each word the gateway sent was the desired state of its moment (or a write merged into
+//     it), so the device must never see a confirmed write undone by an older word nor a failed
+//     value in a word sent after the failure: judged by the order of the line, not by how late
+//     the device read it;
+//   - no answer of the burst is taken for another request's, which a reply cannot tell apart
+//     (it names neither module nor request): an input module's state served for another module
+//     is a wrong value (every state is unique per module), and, since the resumed device
+//     refuses a share of the commands it buffered ("0"), a write confirmed by another write's
+//     "1" is a write the device refused, i.e. a lost write.
+// SIGCONT is aimed at a request waiting for its reply: resumed during the silence the link waits
+// for after a failure, the device's burst is simply discarded.
 TEST_F(Faults, ADeviceThatReadsCommandsSecondsLateGetsThemInTheOrderTheGatewaySentThem) {
     ASSERT_TRUE(all_online(diagnostics));
+    std::vector<std::string> outputs;
+    std::istringstream list(bench::hub_sim_modules());
+    for (std::string module; std::getline(list, module, ',');)
+        if (module.starts_with("dom16") || module.starts_with("rgbdm") ||
+            module.starts_with("mux8m"))
+            outputs.push_back(module);
+    ASSERT_FALSE(outputs.empty());
     auto load = workload(6, 0.5);
     ASSERT_TRUE(load->start());
-    for (int round = 0; round < 3; ++round) {
+    for (int round = 0; round < 8; ++round) {
         SCOPED_TRACE(round);
         const auto before = load->completed();
         ASSERT_TRUE(eventually([&] { return load->completed() >= before + 100; }, 30s * slowdown));
+        hub.ctl("fault all none");  // the last burst is long answered
         const auto failed = load->writes_failed();
+        // What the device does once resumed: refuse a third of the commands it buffered.
+        for (const auto& module : outputs)
+            hub.ctl(fmt::format("fault {} error-ack 0.33", module));
         ASSERT_EQ(::kill(hub.pid(), SIGSTOP), 0);
         // Stopped until six writes have failed, each after its two timeouts and a silence: over
         // a second, and the owners have sent their next writes.
         const bool starved = eventually(
             [&] { return load->writes_failed() >= failed + 6 && load->write_in_flight(); },
             20s * slowdown);
+        // Resumed while a request waits for its reply, so that the burst meets it: the link has
+        // just given up on a write (its client has the 0B), waits for a silence of one timeout,
+        // then sends the next request (a write waits) and waits up to a timeout for the reply.
+        const auto seen = load->writes_failed();
+        const bool aimed =
+            starved && eventually([&] { return load->writes_failed() > seen; }, 20s * slowdown);
+        if (aimed) pace_until(Clock::now() + serial_timeout + serial_timeout / 2);
         ASSERT_EQ(::kill(hub.pid(), SIGCONT), 0);
         ASSERT_TRUE(starved) << "the writes to a stopped device did not fail";
+        ASSERT_TRUE(aimed) << "no write failed after the first six";
     }
+    const auto last = load->completed();
+    ASSERT_TRUE(eventually([&] { return load->completed() >= last + 100; }, 30s * slowdown));
+    hub.ctl("fault all none");
     EXPECT_TRUE(all_online(diagnostics));
     // A refresh period with every module online, so that the last states are checked too.
     pace_until(Clock::now() + 500ms);
