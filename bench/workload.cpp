@@ -279,6 +279,9 @@ struct Window {
     bool spans_modules;
     bool timed_out;  // answered 0B: its attempts may still be read (LateTransmissions)
     int seen = 0;    // commands carrying `value` applied inside the window
+    // Of those, how many may have been late transmissions of the owner's earlier failed writes
+    // of the same value instead (LateTransmissions): those were sent before this write.
+    int maybe_late = 0;
     Clock::time_point last_seen{};
     std::uint64_t last_seen_request = 0;  // its place in the device's log, and its whole word
     std::uint16_t last_seen_word = 0;
@@ -846,6 +849,18 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
                                 what(), target.info.mask, bits, ms_since(started_, window.sent),
                                 ms_since(started_, at)));
         }
+        // Or an attempt of an earlier failed write of the same value, answered before this
+        // write was sent: on the line, those attempts came before this write's.
+        const auto late = std::ranges::find_if(target.late, [&](const LateTransmissions& l) {
+            return l.answered <= window.sent && bits == l.value && l.remaining > 0 &&
+                   (!l.word || *l.word == value);
+        });
+        if (late != target.late.end()) {
+            --late->remaining;
+            late->word = value;
+            target.late.erase(target.late.begin(), late);
+            ++window.maybe_late;
+        }
         ++window.seen;  // the write itself
         window.last_seen = at;
         window.last_seen_request = requests_read_ + 1;
@@ -881,14 +896,14 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
     }
     if (inside) {
         auto& window = target.windows.front();
-        // The owner's failed write before this one had the same value: what the device took
-        // inside this window can have been that write's late transmissions, which the desired
-        // (old) value may follow before this write is sent.
-        if (allowed && !target.late.empty() && target.late.back().value == window.value &&
-            window.seen > 0 && window.seen <= target.late.back().remaining) {
+        // Everything the device took inside this window carrying its value can have been late
+        // transmissions of the owner's earlier failed writes of the same value (maybe_late),
+        // which the desired (old) value may follow before this write is sent. The failed writes
+        // after those may still have attempts to come: the queue stays.
+        if (allowed && window.seen > 0 && window.seen <= window.maybe_late) {
             report_.failed_writes_applied_late += static_cast<std::uint64_t>(window.seen);
             window.seen = 0;
-            target.late.clear();  // the desired value again: no late one after it
+            window.maybe_late = 0;
             return;
         }
         // An acknowledged write that reached the device keeps it until its owner's next write
