@@ -38,8 +38,9 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::milliseconds;
 
-// 50 ms: on a busy 2-core machine the simulator can be starved of CPU for tens of ms, which a
-// master cannot tell from a module answering two timeouts late (see docs/faults.md).
+// 50 ms: on a busy 2-core machine the simulator can be starved of CPU for tens of ms; what it
+// then answers late fails those attempts, and an answer owed to an earlier request is never
+// taken for a later one's (docs/faults.md).
 constexpr auto serial_timeout = 50ms;
 constexpr int slot_dim16_1 = 1;
 constexpr int slot_dom16_2 = 10;
@@ -126,8 +127,8 @@ TEST_F(Faults, RandomGarbageShortLongLateErrorAckAndSilenceOn1To10PercentOfTrans
     ASSERT_TRUE(load->start());
     // Every 250 ms each module gets a new fault kind at a new probability between 1 and 10 %.
     // Late answers come 75 ms after the request: after the 50 ms timeout, inside the silence
-    // the link waits for after a failure (answers later than twice the timeout cannot be told
-    // from the next module's: see docs/faults.md).
+    // the link waits for after a failure (a later one would meet the next request and be
+    // discarded with its answer: see docs/faults.md).
     const std::vector<std::string> kinds{"silent", "error-ack", "garbage",
                                          "short",  "long",      "delay"};
     std::mt19937 random(11);
