@@ -197,9 +197,10 @@ Result<> SerialLink::open() {
                     fmt::format("cannot use {}: {}", settings_.device, ec.message()));
     }
     needs_silence_ = false;
-    // The device may still hold requests sent before the port was lost or the daemon started,
-    // and answer them now: the first reply is taken only once nothing follows it.
-    answers_may_be_owed_ = true;
+    // Not answers_may_be_owed_: what came before the open is flushed with the port's input, and
+    // a device that still answers requests of a port it lost shows a burst (ReplyWindow's
+    // `extra`). Confirming every first reply would cost each start and reopen a timeout per link.
+    answers_may_be_owed_ = false;
     ++counters_.opens;
     return {};
 }

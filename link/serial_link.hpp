@@ -6,8 +6,8 @@
 // request. A reply names neither module nor request, so an answer owed to an earlier request (a
 // device that buffered requests while stopped answers them all when it resumes, in order) is
 // told from the one in flight by what follows it: a frame followed by more bytes is never taken
-// (ReplyWindow), and after a failure or an open, until the device has caught up, a frame is
-// taken only once the line stays silent for a timeout after it. On a line that owes nothing the
+// (ReplyWindow), and after a failure, until the device has caught up, a frame is taken only
+// once the line stays silent for a timeout after it. On a line that owes nothing the
 // reply is taken the moment its terminator arrives. Port loss is an error value, the fd is
 // closed, and open() may be called again.
 #pragma once
