@@ -43,6 +43,11 @@ const std::array<ModuleInfo, 11> modules{{
     {{ModuleType::rgbdm, 0}, true, 1, 2, 1},  // green; red when safe
     {{ModuleType::mux8m, 0}, true, 1, 0x0707, 0x0000},
 }};
+// The modules whose every written word is new (run_client's next_word): a command carrying one
+// is that write's own.
+bool unique_words(int module) {
+    return module == 5 || module == 7 || module == 8;
+}
 // The modules whose safe word only the gateway sends.
 bool safe_word_unique(int module) {
     return module == 5 || module == 7 || module == 8;
@@ -272,26 +277,40 @@ struct Window {
     std::uint16_t value;
     enum class Outcome { acknowledged, failed, unknown } outcome;
     bool spans_modules;
-    bool timed_out;
-    int seen = 0;  // commands carrying `value` applied inside the window
+    bool timed_out;  // answered 0B: its attempts may still be read (LateTransmissions)
+    int seen = 0;    // commands carrying `value` applied inside the window
+    // Of those, how many may have been late transmissions of the owner's earlier failed writes
+    // of the same value instead (LateTransmissions): those were sent before this write.
+    int maybe_late = 0;
     Clock::time_point last_seen{};
+    std::uint64_t last_seen_request = 0;  // its place in the device's log, and its whole word
+    std::uint16_t last_seen_word = 0;
     // Acknowledged, sent before a comm loss, and not yet applied when the safe push began: its
     // value must never reach the device now.
     bool after_safe = false;
     bool overwritten = false;  // reported
 };
 
-// A write answered 04/0B whose own transmissions the device may still apply after the answer:
-// the simulator reads the line when it gets the CPU, so a command the gateway gave up on after
-// its timeout can reach the device later (as on a real line with a slow module). Those are the
-// write's own retries, not desired state: at most `retries + 1` of them, before any command
-// that carries the desired value again, and within `late_grace`.
+// A write answered 0B after its timeouts whose own transmissions the device may still apply
+// after the answer: the simulator reads the line when it gets the CPU, so a command the gateway
+// gave up on can reach the device seconds later, after the answer, after the owner's next write
+// was sent, together with everything the gateway sent meanwhile. Those are the write's own
+// attempts, not desired state, and the line is one queue, so they are told by order alone: at
+// most `retries + 1` of them; the attempts of one transaction go out one after the other, so
+// once the device has read one of them and then any other request, the rest of what it reads
+// was sent after the gateway gave up; and a write sent after the answer (its word unique, see
+// fence()) was sent after them too. How late the device read them says nothing: a wall-clock
+// grace here once took a starved simulator's reading of words sent in order for lost and pushed
+// writes (issue 47). Several failed writes of one owner may wait at once (a device stopped for
+// seconds reads the attempts of all of them after their answers): they are kept in the order of
+// their answers, which is the order of their attempts on the line, and the device reading an
+// attempt of one means every earlier one's attempts are over.
 struct LateTransmissions {
     std::uint16_t value;
     int remaining;
-    Clock::time_point until;
+    Clock::time_point answered;         // the failed write's answer
+    std::optional<std::uint16_t> word;  // the whole word of the one last read, once one was
 };
-constexpr auto late_grace = 1s;
 
 struct Workload::Target {
     TargetInfo info{};
@@ -299,7 +318,7 @@ struct Workload::Target {
     std::vector<std::uint16_t> allowed;  // outside the windows: what commands may carry
     std::unordered_set<std::uint16_t> confirmable;
     std::optional<std::uint16_t> last_failed;
-    std::optional<LateTransmissions> late;
+    std::deque<LateTransmissions> late;  // oldest first
     // Communication loss: the safe bits (comm loss on), and whether they may be sent since the
     // possible loss `period` began (until a write sent after it ended is acknowledged).
     std::optional<std::uint16_t> safe;
@@ -379,6 +398,10 @@ Result<> Workload::start() {
 
 bool Workload::write_in_flight() const {
     return write_in_flight_.load() > 0;
+}
+
+std::uint64_t Workload::writes_failed() const {
+    return writes_failed_.load();
 }
 
 Report Workload::finish() {
@@ -568,6 +591,7 @@ void Workload::run_client(int index) {
             }
             op.received = Clock::now();
             op.outcome = outcome_of(rc);
+            if (op.outcome > 0) ++writes_failed_;
             --write_in_flight_;
             if (op.outcome == 0)
                 for (std::size_t t = 0; t < job.targets.size(); ++t) {
@@ -776,13 +800,20 @@ void Workload::finalize_windows(Target& target, Clock::time_point until) {
             case Window::Outcome::failed:
                 target.last_failed = window.value;
                 if (window.spans_modules) target.allowed.push_back(window.value);
-                // Only a write that timed out (0B after every attempt's timeout) leaves
-                // transmissions behind; a 0B for a closed port sent nothing, and an error ack
-                // means the device read the command.
-                if (window.timed_out && window.seen <= settings_.retries)
-                    target.late =
+                // Only a write answered 0B leaves transmissions behind: an error ack means the
+                // device read the command. Any 0B, not only one as long as its timeouts: an
+                // attempt that took a starved device's late answer to an earlier request for a
+                // malformed one failed at once, its command still unread (a 0B for a closed port
+                // sent nothing, or nothing that is read later). None are left when the device
+                // has read one and then another request: its attempts went out back to back.
+                if (!window.timed_out || window.seen > settings_.retries) break;
+                if (window.seen == 0)
+                    target.late.push_back(LateTransmissions{window.value, settings_.retries + 1,
+                                                            window.received, std::nullopt});
+                else if (window.last_seen_request == requests_read_)
+                    target.late.push_back(
                         LateTransmissions{window.value, settings_.retries + 1 - window.seen,
-                                          window.received + late_grace};
+                                          window.received, window.last_seen_word});
                 break;
             case Window::Outcome::unknown:
                 target.allowed.push_back(window.value);
@@ -799,6 +830,14 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
     const auto what = [&] {
         return to_string(modules[static_cast<std::size_t>(target.info.module)].address);
     };
+    // The next attempt of a failed write whose late transmissions the device is reading: they
+    // went out one after the other, before anything the gateway sent later.
+    if (!target.late.empty() && target.late.front().word && *target.late.front().word == value &&
+        target.late.front().remaining > 0) {
+        --target.late.front().remaining;
+        ++report_.failed_writes_applied_late;
+        return;
+    }
     if (inside && bits == target.windows.front().value) {
         auto& window = target.windows.front();
         if (window.after_safe && !window.overwritten) {
@@ -810,15 +849,36 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
                                 what(), target.info.mask, bits, ms_since(started_, window.sent),
                                 ms_since(started_, at)));
         }
+        // Or an attempt of an earlier failed write of the same value, answered before this
+        // write was sent: on the line, those attempts came before this write's.
+        const auto late = std::ranges::find_if(target.late, [&](const LateTransmissions& l) {
+            return l.answered <= window.sent && bits == l.value && l.remaining > 0 &&
+                   (!l.word || *l.word == value);
+        });
+        if (late != target.late.end()) {
+            --late->remaining;
+            late->word = value;
+            target.late.erase(target.late.begin(), late);
+            ++window.maybe_late;
+        }
         ++window.seen;  // the write itself
         window.last_seen = at;
+        window.last_seen_request = requests_read_ + 1;
+        window.last_seen_word = value;
         return;
     }
     // Before the rest: the owner may have sent its next write before the late transmission of
-    // the one that failed reached the device.
-    if (!allowed && target.late && bits == target.late->value && target.late->remaining > 0 &&
-        at <= target.late->until) {
-        --target.late->remaining;
+    // the one that failed reached the device. Allowed or not: a request spanning two modules
+    // leaves its failed value allowed, yet its late transmission is no desired state.
+    // The first failed write this can be an attempt of; the attempts of those before it were
+    // sent before it, so they are over.
+    const auto late = std::ranges::find_if(target.late, [&](const LateTransmissions& l) {
+        return bits == l.value && l.remaining > 0 && (!l.word || *l.word == value);
+    });
+    if (late != target.late.end()) {
+        --late->remaining;
+        late->word = value;
+        target.late.erase(target.late.begin(), late);
         ++report_.failed_writes_applied_late;
         return;
     }
@@ -830,20 +890,20 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
         target.safe_seen_at = at;
         if (!inside) {
             target.allowed = {bits};
-            target.late.reset();
+            target.late.clear();
         }
         return;
     }
     if (inside) {
         auto& window = target.windows.front();
-        // The owner's failed write before this one had the same value: what the device took
-        // inside this window can have been that write's late transmissions, which the desired
-        // (old) value may follow before this write is sent.
-        if (allowed && target.late && target.late->value == window.value && window.seen > 0 &&
-            window.seen <= target.late->remaining && window.last_seen <= target.late->until) {
+        // Everything the device took inside this window carrying its value can have been late
+        // transmissions of the owner's earlier failed writes of the same value (maybe_late),
+        // which the desired (old) value may follow before this write is sent. The failed writes
+        // after those may still have attempts to come: the queue stays.
+        if (allowed && window.seen > 0 && window.seen <= window.maybe_late) {
             report_.failed_writes_applied_late += static_cast<std::uint64_t>(window.seen);
             window.seen = 0;
-            target.late.reset();  // the desired value again: no late one after it
+            window.maybe_late = 0;
             return;
         }
         // An acknowledged write that reached the device keeps it until its owner's next write
@@ -860,8 +920,10 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
         }
         if (allowed) return;  // a refresh of the old value while the write waits
     } else if (allowed) {
+        // The desired value, but not proof that the gateway has moved on: a starved device
+        // reads what was sent before a failed write's attempts after its answer. The order of
+        // the line says when its late transmissions are over (read_request, fence).
         target.allowed = {bits};
-        target.late.reset();  // the gateway has moved on: a failed value from now on is pushed
         return;
     }
     if (target.last_failed && bits == *target.last_failed)
@@ -876,6 +938,31 @@ void Workload::apply_command(Target& target, Clock::time_point at, std::uint16_t
                             what(), target.info.mask, bits, ms_since(started_, at),
                             target.allowed.empty() ? 0 : target.allowed.front()));
     target.allowed.push_back(bits);  // report a wrong state once, not every refresh after it
+}
+
+// Every request the device read, for every target, in the line's order.
+void Workload::read_request(Target& target, const Applied& request) {
+    finalize_windows_before(target, request.at);
+    const bool own = request.module == target.info.module;
+    // A command carrying a write's unique word (run_client): the gateway sent it after the
+    // client sent the write, and after everything the device read before it.
+    if (own && request.applied && unique_words(target.info.module) && !target.windows.empty()) {
+        const auto& window = target.windows.front();
+        if (window.sent <= request.at && request.value == window.value) fence(window.sent);
+    }
+    if (!target.late.empty() && target.late.front().word &&
+        !(own && request.applied && request.value == *target.late.front().word &&
+          target.late.front().remaining > 0))
+        target.late.pop_front();  // its attempts, one after the other on the line, are over
+    if (own && request.applied) apply_command(target, request.at, request.value);
+}
+
+// Everything the device reads from now on was sent by the gateway after `sent`: a failed write
+// answered before then has no transmission left to come.
+void Workload::fence(Clock::time_point sent) {
+    for (auto& target : targets_)
+        std::erase_if(target.late,
+                      [&](const LateTransmissions& late) { return late.answered < sent; });
 }
 
 void Workload::finalize_windows_before(Target& target, Clock::time_point at) {
@@ -913,16 +1000,20 @@ void Workload::check() {
         std::int64_t at = 0;
         std::string request;
         std::string answer;
-        if (!(fields >> at >> request >> answer)) continue;  // the count after "ok"
-        ++report_.transactions;
-        if (answer != "1") continue;
+        if (!(fields >> at >> request)) continue;  // the count after "ok"
+        // Every request counts for the order of the line, answered or not ("<µs> <request>").
+        const bool answered = static_cast<bool>(fields >> answer);
+        if (answered) ++report_.transactions;
         const auto parsed = parse_request(request);
-        if (!parsed || !is_output(parsed->module.type)) continue;
-        const auto module = module_index(parsed->module);
-        if (!module) continue;
-        commands.push_back({sim_clock_.at(at), *module, parsed->output_value});
+        const auto module =
+            parsed && is_output(parsed->module.type) ? module_index(parsed->module) : std::nullopt;
+        commands.push_back({sim_clock_.at(at), module.value_or(-1),
+                            module ? parsed->output_value : std::uint16_t{0},
+                            module && answered && answer == "1"});
     }
-    std::ranges::sort(commands, {}, &Applied::at);
+    // Stable: one read of the simulator's gives every request in it the same time, and their
+    // order is the line's.
+    std::ranges::stable_sort(commands, {}, &Applied::at);
     const auto later =
         std::ranges::find_if(commands, [&](const Applied& a) { return a.at > horizon; });
     carried_commands_.assign(later, commands.end());
@@ -1000,9 +1091,7 @@ void Workload::check() {
             for (std::size_t t = 0; t < job.targets.size(); ++t) {
                 auto& target = targets_[static_cast<std::size_t>(job.targets[t])];
                 const bool spans = job.targets.size() > 1;
-                const bool timed_out =
-                    op.outcome == MODBUS_EXCEPTION_GATEWAY_TARGET &&
-                    op.received - op.sent >= (settings_.retries + 1) * settings_.timeout;
+                const bool timed_out = op.outcome == MODBUS_EXCEPTION_GATEWAY_TARGET;
                 target.windows.push_back(
                     {op.sent, op.received, op.words[t], outcome, spans, timed_out, 0});
                 // What the image may show from now on: a value the device acknowledged.
@@ -1014,15 +1103,18 @@ void Workload::check() {
         std::erase_if(ops, [](const Op& op) { return op.write && op.kind == -1; });
     }
 
-    // The device's commands, in order, against each target's windows.
+    // The device's requests, in order, against each target's windows.
     for (const auto& command : commands) {
         advance_to(command.at);
-        ++report_.commands_applied;
-        applied_[static_cast<std::size_t>(command.module)].try_emplace(command.value, command.at);
+        if (command.applied) {
+            ++report_.commands_applied;
+            applied_[static_cast<std::size_t>(command.module)].try_emplace(command.value,
+                                                                           command.at);
+        }
         for (auto& target : targets_)
-            if (target.info.module == command.module && checked(target.info.module))
-                apply_command(target, command.at, command.value);
-        if (loss_on()) count_safe_push(command);
+            if (checked(target.info.module)) read_request(target, command);
+        ++requests_read_;
+        if (command.applied && loss_on()) count_safe_push(command);
     }
     advance_to(horizon);
     for (auto& target : targets_)

@@ -23,8 +23,10 @@
 //     carries the last confirmed value (refreshes and restores after a reopen included); only
 //     a request spanning two modules may leave either value after an exception (the module that
 //     acknowledged keeps its value, gateway.md §4). The write's own transmissions may still
-//     reach the device just after the exception (the gateway gave up waiting for them); at most
-//     retries + 1 of them, before the desired value is sent again.
+//     reach the device after the exception (the gateway gave up waiting for them; a starved
+//     simulator reads them seconds late): at most retries + 1 of them, and never after anything
+//     the gateway sent later. That is judged by the order of the line, never by how late the
+//     device read them (LateTransmissions in workload.cpp).
 //     A write answered normally stays the device's state until a later write of its owner,
 //     or until the safe state of a communication loss declared after it reached the gateway
 //     (below): a command carrying anything else meanwhile overwrote it, a lost write too.
@@ -184,6 +186,8 @@ class Workload {
     std::uint64_t completed() const { return completed_.load(); }
     // Some client waits for the answer to a write now.
     bool write_in_flight() const;
+    // Writes answered with an exception so far (checked or not).
+    std::uint64_t writes_failed() const;
 
     // A communication loss (gateway.md §5.3; needs settings.comm_loss_timeout): every client
     // stops sending (a write it waits for is still answered, and applied first); nothing is
@@ -211,10 +215,13 @@ class Workload {
     };
 
   private:
+    // A request the device read, in the order it read them (the order the gateway sent them: the
+    // line is one queue).
     struct Applied {
         Clock::time_point at;
-        int module;
+        int module;  // an output module of `modules`; -1: any other request (a poll read)
         std::uint16_t value;
+        bool applied;  // an output command the device acknowledged with "1"
     };
     // A stretch of time in which the gateway may have declared a communication loss: no request
     // lies wholly within the timeout before any moment of it.
@@ -237,7 +244,9 @@ class Workload {
     void check();
     void check_read(int client, const Op& op);
     bool checked(int module) const;
+    void read_request(Target& target, const Applied& request);
     void apply_command(Target& target, Clock::time_point at, std::uint16_t value);
+    void fence(Clock::time_point sent);
     void finalize_windows(Target& target, Clock::time_point until);
     void finalize_windows_before(Target& target, Clock::time_point at);
     bool loss_on() const { return settings_.comm_loss_timeout.count() > 0; }
@@ -258,6 +267,7 @@ class Workload {
     std::atomic<bool> inputs_stop_{false};
     std::atomic<std::uint64_t> completed_{0};
     std::atomic<int> write_in_flight_{0};
+    std::atomic<std::uint64_t> writes_failed_{0};
     Clock::time_point started_ = Clock::now();
     std::vector<std::thread> clients_;
     // silence(): clients wait here before each request while it is closed.
@@ -287,6 +297,7 @@ class Workload {
     std::vector<std::unordered_map<std::uint16_t, Clock::time_point>> applied_;
     std::vector<std::vector<Op>> carried_;  // per client: ops not checkable yet
     std::vector<Applied> carried_commands_;
+    std::uint64_t requests_read_ = 0;  // requests of the simulator's log taken so far
     // Per client and input module: the newest state index it was served.
     std::vector<std::vector<std::size_t>> newest_served_;
     std::vector<std::uint64_t> read_histogram_;

@@ -107,22 +107,35 @@ class Reply {
         : exchange_(exchange),
           device_(device),
           timeout_(timeout),
-          framer_(exchange.terminator, exchange.reply_length) {}
+          window_(exchange.terminator, exchange.reply_length) {}
 
-    // The frame (or why it is not one) once `bytes` completed it.
-    std::optional<Result<std::string>> feed(std::string_view bytes) {
+    ReplyWindow::State feed(std::string_view bytes) {
         if (received_.size() < 64) received_.append(bytes.substr(0, 64 - received_.size()));
-        std::optional<Result<std::string>> reply;
-        framer_.feed(bytes, [&](const Frame& frame) {
-            if (reply) return;
-            if (frame.overflowed)
-                reply = fail(Errc::malformed,
-                             fmt::format("answer \"{}…\" is too long: expected {} character(s)",
-                                         printable(frame.bytes), exchange_.reply_length));
-            else
-                reply = std::string(frame.bytes);
-        });
-        return reply;
+        return window_.feed(bytes);
+    }
+
+    // The frame, or why it is not this request's reply; only once the window is not waiting.
+    Result<std::string> frame() const {
+        switch (window_.state()) {
+            case ReplyWindow::State::complete:
+                return window_.frame();
+            case ReplyWindow::State::overflowed:
+                return fail(Errc::malformed,
+                            fmt::format("answer \"{}…\" is too long: expected {} character(s)",
+                                        printable(window_.frame()), exchange_.reply_length));
+            case ReplyWindow::State::extra:
+                // Answers owed to earlier requests are in the stream: the first frame may be
+                // one of them, so none of it is taken (malformed: counted as a bad answer, the
+                // line is let fall silent and the request sent again).
+                return fail(Errc::malformed,
+                            fmt::format("more than one answer came (\"{}\" then \"{}…\"): answers "
+                                        "owed to earlier requests are still arriving, so none is "
+                                        "taken for this one",
+                                        printable(window_.frame()), printable(window_.extra())));
+            case ReplyWindow::State::waiting:
+                return Unexpected(no_answer());
+        }
+        return Unexpected(no_answer());
     }
 
     Error no_answer() const {
@@ -140,7 +153,7 @@ class Reply {
     const Exchange& exchange_;
     const std::string& device_;
     std::chrono::microseconds timeout_;
-    LineFramer framer_;
+    ReplyWindow window_;
     std::string received_;  // for the error message of an incomplete answer
 };
 
@@ -184,6 +197,10 @@ Result<> SerialLink::open() {
                     fmt::format("cannot use {}: {}", settings_.device, ec.message()));
     }
     needs_silence_ = false;
+    // Not answers_may_be_owed_: what came before the open is flushed with the port's input, and
+    // a device that still answers requests of a port it lost shows a burst (ReplyWindow's
+    // `extra`). Confirming every first reply would cost each start and reopen a timeout per link.
+    answers_may_be_owed_ = false;
     ++counters_.opens;
     return {};
 }
@@ -294,6 +311,7 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
         co_await asio::async_write(port_, asio::buffer(unsent), redirect_error(use_awaitable, ec));
     if (ec) {
         disarm_timeout();
+        answers_may_be_owed_ = true;  // part of the request may have gone out
         co_return Unexpected(
             timed_out_
                 ? Error{Errc::timeout,
@@ -304,36 +322,60 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
     // The reply is read here rather than in a coroutine of its own: one coroutine frame less to
     // allocate and resume per transaction.
     Reply reply(exchange, settings_.device, settings_.timeout);
-    std::optional<Result<std::string>> frame;
-    while (!frame) {
+    std::optional<Error> failed;
+    // Until a frame is complete, then (only when answers may be owed) until the line has been
+    // silent for a timeout after it.
+    bool confirming = false;
+    Clock::time_point framed{};
+    for (;;) {
         // The timer may have fired while the previous read was already complete.
-        if (timed_out_) {
-            frame = Unexpected(reply.no_answer());
-            break;
-        }
+        if (timed_out_) break;
         const std::size_t n = co_await port_.async_read_some(asio::buffer(read_buffer_),
                                                              redirect_error(use_awaitable, ec));
         if (ec) {
             disarm_timeout();
-            frame = Unexpected(timed_out_ ? reply.no_answer() : port_error(ec, "reading"));
+            if (!timed_out_) failed = port_error(ec, "reading");
             break;
         }
         last_input_ = Clock::now();
         last_activity_ = last_input_;
-        frame = reply.feed({read_buffer_.data(), n});
-        if (frame) disarm_timeout();
+        const auto state = reply.feed({read_buffer_.data(), n});
+        if (state == ReplyWindow::State::waiting) continue;
+        if (state != ReplyWindow::State::complete || confirming) {
+            disarm_timeout();
+            break;
+        }
+        framed = last_input_;
+        // A healthy line owes nothing: the frame is the reply at once, no slower than before.
+        if (!answers_may_be_owed_) {
+            disarm_timeout();
+            break;
+        }
+        // Answers may be owed to earlier requests (one failed, or the port was just opened): a
+        // device that buffered them sends them first, in order, then this request's. The frame
+        // is this request's only if nothing follows it for a timeout; anything that does makes
+        // the window `extra`.
+        confirming = true;
+        arm_timeout(settings_.timeout);
     }
-    Result<Reading> reading = *frame ? decode(exchange, **frame) : Unexpected(frame->error());
-    if (*frame)
-        last_round_trip_ =
-            std::chrono::duration_cast<std::chrono::microseconds>(last_input_ - sent);
+    Result<std::string> frame = failed ? Result<std::string>(Unexpected(*failed)) : reply.frame();
+    Result<Reading> reading = frame ? decode(exchange, *frame) : Unexpected(frame.error());
+    if (frame) {
+        last_round_trip_ = std::chrono::duration_cast<std::chrono::microseconds>(framed - sent);
+        // One frame then a timeout of silence: the device has caught up.
+        answers_may_be_owed_ = false;
+    }
     if (reading) {
         ++counters_.transactions_ok;
     } else {
         counters_.count_failure(reading.error().code);
-        // Whatever else is on its way belongs to this failed request: let it pass first.
         const auto code = reading.error().code;
-        needs_silence_ = code == Errc::timeout || code == Errc::malformed;
+        // Whatever else is on its way belongs to this failed request or an earlier one: let it
+        // pass first, and take the next frame only once nothing follows it.
+        if (code == Errc::timeout || code == Errc::malformed) {
+            needs_silence_ = true;
+            answers_may_be_owed_ = true;
+        }
         if (code == Errc::malformed)
             reading.error().message = fmt::format("{} on {}: {}", describe(exchange.target),
                                                   settings_.device, reading.error().message);
@@ -358,6 +400,7 @@ asio::awaitable<Result<>> SerialLink::wait_for_silence() {
         last_activity_ = Clock::now();
         if (last_activity_ >= deadline) {
             disarm_timeout();
+            answers_may_be_owed_ = true;
             co_return fail(Errc::line_noisy,
                            fmt::format("{}: the line never stayed silent for {} ms: check for "
                                        "noise, a wrong baud rate or another device talking",

@@ -3,8 +3,13 @@
 // Exactly one transaction is in flight. Each one flushes stale input (unless it follows the last
 // reply within a character time), sends the request and frames the reply with a timeout; after
 // any failure the link waits for the line to be silent for a full timeout before the next
-// request, so a late answer is never taken for another module's. Port loss is an error value, the
-// fd is closed, and open() may be called again.
+// request. A reply names neither module nor request, so an answer owed to an earlier request (a
+// device that buffered requests while stopped answers them all when it resumes, in order) is
+// told from the one in flight by what follows it: a frame followed by more bytes is never taken
+// (ReplyWindow), and after a failure, until the device has caught up, a frame is taken only
+// once the line stays silent for a timeout after it. On a line that owes nothing the
+// reply is taken the moment its terminator arrives. Port loss is an error value, the fd is
+// closed, and open() may be called again.
 #pragma once
 
 #include <chrono>
@@ -16,7 +21,7 @@
 #include "link/asio.hpp"
 #include "protocol/error.hpp"
 #include "protocol/exchange.hpp"
-#include "protocol/framer.hpp"
+#include "protocol/reply_window.hpp"
 
 namespace ioport {
 
@@ -79,8 +84,9 @@ class SerialLink {
     // is closed then).
     asio::awaitable<Result<Reading>> transact(Exchange exchange);
 
-    // A transaction may take (retries + 1) × 12 timeouts on a chattering line (up to 11 waiting
-    // for silence before each attempt, one for the answer), but it never
+    // A transaction may take (retries + 1) × 13 timeouts on a chattering line (up to 11 waiting
+    // for silence before each attempt, one for the answer, one for the silence after it while
+    // answers may be owed), but it never
     // waits longer than one timeout without acting: every send, read and wait for silence is
     // bounded by `timeout`. So a link that has not acted for longer than this is stuck, whatever
     // its settings; the watchdog's bound is this one (LinkScheduler::progressing).
@@ -115,6 +121,10 @@ class SerialLink {
     Clock::time_point last_input_{};  // when the last bytes were read
     Clock::time_point last_activity_ = Clock::now();
     bool needs_silence_ = false;
+    // Since the last attempt failed (or the port was opened) no frame has been followed by a
+    // timeout of silence: a device that buffered requests may still owe answers to earlier
+    // ones, so a frame is taken only once nothing follows it for a timeout.
+    bool answers_may_be_owed_ = false;
     bool busy_ = false;
     bool low_latency_ = false;
     std::array<char, 64> read_buffer_{};

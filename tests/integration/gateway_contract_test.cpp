@@ -1603,6 +1603,10 @@ TEST(ContractFront, EofInTheMiddleOfAFrameClosesThatConnection) {
 
 TEST_F(ContractTest, PipelinedRequestsAreAnsweredInOrder) {
     ASSERT_TRUE(all_online(client));
+    // The fourth request reads the ID-2 link's state: it must be up too, not merely opened (its
+    // first reply is taken only after a timeout of silence, docs/faults.md).
+    ModbusClient id2_unit(gateway.port(), 2);
+    ASSERT_TRUE(all_online(id2_unit));
     RawClient raw(gateway.port());
     Bytes burst = adu(0x0101, 1, pdu(fc_read_holding_registers, {0, 1}));
     for (const auto& frame : {adu(0x0202, 1, pdu(fc_write_register, {0, 0x1234})),

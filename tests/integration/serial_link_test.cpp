@@ -96,6 +96,88 @@ TEST_F(SerialLinkTest, ALateAnswerIsNeverTakenForTheNextModule) {
     EXPECT_EQ(outcomes[1].result->raw[0], 0x2222);
 }
 
+// A device that buffered requests while it was stopped (SIGSTOP, a starved machine: issue 47)
+// answers them all when it resumes, in order: dim16 1's owed answer first, then dccim 0's own.
+// A reply names neither, so the first frame of the burst must not be taken for dccim 0's; the
+// request is sent again once the line is silent, and that answer alone is taken.
+std::vector<Reply> owed_then_own(std::string owed, std::string own, std::chrono::milliseconds gap) {
+    return {{0ms, std::move(owed)}, {gap, std::move(own)}};
+}
+
+class OwedAnswers : public SerialLinkTest {
+  protected:
+    void SetUp() override {
+        SerialLinkTest::SetUp();
+        link.close();
+        ASSERT_TRUE(retrying.open());
+    }
+    SerialLink retrying{io.get_executor(), settings(50ms, 1)};
+};
+
+TEST_F(OwedAnswers, AReadNeverTakesTheAnswerOwedToAnEarlierRead) {
+    const ModuleAddress dccim0{ModuleType::dccim, 0};
+    auto gap = 0ms;
+    int dccim_requests = 0;
+    device.serve([&](const std::string& request) {
+        if (request == "a1") return std::vector<Reply>{};  // stopped: buffers, answers later
+        if (++dccim_requests == 1) return owed_then_own("400C\r", "1234\r", gap);
+        return std::vector<Reply>{{0ms, "1234\r"}};
+    });
+    for (const auto each : {0ms, 20ms}) {  // one burst, or the own answer well within a timeout
+        SCOPED_TRACE(each.count());
+        gap = each;
+        dccim_requests = 0;
+        const auto outcomes = transact_all(io, retrying, {read(dim1), read(dccim0)});
+        ASSERT_EQ(outcomes.size(), 2u);
+        EXPECT_FALSE(outcomes[0].result);
+        ASSERT_TRUE(outcomes[1].result) << outcomes[1].result.error().message;
+        EXPECT_EQ(outcomes[1].result->raw[0], 0x1234) << "dim16 1's answer served as dccim 0's";
+        EXPECT_EQ(dccim_requests, 2) << "the burst was not discarded and the request sent again";
+    }
+}
+
+// §3.2: a write is confirmed only by its own "1". Here dom16 0's write was buffered and is
+// acknowledged late, just before dom16 1 refuses its own write: dom16 1's must not be
+// confirmed by dom16 0's "1".
+TEST_F(OwedAnswers, AWriteIsNeverConfirmedByTheAcknowledgementOwedToAnEarlierWrite) {
+    const ModuleAddress dom1{ModuleType::dom16, 1};
+    auto gap = 0ms;
+    int dom1_requests = 0;
+    device.serve([&](const std::string& request) {
+        if (request.starts_with("b0")) return std::vector<Reply>{};
+        if (++dom1_requests == 1) return owed_then_own("1\r", "0\r", gap);
+        return std::vector<Reply>{{0ms, "0\r"}};
+    });
+    for (const auto each : {0ms, 20ms}) {
+        SCOPED_TRACE(each.count());
+        gap = each;
+        dom1_requests = 0;
+        const auto outcomes = transact_all(
+            io, retrying, {*make_exchange(dom0, 0x0001), *make_exchange(dom1, 0x0002)});
+        ASSERT_EQ(outcomes.size(), 2u);
+        EXPECT_FALSE(outcomes[0].result);
+        ASSERT_FALSE(outcomes[1].result) << "dom16 1's write confirmed by dom16 0's answer";
+        EXPECT_EQ(outcomes[1].result.error().code, Errc::error_ack)
+            << outcomes[1].result.error().message;
+    }
+}
+
+// After a failure the first frame waits for a timeout of silence; once one has, the device has
+// caught up and the next reply is taken at once again.
+TEST_F(OwedAnswers, OnceTheDeviceCaughtUpRepliesAreTakenAtOnceAgain) {
+    device.serve([&](const std::string& request) {
+        if (request == "a1") return std::vector<Reply>{};
+        return std::vector<Reply>{{0ms, "0042\r"}};
+    });
+    const auto outcomes = transact_all(io, retrying, {read(dim1), read(dim0), read(dim0)});
+    ASSERT_EQ(outcomes.size(), 3u);
+    ASSERT_TRUE(outcomes[1].result) << outcomes[1].result.error().message;
+    ASSERT_TRUE(outcomes[2].result) << outcomes[2].result.error().message;
+    EXPECT_GE(outcomes[1].elapsed, 100ms);  // a silence before, a silence after
+    // No silence after the frame: well under the 50 ms a confirmation takes, even busy.
+    EXPECT_LT(outcomes[2].elapsed, outcomes[1].elapsed / 2);
+}
+
 TEST_F(SerialLinkTest, StaleInputIsFlushedBeforeARequest) {
     device.serve([](const std::string&) { return std::vector<Reply>{{0ms, "0001\r"}}; });
     device.send("FFFF\r");  // unasked: must not be the answer

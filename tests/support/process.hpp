@@ -83,6 +83,8 @@ class SimProcess {
     // Sends a control command; fails the test on an error reply.
     std::string ctl(std::string_view command);
     Result<std::string> try_ctl(std::string_view command);
+    // The simulator's process: SIGSTOP and SIGCONT starve it as a busy machine does, exactly.
+    pid_t pid() const { return child_.pid(); }
 
   private:
     TempDir dir_;
