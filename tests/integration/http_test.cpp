@@ -909,6 +909,12 @@ TEST_F(Http, ASlowlorisIsClosedTenSecondsAfterItsFirstByteWhileModbusKeepsAnswer
     EXPECT_TRUE(gateway.running());
 }
 
+// How many of `connections` the server has not closed.
+std::size_t open_count(const std::vector<std::unique_ptr<HttpConnection>>& connections) {
+    return static_cast<std::size_t>(
+        std::ranges::count_if(connections, [](const auto& c) { return !c->wait_closed(0ms); }));
+}
+
 // From 125 addresses of the loopback, eight connections each: at most 64 are served at once, and
 // the rest are closed at accept.
 TEST_F(Http, AThousandConnectionsAtOnceCostModbusNothingAndTheServerRecovers) {
@@ -938,8 +944,7 @@ TEST_F(Http, AThousandConnectionsAtOnceCostModbusNothingAndTheServerRecovers) {
     EXPECT_TRUE(eventually(
         [&] {
             probe.read(client);
-            still_open = static_cast<std::size_t>(std::count_if(
-                flood.begin(), flood.end(), [](const auto& c) { return !c->wait_closed(0ms); }));
+            still_open = open_count(flood);
             return still_open <= 64;
         },
         8s))
@@ -975,8 +980,7 @@ TEST_F(Http, OneAddressHoldsEightConnectionsAndNeverKeepsAnotherOut) {
     std::size_t still_open = 0;
     EXPECT_TRUE(eventually(
         [&] {
-            still_open = static_cast<std::size_t>(std::count_if(
-                idle.begin(), idle.end(), [](const auto& c) { return !c->wait_closed(0ms); }));
+            still_open = open_count(idle);
             return still_open <= 8;
         },
         5s))
