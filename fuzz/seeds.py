@@ -532,3 +532,39 @@ security("truncated", 1, 0x03, 2, b"\x0c\x08oper")
 security("trailing", 1, 0x03, 2, utf8_string("viewer") + b"\x00")
 security("bad-utf8", 1, 0x03, 1, b"\x0c\x02o\xc3")
 security("no-extension-default-viewer", 1, 0x0F, 2, b"")
+
+
+# --- mqtt_inbound: byte 0 the limit in 16 bytes, byte 1 the read size - 1, then what a broker
+# sends (MQTT 3.1.1 §2, §3: CONNACK, SUBACK, PUBLISH of each QoS, PINGRESP).
+def mqtt_length(n):
+    out = bytearray()
+    while True:
+        byte, n = n & 0x7F, n >> 7
+        out.append(byte | (0x80 if n else 0))
+        if not n:
+            return bytes(out)
+
+
+def mqtt_publish(topic, payload, qos=0, packet_id=1, flags=0):
+    body = struct.pack(">H", len(topic)) + topic
+    if qos:
+        body += struct.pack(">H", packet_id)
+    return bytes([0x30 | qos << 1 | flags]) + mqtt_length(len(body) + len(payload)) + body + payload
+
+
+def mqtt_inbound(name, limit16, read_size, stream):
+    write("mqtt_inbound", name, bytes([limit16, read_size - 1]) + stream)
+
+
+CONNACK, SUBACK, PINGRESP = b"\x20\x02\x00\x00", b"\x90\x03\x00\x01\x01", b"\xd0\x00"
+DCMD = b"spBv1.0/plant1/DCMD/box7/hub0.dom16.0"
+mqtt_inbound("session", 16, 7, CONNACK + SUBACK + mqtt_publish(DCMD, b"\x08\x01", 1) + PINGRESP)
+mqtt_inbound("huge-qos0", 2, 13, mqtt_publish(DCMD, b"1" * 600) + PINGRESP)
+mqtt_inbound("huge-qos1-dup-retain", 2, 1, mqtt_publish(DCMD, b"1" * 600, 1, 0x1234, 0x09)
+             + mqtt_publish(b"a", b"b", 2, 2))
+mqtt_inbound("huge-qos2-then-small", 4, 64, mqtt_publish(b"t", b"x" * 100, 2, 9)
+             + mqtt_publish(b"t", b"y", 1, 10))
+mqtt_inbound("longest-length", 255, 256, b"\x30\xff\xff\xff\x7f\x00\x01a" + b"x" * 1000)
+mqtt_inbound("five-length-bytes", 1, 1, b"\x30\x80\x80\x80\x80\x01")
+mqtt_inbound("huge-suback", 0, 2, b"\x90\xff\x7f" + b"\x00" * 300)
+mqtt_inbound("topic-past-end", 0, 3, b"\x30\x82\x01\xff\xff")
