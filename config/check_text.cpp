@@ -64,6 +64,18 @@ std::string output_value_text(ModuleType type, std::uint16_t value) {
     return fmt::format("0x{:04X}", value);
 }
 
+std::string_view mqtt_versions(MqttProtocol protocol) {
+    switch (protocol) {
+        case MqttProtocol::automatic:
+            return "5, or 3.1.1 if the broker refuses 5";
+        case MqttProtocol::v5:
+            return "5 only";
+        case MqttProtocol::v311:
+            return "3.1.1 only";
+    }
+    return "";
+}
+
 }  // namespace
 
 std::string check_config_text(const GatewayConfig& config) {
@@ -110,12 +122,12 @@ std::string check_config_text(const GatewayConfig& config) {
         std::vector<std::string> brokers;
         for (const auto& broker : mqtt->brokers)
             brokers.push_back(to_string(broker));
-        text += fmt::format("Sparkplug B edge node {}/{} on {}{}{}\n", mqtt->group_id,
-                            mqtt->edge_node_id, fmt::join(brokers, ", then "),
-                            mqtt->primary_host_id.empty()
-                                ? std::string()
-                                : fmt::format(", primary host {}", mqtt->primary_host_id),
-                            mqtt->templates ? ", templates (one per module type)" : "");
+        text += fmt::format(
+            "Sparkplug B edge node {}/{} on {} (MQTT {}){}{}\n", mqtt->group_id, mqtt->edge_node_id,
+            fmt::join(brokers, ", then "), mqtt_versions(mqtt->protocol),
+            mqtt->primary_host_id.empty() ? std::string()
+                                          : fmt::format(", primary host {}", mqtt->primary_host_id),
+            mqtt->templates ? ", templates (one per module type)" : "");
         if (const auto& store = mqtt->store)
             text += fmt::format(
                 "Sparkplug store in {}, at most {} MiB, forwarded at {} messages/s at most\n",
@@ -129,11 +141,11 @@ std::string check_config_text(const GatewayConfig& config) {
         std::vector<std::string> brokers;
         for (const auto& broker : json->connection.brokers)
             brokers.push_back(to_string(broker));
-        text += fmt::format(
-            "MQTT JSON under {} on {}, {}\n", json->topic_prefix, fmt::join(brokers, ", then "),
-            json->discovery
-                ? fmt::format("Home Assistant discovery under {}", json->discovery_prefix)
-                : std::string("no discovery"));
+        text += fmt::format("MQTT JSON under {} on {} (MQTT {}), {}\n", json->topic_prefix,
+                            fmt::join(brokers, ", then "), mqtt_versions(json->connection.protocol),
+                            json->discovery ? fmt::format("Home Assistant discovery under {}",
+                                                          json->discovery_prefix)
+                                            : std::string("no discovery"));
     } else {
         text += "MQTT JSON off\n";
     }

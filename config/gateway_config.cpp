@@ -150,6 +150,18 @@ std::string to_string(const BrokerAddress& broker) {
                        host_port(broker.host, broker.port));
 }
 
+std::string_view to_string(MqttProtocol protocol) {
+    switch (protocol) {
+        case MqttProtocol::automatic:
+            return "auto";
+        case MqttProtocol::v5:
+            return "5";
+        case MqttProtocol::v311:
+            return "3.1.1";
+    }
+    return "auto";
+}
+
 std::string host_port(std::string_view host, unsigned port) {
     return host.find(':') != std::string_view::npos ? fmt::format("[{}]:{}", host, port)
                                                     : fmt::format("{}:{}", host, port);

@@ -169,6 +169,11 @@ inline constexpr std::uint64_t max_store_size = std::uint64_t{1} << 30;
 inline constexpr std::size_t max_brokers = 16;
 
 // The Sparkplug B edge node (gateway.md §5.5, §6.2).
+// Which MQTT the connection speaks (gateway.md §6.2, `protocol:`): 5, falling back to 3.1.1 for a
+// broker that refuses 5 or closes the connection without a CONNACK; or one of them only.
+enum class MqttProtocol { automatic, v5, v311 };
+std::string_view to_string(MqttProtocol protocol);  // "auto", "5", "3.1.1"
+
 struct MqttSettings {
     std::vector<BrokerAddress> brokers;  // tried in order; at least one
     std::string group_id;
@@ -179,6 +184,7 @@ struct MqttSettings {
     std::string password;  // read from password_file at load (and at each reload)
     std::string ca_file;   // mqtts: the CA that signed the broker's certificate
     std::chrono::microseconds keepalive = 30s;
+    MqttProtocol protocol = MqttProtocol::automatic;
     std::string primary_host_id;
     double deadband = 0;                 // analog channels, in engineering units
     std::optional<StoreSettings> store;  // none: what changes while no session can publish is lost

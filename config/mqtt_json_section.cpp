@@ -7,9 +7,9 @@
 namespace ioport::config::detail {
 namespace {
 
-constexpr std::array<std::string_view, 11> mqtt_json_keys{
-    "broker",    "brokers",      "client_id", "username",         "password_file", "ca_file",
-    "keepalive", "topic_prefix", "discovery", "discovery_prefix", "deadband"};
+constexpr std::array<std::string_view, 12> mqtt_json_keys{
+    "broker",    "brokers",  "client_id",    "username",  "password_file",    "ca_file",
+    "keepalive", "protocol", "topic_prefix", "discovery", "discovery_prefix", "deadband"};
 
 }  // namespace
 

@@ -10,10 +10,10 @@
 namespace ioport::config::detail {
 namespace {
 
-constexpr std::array<std::string_view, 13> mqtt_keys{
-    "broker",   "brokers",       "group_id", "edge_node_id", "client_id",
-    "username", "password_file", "ca_file",  "keepalive",    "primary_host_id",
-    "deadband", "store",         "templates"};
+constexpr std::array<std::string_view, 14> mqtt_keys{
+    "broker",   "brokers",       "group_id",  "edge_node_id",   "client_id",
+    "username", "password_file", "ca_file",   "keepalive",      "protocol",
+    "deadband", "store",         "templates", "primary_host_id"};
 constexpr std::array<std::string_view, 3> store_keys{"path", "max_size", "forward_rate"};
 
 constexpr std::string_view broker_help =
@@ -65,6 +65,17 @@ Parsed<std::string> read_secret(const std::string& path) {
     if (secret->ends_with('\r')) secret->pop_back();
     if (secret->empty()) return Unexpected(fmt::format("{} is empty", path));
     return secret;
+}
+
+// Quoted or not: YAML reads an unquoted 5 as the text "5" too.
+Parsed<MqttProtocol> mqtt_protocol(const YAML::Node& value) {
+    const std::string& text = value.Scalar();
+    for (const auto protocol : {MqttProtocol::automatic, MqttProtocol::v5, MqttProtocol::v311})
+        if (text == to_string(protocol)) return protocol;
+    return Unexpected(
+        fmt::format("'{}' is not an MQTT version: use auto (5, or 3.1.1 for a broker "
+                    "that does not take 5), \"5\" or \"3.1.1\"",
+                    text));
 }
 
 Parsed<std::string> readable_file(const std::string& path) {
@@ -129,6 +140,7 @@ void Loader::read_connection(const Fields& f, MqttSettings& m) {
             add(f.line_of("ca_file"), f.key("ca_file"), std::move(readable).error());
     }
     read(f, "keepalive", "a duration such as 30s", m.keepalive, duration(5s, 65535s));
+    read(f, "protocol", "auto, \"5\" or \"3.1.1\"", m.protocol, mqtt_protocol);
 }
 
 // `broker: URL` or `brokers: [URL, …]` (gateway.md §6.2), not both; each broker once.

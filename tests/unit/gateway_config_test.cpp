@@ -313,18 +313,55 @@ TEST(GatewayConfig, SparkplugTemplatesAreParsedAndShown) {
     ASSERT_TRUE(on) << describe(on.error());
     EXPECT_TRUE(on->mqtt->templates);
     EXPECT_NE(check_config_text(*on).find("Sparkplug B edge node plant1/box7 on "
-                                          "mqtt://127.0.0.1:1883, templates (one per module "
-                                          "type)\n"),
+                                          "mqtt://127.0.0.1:1883 (MQTT 5, or 3.1.1 if the broker "
+                                          "refuses 5), templates (one per module type)\n"),
               std::string::npos)
         << check_config_text(*on);
     const auto off = parse(section + "  templates: false\n" + links);
     ASSERT_TRUE(off) << describe(off.error());
     EXPECT_FALSE(off->mqtt->templates);
     EXPECT_NE(check_config_text(*off).find(
-                  "Sparkplug B edge node plant1/box7 on mqtt://127.0.0.1:1883\n"),
+                  "Sparkplug B edge node plant1/box7 on mqtt://127.0.0.1:1883 (MQTT 5, or 3.1.1 "
+                  "if the broker refuses 5)\n"),
               std::string::npos)
         << check_config_text(*off);
     EXPECT_NE(*on->mqtt, *off->mqtt);  // a reload that turns them on or off is a new session
+}
+
+// §6.2 `protocol`: auto by default, "5" or "3.1.1" quoted or not, both outputs; shown.
+TEST(GatewayConfig, MqttProtocolIsAutoFiveOr311) {
+    const std::string links = R"(links:
+  - { name: hub0, protocol: ioport, device: /dev/ttyUSB0, modules: [{ type: dim16, number: 0 }] }
+)";
+    const auto with = [&](const std::string& line) {
+        return parse(
+            "mqtt:\n  broker: \"mqtt://127.0.0.1:1883\"\n  group_id: plant1\n"
+            "  edge_node_id: box7\n" +
+            line +
+            "mqtt_json:\n  broker: "
+            "\"mqtt://127.0.0.1:1883\"\n" +
+            line + links);
+    };
+    const auto automatic = with("");
+    ASSERT_TRUE(automatic) << describe(automatic.error());
+    EXPECT_EQ(automatic->mqtt->protocol, MqttProtocol::automatic);
+    EXPECT_EQ(automatic->mqtt_json->connection.protocol, MqttProtocol::automatic);
+    const auto v311 = with("  protocol: 3.1.1\n");
+    ASSERT_TRUE(v311) << describe(v311.error());
+    EXPECT_EQ(v311->mqtt->protocol, MqttProtocol::v311);
+    EXPECT_EQ(v311->mqtt_json->connection.protocol, MqttProtocol::v311);
+    EXPECT_NE(check_config_text(*v311).find("on mqtt://127.0.0.1:1883 (MQTT 3.1.1 only)"),
+              std::string::npos)
+        << check_config_text(*v311);
+    const auto v5 = with("  protocol: \"5\"\n");
+    ASSERT_TRUE(v5) << describe(v5.error());
+    EXPECT_EQ(v5->mqtt->protocol, MqttProtocol::v5);
+    EXPECT_EQ(v5->mqtt_json->connection.protocol, MqttProtocol::v5);
+    const auto wrong = with("  protocol: 3\n");
+    ASSERT_FALSE(wrong);
+    EXPECT_NE(describe(wrong.error()).find("'3' is not an MQTT version: use auto"),
+              std::string::npos)
+        << describe(wrong.error());
 }
 
 // §5.3: `safe` takes what `initial` takes and defaults to it; comm_loss_timeout defaults to off.
