@@ -40,6 +40,9 @@ std::vector<Verdict> sparkplug_full_store(const Environment& env);
 // 7h. Sparkplug templates (issue 41): bytes per DDATA and CPU per change against flat metrics on
 // the demo's bus, every analog value changing; the births of 8 links × 72 modules.
 std::vector<Verdict> sparkplug_templates(const Environment& env);
+// 7i. The edge node in MQTT 3.1.1, through the relay with the 64 KiB bound (gateway.md §7.5),
+// against MQTT 5 on the same input.
+std::vector<Verdict> sparkplug_relay(const Environment& env);
 // 9. Plain MQTT with Home Assistant discovery (issue 28) beside the Sparkplug edge node: CPU and
 // messages with every analog value of the demo's bus changing, and Modbus p99 beside it.
 std::vector<Verdict> mqtt_json_cost(const Environment& env);

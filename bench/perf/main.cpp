@@ -19,9 +19,9 @@ namespace {
 constexpr std::string_view usage = R"(Usage: ioportd-bench [OPTIONS] [BENCHMARK...]
 
 Benchmarks ioportd against the physical limits (bench/README.md). BENCHMARK: serial, scan,
-write, modbus, footprint, http, scrape (6b-c alone), flood (6f alone), sparkplug (7a-h), fleet
+write, modbus, footprint, http, scrape (6b-c alone), flood (6f alone), sparkplug (7a-i), fleet
 (7c alone), outage (7d alone), crash (7e alone), backlog (7f alone), store (7g alone),
-templates (7h alone), tls, mqtt_json (9), curve (10: 1 to 16 links with every path on), or all
+templates (7h alone), relay (7i alone), tls, mqtt_json (9), curve (10: 1 to 16 links with every path on), or all
 (the default).
 Prints Markdown tables, a "BENCH {json}" line per figure and a summary of every figure against
 its target. Asserts nothing: exit status 0 unless a program could not be started.
@@ -162,8 +162,8 @@ int main(int argc, char** argv) {
         } else if (arg == "serial" || arg == "scan" || arg == "write" || arg == "modbus" ||
                    arg == "footprint" || arg == "http" || arg == "scrape" || arg == "flood" ||
                    arg == "sparkplug" || arg == "fleet" || arg == "outage" || arg == "crash" ||
-                   arg == "backlog" || arg == "store" || arg == "templates" || arg == "tls" ||
-                   arg == "mqtt_json" || arg == "curve" || arg == "all") {
+                   arg == "backlog" || arg == "store" || arg == "templates" || arg == "relay" ||
+                   arg == "tls" || arg == "mqtt_json" || arg == "curve" || arg == "all") {
             chosen.push_back(arg);
         } else {
             std::cerr << "ioportd-bench: unknown argument '" << arg << "'\n" << usage;
@@ -224,6 +224,7 @@ int main(int argc, char** argv) {
     if (wanted("sparkplug") || wanted("backlog")) add(sparkplug_backlog(env));
     if (wanted("sparkplug") || wanted("store")) add(sparkplug_full_store(env));
     if (wanted("sparkplug") || wanted("templates")) add(sparkplug_templates(env));
+    if (wanted("sparkplug") || wanted("relay")) add(sparkplug_relay(env));
 
     fmt::print("\n## Summary{}\n", env.quick ? " (--quick: the figures mean nothing)" : "");
     Table summary({"benchmark", "figure", "target", "met"});

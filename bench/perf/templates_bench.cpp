@@ -28,10 +28,10 @@ std::vector<ModuleAddress> demo_hub() {
             {ModuleType::dccim, 0}, {ModuleType::dcvim, 0}};
 }
 
-std::string node_yaml(std::uint16_t port, std::string_view node, bool templates) {
+std::string node_yaml(std::uint16_t port, std::string_view node, std::string_view lines) {
     return fmt::format(
         "mqtt:\n  broker: \"mqtt://127.0.0.1:{}\"\n  group_id: bench\n  edge_node_id: {}\n{}", port,
-        node, templates ? "  templates: true\n" : "");
+        node, lines);
 }
 
 // What a subscriber saw of each node: DDATA (messages, payload bytes, bytes with the topic, the
@@ -96,109 +96,114 @@ double per(std::uint64_t what, std::uint64_t each) {
     return static_cast<double>(what) / static_cast<double>(std::max<std::uint64_t>(each, 1));
 }
 
-// --- a. DDATA and CPU, flat against templates ----------------------------------------------------
+// --- a. DDATA and CPU of two edge nodes on the same input ----------------------------------------
 
-std::vector<Verdict> data_cost(const Environment& env, Broker& broker) {
+// Two ways to configure the edge node, compared: `base` and `other`, each a name (its node id
+// too) and the lines it adds under mqtt:.
+struct Comparison {
+    std::string id;     // "7h"
+    std::string title;  // of the section
+    std::string what;   // the paragraph's account of the two
+    std::string base, base_lines, other, other_lines;
+};
+
+std::vector<Verdict> compare_nodes(const Environment& env, Broker& broker, const Comparison& c) {
     const auto bus = demo_hub();
     const auto analog = analog_of(bus);
     const auto period = 5ms;
     fmt::print(
-        "\n### 7h. Templates: DDATA and CPU, every analog value changing\n\nThe demo's bus ({} "
+        "\n### {}. {}: DDATA and CPU, every analog value changing\n\nThe demo's bus ({} "
         "modules, names, units and scales on every one) at 115200 baud (modelled, simulated in "
         "this process), its {} analog modules' every channel moving every {} ms. Two ioportd on "
         "the server CPU on the same changing input, both edge nodes on one local mosquitto "
-        "(client CPU): \"flat\" as gateway.md §5.5, \"templates\" with `templates: true` "
-        "(§7.2). Both run throughout: their CPU is measured over the same windows. A change is "
-        "a metric (flat) or a member (templates) that went out.\n",
-        bus.size(), analog.size(), period.count());
+        "(client CPU): {} Both run throughout: their CPU is measured over the same windows. A "
+        "change is a metric or a template member that went out.\n",
+        c.id, c.title, bus.size(), analog.size(), period.count(), c.what);
     NodeTally tally;
     Subscriber subscriber(broker.port(), {"spBv1.0/bench/#"},
                           [&](const Received& message) { tally.add(message); });
-    TempDir dir_flat, dir_templates;
-    InProcessSim sim_flat(dir_flat / "tty", bus, timed_line(115200), env.placement.client_cpu);
-    InProcessSim sim_templates(dir_templates / "tty", bus, timed_line(115200),
-                               env.placement.client_cpu);
+    TempDir dir_base, dir_other;
+    InProcessSim sim_base(dir_base / "tty", bus, timed_line(115200), env.placement.client_cpu);
+    InProcessSim sim_other(dir_other / "tty", bus, timed_line(115200), env.placement.client_cpu);
     const auto link = [&](const TempDir& d) { return LinkSpec{d / "tty", 115200, bus, {}, true}; };
-    Gateway flat(
-        env, dir_flat,
-        gateway_yaml({link(dir_flat)}, 300, false, node_yaml(broker.port(), "flat", false)));
-    Gateway templates(env, dir_templates,
-                      gateway_yaml({link(dir_templates)}, 300, false,
-                                   node_yaml(broker.port(), "templates", true)));
-    if (!sim_flat.ready() || !sim_templates.ready() || !subscriber.ready() || !flat.started() ||
-        !templates.started() || !flat.wait_until_polling() || !templates.wait_until_polling() ||
+    Gateway base(
+        env, dir_base,
+        gateway_yaml({link(dir_base)}, 300, false, node_yaml(broker.port(), c.base, c.base_lines)));
+    Gateway other(env, dir_other,
+                  gateway_yaml({link(dir_other)}, 300, false,
+                               node_yaml(broker.port(), c.other, c.other_lines)));
+    if (!sim_base.ready() || !sim_other.ready() || !subscriber.ready() || !base.started() ||
+        !other.started() || !base.wait_until_polling() || !other.wait_until_polling() ||
         !wait_for(
             [&] {
-                return tally.counts("flat").dbirths >= bus.size() &&
-                       tally.counts("templates").dbirths >= bus.size();
+                return tally.counts(c.base).dbirths >= bus.size() &&
+                       tally.counts(c.other).dbirths >= bus.size();
             },
             10s))
-        return {{"7h. Templates", "ioportd did not start", "", false}};
-    sim_flat.wander(analog, period);
-    sim_templates.wander(analog, period);
+        return {{fmt::format("{}. {}", c.id, c.title), "ioportd did not start", "", false}};
+    sim_base.wander(analog, period);
+    sim_other.wander(analog, period);
     std::this_thread::sleep_for(env.quick ? 100ms : 1s);
 
     const int windows = env.quick ? 1 : 5;
     const auto window = env.window(3s);
-    const Table table({"window", "flat, CPU", "templates, CPU", "templates ÷ flat", "flat B/DDATA",
-                       "templates B/DDATA", "flat changes/s", "templates changes/s"});
-    NodeCounts before_flat, before_templates, total_flat, total_templates;
+    const Table table({"window", fmt::format("{}, CPU", c.base), fmt::format("{}, CPU", c.other),
+                       fmt::format("{} ÷ {}", c.other, c.base), fmt::format("{} B/DDATA", c.base),
+                       fmt::format("{} B/DDATA", c.other), fmt::format("{} changes/s", c.base),
+                       fmt::format("{} changes/s", c.other)});
+    NodeCounts before_base, before_other, total_base, total_other;
     std::vector<double> ratios;
     const auto cpu = cpu_windows(
-        {flat.pid(), templates.pid()}, windows, window,
+        {base.pid(), other.pid()}, windows, window,
         [&](int) {
-            before_flat = tally.counts("flat");
-            before_templates = tally.counts("templates");
+            before_base = tally.counts(c.base);
+            before_other = tally.counts(c.other);
         },
         [&](int i, const std::vector<std::chrono::nanoseconds>& used, double s) {
-            const auto f = tally.counts("flat") - before_flat;
-            const auto t = tally.counts("templates") - before_templates;
-            const double flat_pct = core_percent(used[0], s);
-            const double templates_pct = core_percent(used[1], s);
-            ratios.push_back(templates_pct / flat_pct);
-            table.row({fmt::format("{}", i + 1), fmt::format("{:.2f} %", flat_pct),
-                       fmt::format("{:.2f} %", templates_pct), fmt::format("{:.3f}", ratios.back()),
-                       fmt::format("{:.1f}", per(f.payload_bytes, f.ddata)),
-                       fmt::format("{:.1f}", per(t.payload_bytes, t.ddata)),
-                       fmt::format("{:.0f}", static_cast<double>(f.changes) / s),
-                       fmt::format("{:.0f}", static_cast<double>(t.changes) / s)});
-            for (auto [total, delta] :
-                 {std::pair{&total_flat, f}, std::pair{&total_templates, t}}) {
+            const auto b = tally.counts(c.base) - before_base;
+            const auto o = tally.counts(c.other) - before_other;
+            const double base_pct = core_percent(used[0], s);
+            const double other_pct = core_percent(used[1], s);
+            ratios.push_back(other_pct / base_pct);
+            table.row({fmt::format("{}", i + 1), fmt::format("{:.2f} %", base_pct),
+                       fmt::format("{:.2f} %", other_pct), fmt::format("{:.3f}", ratios.back()),
+                       fmt::format("{:.1f}", per(b.payload_bytes, b.ddata)),
+                       fmt::format("{:.1f}", per(o.payload_bytes, o.ddata)),
+                       fmt::format("{:.0f}", static_cast<double>(b.changes) / s),
+                       fmt::format("{:.0f}", static_cast<double>(o.changes) / s)});
+            for (auto [total, delta] : {std::pair{&total_base, b}, std::pair{&total_other, o}}) {
                 total->ddata += delta.ddata;
                 total->payload_bytes += delta.payload_bytes;
                 total->bytes += delta.bytes;
                 total->changes += delta.changes;
             }
         });
-    const double flat_bytes = per(total_flat.payload_bytes, total_flat.ddata);
-    const double templates_bytes = per(total_templates.payload_bytes, total_templates.ddata);
-    const double flat_us = microseconds(cpu.total[0]) / std::max(1.0, double(total_flat.changes));
-    const double templates_us =
-        microseconds(cpu.total[1]) / std::max(1.0, double(total_templates.changes));
+    const double base_bytes = per(total_base.payload_bytes, total_base.ddata);
+    const double other_bytes = per(total_other.payload_bytes, total_other.ddata);
+    const double base_us = microseconds(cpu.total[0]) / std::max(1.0, double(total_base.changes));
+    const double other_us = microseconds(cpu.total[1]) / std::max(1.0, double(total_other.changes));
     fmt::print(
-        "\nAll windows ({:.1f} s): a DDATA is {:.1f} B flat, {:.1f} B with templates ({:.3f}×; "
-        "with the topic {:.1f} and {:.1f} B); {:.1f} and {:.1f} changes per DDATA; ioportd's "
-        "CPU per change (all of its CPU, polling included, over the changes it published) "
-        "{:.2f} µs flat, {:.2f} µs with templates ({:.3f}×); CPU templates ÷ flat {:.3f}× "
-        "(median of the windows {:.3f}×).\n",
-        cpu.seconds, flat_bytes, templates_bytes, templates_bytes / flat_bytes,
-        per(total_flat.bytes, total_flat.ddata), per(total_templates.bytes, total_templates.ddata),
-        per(total_flat.changes, total_flat.ddata),
-        per(total_templates.changes, total_templates.ddata), flat_us, templates_us,
-        templates_us / flat_us, cpu.percent(1) / cpu.percent(0), median(ratios));
+        "\nAll windows ({:.1f} s): a DDATA is {:.1f} B {}, {:.1f} B {} ({:.3f}×; with the topic "
+        "{:.1f} and {:.1f} B); {:.1f} and {:.1f} changes per DDATA; ioportd's CPU per change "
+        "(all of its CPU, polling included, over the changes it published) {:.2f} µs {}, "
+        "{:.2f} µs {} ({:.3f}×); CPU {} ÷ {} {:.3f}× (median of the windows {:.3f}×).\n",
+        cpu.seconds, base_bytes, c.base, other_bytes, c.other, other_bytes / base_bytes,
+        per(total_base.bytes, total_base.ddata), per(total_other.bytes, total_other.ddata),
+        per(total_base.changes, total_base.ddata), per(total_other.changes, total_other.ddata),
+        base_us, c.base, other_us, c.other, other_us / base_us, c.other, c.base,
+        cpu.percent(1) / cpu.percent(0), median(ratios));
     machine_line(fmt::format(
-        R"({{"bench":"sparkplug_templates_data","seconds":{:.2f},"ddata_flat":{},"ddata_templates":{},"bytes_per_ddata_flat":{:.1f},"bytes_per_ddata_templates":{:.1f},"bytes_ratio":{:.4f},"changes_flat":{},"changes_templates":{},"us_per_change_flat":{:.3f},"us_per_change_templates":{:.3f},"cpu_per_change_ratio":{:.4f},"cpu_flat_pct":{:.3f},"cpu_templates_pct":{:.3f},"cpu_ratio_median":{:.4f}}})",
-        cpu.seconds, total_flat.ddata, total_templates.ddata, flat_bytes, templates_bytes,
-        templates_bytes / flat_bytes, total_flat.changes, total_templates.changes, flat_us,
-        templates_us, templates_us / flat_us, cpu.percent(0), cpu.percent(1), median(ratios)));
-    return {{"7h. bytes per DDATA, templates ÷ flat",
-             fmt::format("{:.1f} B ÷ {:.1f} B = {:.3f}×", templates_bytes, flat_bytes,
-                         templates_bytes / flat_bytes),
-             "(reported)", total_flat.ddata > 0 && total_templates.ddata > 0},
-            {"7h. ioportd CPU per change, templates ÷ flat",
-             fmt::format("{:.2f} µs ÷ {:.2f} µs = {:.3f}×", templates_us, flat_us,
-                         templates_us / flat_us),
-             "(reported)", total_flat.changes > 0 && total_templates.changes > 0}};
+        R"({{"bench":"sparkplug_{}_{}","seconds":{:.2f},"ddata_base":{},"ddata_other":{},"bytes_per_ddata_base":{:.1f},"bytes_per_ddata_other":{:.1f},"bytes_ratio":{:.4f},"changes_base":{},"changes_other":{},"us_per_change_base":{:.3f},"us_per_change_other":{:.3f},"cpu_per_change_ratio":{:.4f},"cpu_base_pct":{:.3f},"cpu_other_pct":{:.3f},"cpu_ratio_median":{:.4f}}})",
+        c.base, c.other, cpu.seconds, total_base.ddata, total_other.ddata, base_bytes, other_bytes,
+        other_bytes / base_bytes, total_base.changes, total_other.changes, base_us, other_us,
+        other_us / base_us, cpu.percent(0), cpu.percent(1), median(ratios)));
+    return {{fmt::format("{}. bytes per DDATA, {} ÷ {}", c.id, c.other, c.base),
+             fmt::format("{:.1f} B ÷ {:.1f} B = {:.3f}×", other_bytes, base_bytes,
+                         other_bytes / base_bytes),
+             "(reported)", total_base.ddata > 0 && total_other.ddata > 0},
+            {fmt::format("{}. ioportd CPU per change, {} ÷ {}", c.id, c.other, c.base),
+             fmt::format("{:.2f} µs ÷ {:.2f} µs = {:.3f}×", other_us, base_us, other_us / base_us),
+             "(reported)", total_base.changes > 0 && total_other.changes > 0}};
 }
 
 // --- b. The births of 8 links × 72 modules
@@ -226,8 +231,10 @@ Births births_of(const Environment& env, Broker& broker, bool templates) {
         ready = ready && sims.back()->ready();
         links.push_back({tty, 115200, modules, {}, true});
     }
-    Gateway gateway(env, dir,
-                    gateway_yaml(links, 300, false, node_yaml(broker.port(), node, templates)));
+    Gateway gateway(
+        env, dir,
+        gateway_yaml(links, 300, false,
+                     node_yaml(broker.port(), node, templates ? "  templates: true\n" : "")));
     const auto expected = 8 * modules.size();
     Births births;
     births.complete = ready && gateway.started() && gateway.wait_until_polling(8, 60s) &&
@@ -278,10 +285,39 @@ std::vector<Verdict> sparkplug_templates(const Environment& env) {
         fmt::print("\n{}: benchmark 7h skipped.\n", broker.why());
         return {};
     }
-    auto verdicts = data_cost(env, broker);
+    auto verdicts = compare_nodes(
+        env, broker,
+        {.id = "7h",
+         .title = "Templates",
+         .what = "\"flat\" as gateway.md §5.5, \"templates\" with `templates: true` (§7.2).",
+         .base = "flat",
+         .base_lines = "",
+         .other = "templates",
+         .other_lines = "  templates: true\n"});
     for (auto& verdict : birth_size(env, broker))
         verdicts.push_back(std::move(verdict));
     return verdicts;
+}
+
+std::vector<Verdict> sparkplug_relay(const Environment& env) {
+    TempDir dir;
+    Broker broker(env, dir, env.placement.client_cpu);
+    if (!broker.started()) {
+        fmt::print("\n{}: benchmark 7i skipped.\n", broker.why());
+        return {};
+    }
+    return compare_nodes(
+        env, broker,
+        {.id = "7i",
+         .title = "MQTT 3.1.1 through the relay",
+         .what = "\"mqtt5\" with `protocol: \"5\"` (libmosquitto on the broker's socket), "
+                 "\"mqtt311\" with `protocol: \"3.1.1\"` (libmosquitto through the relay on "
+                 "loopback, which reads what the broker sends through the 64 KiB bound; "
+                 "gateway.md §7.5).",
+         .base = "mqtt5",
+         .base_lines = "  protocol: \"5\"\n",
+         .other = "mqtt311",
+         .other_lines = "  protocol: \"3.1.1\"\n"});
 }
 
 }  // namespace ioport::bench

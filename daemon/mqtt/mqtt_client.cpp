@@ -65,6 +65,7 @@ MqttClient::MqttClient(const asio::any_io_executor& executor, const config::Mqtt
 }
 
 MqttClient::~MqttClient() {
+    if (relay_) relay_->close();
     forget_socket();
     if (client_ != nullptr) mosquitto_destroy(client_);
     mosquitto_lib_cleanup();
@@ -116,7 +117,15 @@ Result<> MqttClient::configure_for(const config::BrokerAddress& broker) {
             return fail(Errc::invalid_argument,
                         fmt::format("{}.username: {}", section_, mosquitto_error(rc)));
     }
-    if (broker.tls) {
+    relay_tls_.reset();
+    if (broker.tls && !mqtt5()) {
+        // The relay speaks TLS to the broker; libmosquitto speaks plain MQTT to the relay.
+        auto context = broker_tls_context(settings_.ca_file);
+        if (!context)
+            return fail(Errc::invalid_argument,
+                        fmt::format("{}.ca_file: {}", section_, context.error().message));
+        relay_tls_ = *std::move(context);
+    } else if (broker.tls) {
         // Without ca_file, the system's CAs: a broker with a public certificate.
         const int rc = mosquitto_tls_set(
             client_, settings_.ca_file.empty() ? nullptr : settings_.ca_file.c_str(),
@@ -156,7 +165,7 @@ void MqttClient::resolve_then_connect() {
     const auto& broker = current();
     boost::system::error_code ec;
     asio::ip::make_address(broker.host, ec);
-    if (!ec) {
+    if (!ec || !mqtt5()) {  // MQTT 3.1.1: the relay resolves the name, with Asio
         connect();
         return;
     }
@@ -180,15 +189,62 @@ void MqttClient::connect() {
         return;
     }
     if (handlers_.connecting) handlers_.connecting();
-    const auto keepalive = static_cast<int>(
-        std::chrono::duration_cast<std::chrono::seconds>(settings_.keepalive).count());
-    const int rc = mosquitto_connect_async(client_, broker.host.c_str(), broker.port, keepalive);
+    const auto keepalive = std::chrono::duration_cast<std::chrono::seconds>(settings_.keepalive);
+    std::string host = broker.host;
+    int port = broker.port;
+    if (!mqtt5()) {
+        if (auto opened = open_relay(); !opened) {
+            lost(opened.error().message);
+            return;
+        }
+        host = "127.0.0.1";
+        port = relay_->port();
+    }
+    connack_ = false;
+    const int rc =
+        mosquitto_connect_async(client_, host.c_str(), port, static_cast<int>(keepalive.count()));
     if (rc != MOSQ_ERR_SUCCESS) {
         lost(fmt::format("cannot connect to {}: {}", config::to_string(broker),
                          mosquitto_error(rc)));
         return;
     }
+    if (relay_) {
+        // The relay takes the connection from this address only.
+        asio::ip::tcp::endpoint from;
+        socklen_t length = static_cast<socklen_t>(from.capacity());
+        if (getsockname(mosquitto_socket(client_), from.data(), &length) == 0) {
+            from.resize(length);
+            relay_->expect(from);
+        }
+    }
     watch();
+}
+
+Result<> MqttClient::open_relay() {
+    std::weak_ptr<MqttClient> weak = shared_from_this();
+    auto relay = BrokerRelay::open(
+        executor_,
+        {.broker = current(),
+         .tls = relay_tls_,
+         .limit = protocol_.maximum_packet_size,
+         .connect_timeout =
+             std::chrono::duration_cast<std::chrono::milliseconds>(settings_.keepalive)},
+        [weak](const mqtt::RefusedPublish& refused) {
+            if (auto self = weak.lock()) self->too_large(refused);
+        });
+    if (!relay) return Unexpected(relay.error());
+    relay_ = *std::move(relay);
+    return {};
+}
+
+// libmosquitto's socket is closed or about to be (lost(), finish_stop(), a new connect): the
+// relay then passes on what libmosquitto wrote last and ends by itself.
+void MqttClient::forget_relay() {
+    relay_.reset();
+}
+
+void MqttClient::too_large(const mqtt::RefusedPublish& refused) {
+    if (handlers_.too_large) handlers_.too_large(refused.topic, refused.packet_bytes);
 }
 
 void MqttClient::forget_socket() {
@@ -269,6 +325,7 @@ void MqttClient::lost(const std::string& why, bool same_broker) {
     queued_.clear();
     queued_bytes_ = 0;
     forget_socket();
+    forget_relay();
     if (stopping_) {
         finish_stop();
         return;
@@ -389,21 +446,16 @@ void MqttClient::finish_stop() {
     stop_deadline_.cancel();
     connected_ = false;
     forget_socket();
+    forget_relay();
     if (auto done = std::exchange(stopped_, nullptr)) done();
 }
 
 void MqttClient::on_connect(mosquitto* /*client*/, void* self, int rc) {
     auto& me = *static_cast<MqttClient*>(self);
-    if (rc == MQTT_RC_UNSUPPORTED_PROTOCOL_VERSION && me.mqtt5()) {
-        // A 3.1.1 broker's answer to MQTT 5: the same broker again at once, in 3.1.1.
-        me.mqtt311_only_[me.current_] = true;
-        me.log_.warn({},
-                     "{}: {} refused MQTT 5, so MQTT 3.1.1, which cannot ask it to send nothing "
-                     "larger than {} bytes: set its message_size_limit",
-                     me.section_, me.broker(), me.protocol_.maximum_packet_size);
-        me.lost(fmt::format("{} refused MQTT 5", me.broker()), true);
+    me.connack_ = true;
+    // A 3.1.1 broker's answer to MQTT 5.
+    if (rc == MQTT_RC_UNSUPPORTED_PROTOCOL_VERSION && me.mqtt5() && me.fall_back("refused MQTT 5"))
         return;
-    }
     if (rc != 0) {
         // CONNACK refused: libmosquitto keeps the socket open; the reconnect replaces it.
         me.lost(
@@ -425,13 +477,43 @@ void MqttClient::on_disconnect(mosquitto* /*client*/, void* self, int rc) {
         me.finish_stop();
         return;
     }
+    // RabbitMQ 3.10's answer to MQTT 5: the connection closed, no CONNACK. (A refused TCP
+    // connection or a failed TLS handshake are other codes.)
+    if (rc == MOSQ_ERR_CONN_LOST && !me.connack_ && me.mqtt5() &&
+        me.fall_back("closed the connection after an MQTT 5 CONNECT, without a CONNACK"))
+        return;
     me.lost(me.disconnect_reason(rc));
+}
+
+bool MqttClient::fall_back(std::string_view how) {
+    switch (settings_.protocol) {
+        case config::MqttProtocol::v5:
+            lost(
+                fmt::format("{} {}; protocol: \"5\" is set, so no MQTT 3.1.1: set protocol: "
+                            "auto",
+                            broker(), how));
+            return true;
+        case config::MqttProtocol::v311:
+            return false;  // never asked in 5
+        case config::MqttProtocol::automatic:
+            break;
+    }
+    // The same broker again at once, in 3.1.1, until the daemon restarts.
+    mqtt311_only_[current_] = true;
+    log_.warn({},
+              "{}: {} {}, so MQTT 3.1.1 with it from now on; a message larger than {} bytes is "
+              "read in passing and refused",
+              section_, broker(), how, protocol_.maximum_packet_size);
+    lost(fmt::format("{} {}", broker(), how), true);
+    return true;
 }
 
 // libmosquitto hands on_disconnect either its own error (MOSQ_ERR_*, below 0x80) or, when an
 // MQTT 5 broker sent DISCONNECT, that packet's reason code (0x80 and up, MQTT 5 3.14.2.1), which
 // mosquitto_strerror() calls "Unknown error.".
 std::string MqttClient::disconnect_reason(int rc) const {
+    if (relay_)
+        if (auto failure = relay_->failure(); !failure.empty()) return failure;
     if (rc == 0) return fmt::format("{} closed the connection", broker());
     if (mqtt5() && rc >= 0x80 && rc <= 0xFF) {
         auto why = fmt::format("{} sent DISCONNECT: {} (reason code 0x{:02X})", broker(),
@@ -464,6 +546,9 @@ void MqttClient::on_subscribe(mosquitto* /*client*/, void* self, int mid, int /*
 void MqttClient::on_message(mosquitto* /*client*/, void* self, const mosquitto_message* message) {
     auto& me = *static_cast<MqttClient*>(self);
     if (!me.handlers_.message || message->topic == nullptr) return;
+    // What stands in for a PUBLISH the relay refused (mqtt::InboundLimit): acknowledged by
+    // libmosquitto, reported through too_large already.
+    if (message->topic == mqtt::refused_publish_topic) return;
     me.handlers_.message(message->topic,
                          {static_cast<const std::uint8_t*>(message->payload),
                           static_cast<std::size_t>(message->payloadlen)},

@@ -8,13 +8,16 @@
 // socket; a publish beyond that, or while not connected, is dropped and counted, and the caller
 // decides what that means (the edge node rebirths when the connection is back).
 //
-// What a broker sends is read whole by libmosquitto before anyone sees it, whatever its size (a
-// 250 MB PUBLISH took the daemon past MemoryMax=): once it has a packet's remaining length it
-// allocates that much and reads on, with no limit of its own for a client (libmosquitto 2.0,
-// packet__read). With MQTT 5 the client announces a Maximum Packet Size in CONNECT and a broker
-// (Mosquitto 2 does) sends it nothing larger; MQTT 3.1.1 cannot say so, and the broker's own
-// limit (message_size_limit) is then the only bound. A client made for MQTT 5 falls back to
-// 3.1.1 for a broker that refuses version 5, and says so.
+// What a broker sends would be read whole by libmosquitto before anyone sees it, whatever its
+// size (a 250 MB PUBLISH took the daemon past MemoryMax=): once it has a packet's remaining
+// length it allocates that much and reads on, with no limit of its own for a client
+// (libmosquitto 2.0, packet__read). So nothing larger than Protocol::maximum_packet_size reaches
+// it: with MQTT 5 the client announces that Maximum Packet Size in CONNECT, and the broker must
+// send it nothing larger (MQTT 5 3.1.2-24); with MQTT 3.1.1, which cannot ask, libmosquitto
+// talks to the broker through a BrokerRelay, which reads a larger PUBLISH in passing and hands
+// only its topic and size to Handlers::too_large. `protocol: auto` (the default) speaks 5, and
+// 3.1.1 to a broker that refuses 5 or closes the connection without a CONNACK; it says so,
+// and keeps to 3.1.1 with that broker until the daemon restarts.
 //
 // Owned through a shared_ptr: its completions keep it alive.
 #pragma once
@@ -30,6 +33,7 @@
 
 #include "config/gateway_config.hpp"
 #include "daemon/base/log.hpp"
+#include "daemon/mqtt/broker_relay.hpp"
 #include "link/asio.hpp"
 #include "protocol/exposition.hpp"
 
@@ -58,6 +62,10 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
         // SUBACK of subscribe()'s message id: the broker has read everything sent before the
         // SUBSCRIBE on this connection (MQTT keeps a connection's packets in order).
         std::function<void(int mid)> subscribed;
+        // A PUBLISH larger than Protocol::maximum_packet_size, refused unread (MQTT 3.1.1
+        // only: to an MQTT 5 client the broker does not send one). `topic` as the broker sent
+        // it, not checked.
+        std::function<void(std::string_view topic, std::uint64_t bytes)> too_large;
     };
 
     // What this client's own DISCONNECT (stop(), walk()) asks of the broker. MQTT 3.1.1 has
@@ -65,16 +73,11 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     // and Sparkplug 3.0 requires that of an edge node (NDEATH published, then the will too).
     enum class Disconnect { discard_will, with_will };
 
-    // 3.1.1, or 5 announcing the largest packet this client takes, with Clean Start and a
-    // Session Expiry Interval of 0 (the session ends with the connection, as 3.1.1's Clean
-    // Session does).
+    // The largest packet this client takes; in MQTT 5 with Clean Start and a Session Expiry
+    // Interval of 0 (the session ends with the connection, as 3.1.1's Clean Session does).
+    // Which MQTT: the settings' `protocol`.
     struct Protocol {
-        static Protocol mqtt311() { return {}; }
-        static Protocol mqtt5(std::uint32_t maximum_packet_size,
-                              Disconnect disconnect = Disconnect::discard_will) {
-            return {maximum_packet_size, disconnect};
-        }
-        std::uint32_t maximum_packet_size = 0;  // 0: MQTT 3.1.1
+        std::uint32_t maximum_packet_size = 0;
         Disconnect disconnect = Disconnect::discard_will;
     };
 
@@ -121,8 +124,14 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
   private:
     MqttClient(const asio::any_io_executor& executor, const config::MqttSettings& settings,
                Protocol protocol, std::string section, Log& log, Handlers handlers);
-    // MQTT 5 with the current broker: not made for 3.1.1, and the broker did not refuse 5.
-    bool mqtt5() const { return protocol_.maximum_packet_size > 0 && !mqtt311_only_[current_]; }
+    // MQTT 5 with the current broker: not set to 3.1.1, and the broker did not refuse 5.
+    bool mqtt5() const {
+        return settings_.protocol != config::MqttProtocol::v311 && !mqtt311_only_[current_];
+    }
+    // The current broker refused MQTT 5 (`how`): with `protocol: auto`, 3.1.1 from now on.
+    bool fall_back(std::string_view how);
+    Result<> open_relay();
+    void too_large(const mqtt::RefusedPublish& refused);
     Result<> configure();
     Result<> configure_for(const config::BrokerAddress& broker);
     const config::BrokerAddress& current() const { return settings_.brokers[current_]; }
@@ -138,6 +147,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     // The attempt or the connection ended; the next goes to the next broker, or, with
     // `same_broker`, to this one again at once (a protocol fallback).
     void lost(const std::string& why, bool same_broker = false);
+    void forget_relay();
     void schedule_reconnect();
     void tick();
     void finish_stop();
@@ -176,6 +186,11 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     std::uint64_t published_ = 0;
     std::vector<std::string> last_errors_;  // by broker: the reason last logged
     std::vector<bool> mqtt311_only_;        // by broker: it refused MQTT 5
+    bool connack_ = false;                  // the current connection had its CONNACK
+    // MQTT 3.1.1: the path to the current broker, and its TLS context (made at configure_for,
+    // so that a CA file that cannot be loaded is found at once).
+    std::shared_ptr<BrokerRelay> relay_;
+    std::shared_ptr<asio::ssl::context> relay_tls_;
 };
 
 // The three families of an MQTT connection on /metrics, `prefix`_connected,

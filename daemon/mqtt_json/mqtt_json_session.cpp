@@ -33,7 +33,7 @@ Result<std::shared_ptr<MqttJsonSession>> MqttJsonSession::create(
     std::shared_ptr<MqttJsonSession> output(new MqttJsonSession(executor, settings, log, bus));
     std::weak_ptr<MqttJsonSession> weak = output;
     auto client = MqttClient::create(
-        executor, settings.connection, MqttClient::Protocol::mqtt5(mqtt_json_maximum_packet_size),
+        executor, settings.connection, {.maximum_packet_size = mqtt_json_maximum_packet_size},
         "mqtt_json", log,
         {.connecting =
              [weak] {
@@ -48,7 +48,11 @@ Result<std::shared_ptr<MqttJsonSession>> MqttJsonSession::create(
              [weak](std::string_view topic, std::span<const std::uint8_t> payload, bool retained) {
                  if (auto self = weak.lock()) self->message(topic, payload, retained);
              },
-         .subscribed = [](int) {}});
+         .subscribed = [](int) {},
+         .too_large =
+             [weak](std::string_view topic, std::uint64_t bytes) {
+                 if (auto self = weak.lock()) self->too_large(topic, bytes);
+             }});
     if (!client) return Unexpected(client.error());
     output->client_ = std::move(*client);
     return output;
@@ -308,6 +312,21 @@ void MqttJsonSession::message(std::string_view topic, std::span<const std::uint8
     }
     // One of this node's configs (the subscription's pattern): an empty one is a deletion.
     if (!text.empty() && !config_topics_.contains(std::string(topic))) stale_config(topic);
+}
+
+void MqttJsonSession::too_large(std::string_view topic, std::uint64_t bytes) {
+    const auto size = fmt::format("{} bytes, more than the {} a message to this gateway may have",
+                                  bytes, mqtt_json_maximum_packet_size);
+    if (auto set_topic = mqtt_json::parse_set_topic(settings_.topic_prefix, topic)) {
+        ++stats_.sets;
+        refuse("too large", {},
+               fmt::format("MQTT JSON: set {}/{}/{} refused unread: {}", shown(set_topic->link),
+                           shown(set_topic->module), shown(set_topic->point), size));
+        return;
+    }
+    if (const auto held = refusals_.admit("too large", std::chrono::steady_clock::now()))
+        log_.warn({}, "MQTT JSON: a message on {} refused unread: {} (logged once a minute){}",
+                  shown(topic), size, held_back(*held));
 }
 
 // A config under this node that it does not publish now: a module removed while the gateway

@@ -119,6 +119,8 @@ class MqttJsonSession : public std::enable_shared_from_this<MqttJsonSession> {
     void subscribe(const std::string& topic, std::string_view what);
     void publish_discovery();
     void message(std::string_view topic, std::span<const std::uint8_t> payload, bool retained);
+    // A message larger than mqtt_json_maximum_packet_size, refused unread (MQTT 3.1.1).
+    void too_large(std::string_view topic, std::uint64_t bytes);
     void stale_config(std::string_view topic);
     void home_assistant_online();
     void wait_for_held_birth();

@@ -37,6 +37,37 @@ void SparkplugNode::message(std::string_view topic_text, std::span<const std::ui
         command(*topic, payload);
 }
 
+void SparkplugNode::too_large(std::string_view topic_text, std::uint64_t bytes) {
+    const auto topic = sparkplug::parse_topic(topic_text);
+    if (!topic) return;
+    const auto size = fmt::format("{} bytes, more than the {} a message to this node may have",
+                                  bytes, sparkplug_maximum_packet_size);
+    if (topic->type == MessageType::state) {
+        if (topic->node != settings_.primary_host_id) return;
+        ++stats_.states.refused;
+        refuse("STATE refused", {},
+               fmt::format("Sparkplug: STATE of {} refused unread: {}", shown(topic->node), size));
+        return;
+    }
+    if (topic->group != settings_.group_id || topic->node != settings_.edge_node_id) return;
+    if (topic->type != MessageType::ncmd && topic->type != MessageType::dcmd) return;
+    ++stats_.commands;
+    ++stats_.commands_refused;
+    // Logged once a minute per device this node has (a bounded set of keys), and once for all
+    // the names it does not.
+    const bool known =
+        std::ranges::any_of(devices_, [&](const Device& d) { return d.id == topic->device; });
+    refuse(topic->type == MessageType::ncmd ? std::string("NCMD too large")
+           : known                          ? fmt::format("{} too large", topic->device)
+                                            : std::string("too large"),
+           {},
+           fmt::format("Sparkplug: {} refused unread: {}",
+                       topic->type == MessageType::ncmd
+                           ? std::string("NCMD")
+                           : fmt::format("DCMD to {}", shown(topic->device)),
+                       size));
+}
+
 // The primary host's STATE (Sparkplug 3.0 §7.2). Anyone who may publish on the broker can send one,
 // so it is bounded before it is read, and its timestamp, which only orders this host's STATEs,
 // is not believed beyond the node's own clock (gateway.md §6.2, docs/sparkplug.md).

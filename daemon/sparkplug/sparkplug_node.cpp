@@ -45,14 +45,13 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
     std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, bus));
     node->next_bdseq_ = next_bdseq % 256;
     std::weak_ptr<SparkplugNode> weak = node;
-    // MQTT 5, so that the broker sends nothing larger than a command can be (a 3.1.1 client
-    // cannot ask: libmosquitto would read a 64 MiB DCMD whole); its DISCONNECT with the will
-    // (tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt50). 3.1.1 where the broker
-    // refuses 5: docs/sparkplug.md says what bounds that broker.
+    // Nothing larger than a command can be reaches the node, in MQTT 5 or 3.1.1 (MqttClient);
+    // in MQTT 5 its DISCONNECT asks for the will too
+    // (tck-id-payloads-ndeath-will-message-publisher-disconnect-mqtt50).
     auto client = MqttClient::create(
         executor, settings,
-        MqttClient::Protocol::mqtt5(sparkplug_maximum_packet_size,
-                                    MqttClient::Disconnect::with_will),
+        {.maximum_packet_size = sparkplug_maximum_packet_size,
+         .disconnect = MqttClient::Disconnect::with_will},
         "mqtt", log,
         {.connecting =
              [weak] {
@@ -73,6 +72,10 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
          .subscribed =
              [weak](int mid) {
                  if (auto self = weak.lock()) self->subscribed(mid);
+             },
+         .too_large =
+             [weak](std::string_view topic, std::uint64_t bytes) {
+                 if (auto self = weak.lock()) self->too_large(topic, bytes);
              }});
     if (!client) return Unexpected(client.error());
     node->client_ = std::move(*client);

@@ -160,6 +160,8 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void subscribe(const std::string& topic, std::string_view what);
     void disconnected();
     void message(std::string_view topic, std::span<const std::uint8_t> payload);
+    // A message larger than sparkplug_maximum_packet_size, refused unread (MQTT 3.1.1).
+    void too_large(std::string_view topic, std::uint64_t bytes);
     void host_state(std::span<const std::uint8_t> payload);
     void node_command(std::span<const std::uint8_t> payload);
     void rebirth_asked();

@@ -683,9 +683,24 @@ class FromOutside(unittest.TestCase):
     def test_a_huge_set_never_reaches_the_daemon(self):
         # Before: libmosquitto read a 250 MB set whole, and the daemon was OOM-killed under the
         # unit's MemoryMax=256M. Now the CONNECT says 64 KiB at most, and Mosquitto keeps it.
+        self.huge_set("5")
+        self.assertRegex(self.rig.metrics(),
+                         r'(?m)^ioportd_mqtt_json_sets_total\{result="refused"\} 0$')
+
+    def test_a_huge_set_in_mqtt_3_1_1_is_refused_unread(self):
+        # MQTT 3.1.1 cannot ask for a bound: Mosquitto sends the 250 MB, and the relay under
+        # libmosquitto reads it in passing (gateway.md §7.5). Before, the same RSS as ever.
+        self.huge_set("3.1.1")
+        self.assertRegex(self.rig.metrics(),
+                         r'(?m)^ioportd_mqtt_json_sets_total\{result="refused"\} 1$')
+        self.rig.wait_log(r"MQTT JSON: set hub0/dom16_0/out3 refused unread: 2621440\d\d bytes, "
+                          r"more than the 65536 a message to this gateway may have")
+
+    def huge_set(self, protocol):
+        self.rig.configure(HUB, f'  protocol: "{protocol}"\n')
         self.rig.start_daemon()
         self.rig.wait_log(r"mqtt_json: connected to \S+ as ioportd-json_ioportd_2Fbox7 "
-                          r"\(MQTT 5\)")
+                          rf"\(MQTT {re.escape(protocol)}\)")
         pid = self.rig.daemon.pid
         self.limit.add(pid)
         sub = Subscriber(self.broker.port, (f"{PREFIX}/status",), client_id="hostile-watch")
@@ -711,9 +726,8 @@ class FromOutside(unittest.TestCase):
         print(f"\na 250 MB set: peak RSS {grown / 1048576:+.1f} MiB", file=sys.stderr)
         if RSS_TELLS:
             self.assertLess(grown, 32 << 20)
-        metrics = self.rig.metrics()  # had it come, it would be counted refused (too long)
-        self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="accepted"\} [1-9]')
-        self.assertRegex(metrics, r'(?m)^ioportd_mqtt_json_sets_total\{result="refused"\} 0$')
+        self.assertRegex(self.rig.metrics(),
+                         r'(?m)^ioportd_mqtt_json_sets_total\{result="accepted"\} [1-9]')
 
     def test_a_burst_of_home_assistant_births_republishes_once(self):
         # Before: every birth a second after the last republication republished every config
@@ -803,11 +817,33 @@ class FromOutside(unittest.TestCase):
     def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
         old = Mqtt311Broker()
         self.start_daemon_on(old)
-        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} refused MQTT 5, so "
-                          r"MQTT 3\.1\.1, which cannot ask it to send nothing larger than "
-                          r"65536 bytes: set its message_size_limit", 10)
+        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} refused MQTT 5, so MQTT "
+                          r"3\.1\.1 with it from now on; a message larger than 65536 bytes is "
+                          r"read in passing and refused", 10)
         self.rig.wait_log(r"mqtt_json: connected to \S+ as \S+ \(MQTT 3\.1\.1\)", 10)
         self.assertEqual(old.levels[:2], [5, 4])
+
+    def test_a_broker_that_closes_on_mqtt5_is_spoken_to_in_3_1_1(self):
+        # RabbitMQ 3.10 closes the connection on an MQTT 5 CONNECT, without a CONNACK. Before,
+        # the daemon tried 5 again and again and never connected (issue 49).
+        old = Mqtt311Broker(silent=True)
+        self.start_daemon_on(old)
+        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} closed the connection "
+                          r"after an MQTT 5 CONNECT, without a CONNACK, so MQTT 3\.1\.1 with it "
+                          r"from now on", 10)
+        self.rig.wait_log(r"mqtt_json: connected to \S+ as \S+ \(MQTT 3\.1\.1\)", 10)
+        self.assertEqual(old.levels[:2], [5, 4])
+
+    def test_protocol_5_keeps_to_5(self):
+        old = Mqtt311Broker()
+        old.start()
+        self.addCleanup(old.close)
+        self.rig.broker_port = old.port
+        self.rig.configure(HUB, '  protocol: "5"\n')
+        self.rig.start_daemon()
+        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} refused MQTT 5; "
+                          r'protocol: "5" is set, so no MQTT 3\.1\.1: set protocol: auto', 10)
+        self.assertNotIn(4, old.levels)
 
     def test_a_disconnect_from_the_broker_is_logged_with_its_reason(self):
         # Before: "connection ... lost: Unknown error." (the reason code given to strerror).

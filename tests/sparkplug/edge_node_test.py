@@ -13,6 +13,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import struct
 import subprocess
 import sys
@@ -784,8 +785,8 @@ class Lifecycle(OwnDaemon):
         self.rig.configure(HUB_MODULES)
         nbirth = self.start()
         self.rig.wait_log(rf"mqtt: mqtt://127\.0\.0\.1:{front.port} refused MQTT 5, so MQTT "
-                          r"3\.1\.1, which cannot ask it to send nothing larger than 65536 "
-                          r"bytes: set its message_size_limit")
+                          r"3\.1\.1 with it from now on; a message larger than 65536 bytes is "
+                          r"read in passing and refused")
         self.rig.wait_log(r"mqtt: connected to \S+ as ioportd-plant1-box7 \(MQTT 3\.1\.1\)")
         v5, v311 = front.connects[:2]
         self.assertEqual((v5["level"], v5["clean"], v5["client_id"]), (5, True, CLIENT_ID))
@@ -1550,6 +1551,24 @@ class FromOutside(OwnDaemon):
         # Before: MQTT 3.1.1, and libmosquitto read a 64 MiB DCMD whole before decode_command
         # refused it (RSS from 15 to 146 MB; a larger one went past MemoryMax=256M). Now the
         # CONNECT says 64 KiB at most (MQTT 5), and Mosquitto drops what is larger for the node.
+        self.huge_commands(refused=0)
+
+    def test_a_huge_command_in_mqtt_3_1_1_is_refused_unread(self):
+        # A broker that refuses MQTT 5 cannot be asked for a bound: it sends both whole, and the
+        # relay under libmosquitto reads them in passing (gateway.md §7.5). Before: the same
+        # 10.6 -> 138.5 MiB as with the test above before MQTT 5.
+        front = Mqtt311Front(self.broker.port)
+        front.start()
+        self.addCleanup(front.close)
+        self.rig.broker_url = f"mqtt://127.0.0.1:{front.port}"
+        self.rig.configure(HUB_MODULES, "  primary_host_id: scada\n" + self.store_line)
+        self.huge_commands(refused=2)
+        self.rig.wait_log(r"mqtt: connected to \S+ as ioportd-plant1-box7 \(MQTT 3\.1\.1\)")
+        for what in (r"DCMD to hub0\.dom16\.0", "NCMD"):
+            self.rig.wait_log(rf"Sparkplug: {what} refused unread: 6710\d{{4}} bytes, more than "
+                              r"the 65536 a message to this node may have")
+
+    def huge_commands(self, refused):
         self.start_online()
         pid = self.rig.daemon.pid
         rss = peak_rss(pid)
@@ -1587,9 +1606,9 @@ class FromOutside(OwnDaemon):
         client = self.modbus(self.rig)
         self.assertFalse(client.read_input_registers(0, 1, slave=1).isError())
         client.close()
-        # Had either come, it would have been refused as too large, and counted.
+        # Had either come to the MQTT 5 node, it would have been refused, and counted.
         self.assertRegex(self.rig.metrics(),
-                         r'(?m)^ioportd_sparkplug_commands_total\{result="refused"\} 0$')
+                         rf'(?m)^ioportd_sparkplug_commands_total\{{result="refused"\}} {refused}$')
 
     def test_a_forged_timestamp_does_not_hide_the_host_going_offline(self):
         # Before: every genuine STATE after this one was "older", the host's real offline was
@@ -1918,6 +1937,51 @@ password_file {d}/passwd
             if rig.daemon and rig.daemon.poll() is None:
                 rig.stop_daemon(signal.SIGTERM)
             rig.close()
+
+    def tls_rig(self, mqtt_extra, url=None):
+        rig = EdgeNodeRig(tempfile.mkdtemp(dir=self.dir), self.broker.port, mqtt_extra=mqtt_extra,
+                          broker_url=url or f"mqtts://127.0.0.1:{self.tls_port}")
+        self.addCleanup(rig.close)
+        self.addCleanup(lambda: rig.daemon and rig.daemon.poll() is None
+                        and rig.stop_daemon(signal.SIGTERM))
+        return rig
+
+    def test_mqtts_in_mqtt_3_1_1_through_the_relay(self):
+        # MQTT 3.1.1: libmosquitto speaks to the relay on loopback, and the relay speaks TLS to
+        # the broker, checking it as libmosquitto does (gateway.md §7.5).
+        rig = self.tls_rig(f"  username: box7\n  password_file: {self.dir}/password\n"
+                           f"  ca_file: {self.dir}/ca.pem\n  protocol: 3.1.1\n")
+        mark = self.host.mark()
+        rig.start_daemon()
+        rig.wait_log(r"mqtt: connected to mqtts://127\.0\.0\.1:\d+ as ioportd-plant1-box7 "
+                     r"\(MQTT 3\.1\.1\)", 15)
+        nbirth = self.host.wait_message("NBIRTH", since=mark, node=NODE, timeout=10)
+        self.host.wait_message("DBIRTH", "hub0.dom16.0", since=nbirth.index, timeout=10)
+        # and the other way, a command from the host through the relay
+        self.host.dcmd(GROUP, NODE, "hub0.dom16.0", [{"name": "out/2", "value": True}])
+        eventually(lambda: int(rig.ctl("get dom16:0"), 0) & 0x0004, 10 * SLOWDOWN, "out/2 on")
+        self.assertEqual(self.host.violations, [])
+
+    def test_a_broker_the_ca_did_not_sign_is_refused_in_mqtt_3_1_1(self):
+        # server.pem as the CA: it is not one, so the chain does not verify.
+        rig = self.tls_rig(f"  username: box7\n  password_file: {self.dir}/password\n"
+                           f"  ca_file: {self.dir}/server.pem\n  protocol: 3.1.1\n")
+        rig.start_daemon()
+        rig.wait_log(r"mqtt: mqtts://127\.0\.0\.1:\d+'s certificate is not accepted: [^;]*"
+                     r"certificate[^;]*; ca_file must be the CA that signed it, for the name in "
+                     r"the URL; reconnecting within 1 s", 15)
+        self.assertNotIn("connected to", rig.log_text())
+
+    def test_a_broker_that_never_answers_tls_is_given_up_after_the_keepalive(self):
+        silent = socket.create_server(("127.0.0.1", 0))
+        self.addCleanup(silent.close)
+        rig = self.tls_rig(f"  ca_file: {self.dir}/ca.pem\n  protocol: 3.1.1\n",
+                           f"mqtts://127.0.0.1:{silent.getsockname()[1]}")
+        started = time.monotonic()
+        rig.start_daemon()
+        rig.wait_log(r"mqtt: no TLS handshake with mqtts://127\.0\.0\.1:\d+ within 5 s; "
+                     r"reconnecting within 1 s", 15 * SLOWDOWN)
+        self.assertGreater(time.monotonic() - started, 5, "not before the keepalive")
 
 
 if __name__ == "__main__":

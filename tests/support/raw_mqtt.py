@@ -167,10 +167,12 @@ class Mqtt311Broker(ScriptedBroker):
     another protocol level gets CONNACK 0x01 (unacceptable protocol level) and the connection
     closed; a 3.1.1 one gets CONNACK 0, then SUBACKs, PUBACKs and PINGRESPs, and what is published
     to it is dropped. `levels`: the protocol level of every CONNECT, in order; `connects`: each
-    CONNECT parsed (parse_connect)."""
+    CONNECT parsed (parse_connect). With `silent`, another level gets no CONNACK: the connection
+    is closed, as RabbitMQ 3.10 does."""
 
-    def __init__(self):
+    def __init__(self, silent=False):
         super().__init__()
+        self.silent = silent
         self.levels, self.connects = [], []
 
     def serve(self, conn):
@@ -181,7 +183,8 @@ class Mqtt311Broker(ScriptedBroker):
                 self.connects.append(connect)
                 self.levels.append(connect["level"])
                 if connect["level"] != 4:
-                    conn.sendall(bytes([0x20, 2, 0, 1]))
+                    if not self.silent:
+                        conn.sendall(bytes([0x20, 2, 0, 1]))
                     return
                 conn.sendall(bytes([0x20, 2, 0, 0]))
                 while (packet := read_packet(conn))[0] is not None:
@@ -200,12 +203,13 @@ class Mqtt311Broker(ScriptedBroker):
 class Mqtt311Front(ScriptedBroker):
     """A real broker as one from before MQTT 5 sees it: a CONNECT of another level than 3.1.1
     gets CONNACK 0x01 and the connection closed, as Mqtt311Broker's; a 3.1.1 one is passed on to
-    the broker on `port`, and from then on the bytes both ways. `levels`, `connects`: as
-    Mqtt311Broker's."""
+    the broker on `port`, and from then on the bytes both ways. `levels`, `connects`, `silent`:
+    as Mqtt311Broker's."""
 
-    def __init__(self, port):
+    def __init__(self, port, silent=False):
         super().__init__()
         self.upstream = port
+        self.silent = silent
         self.levels, self.connects = [], []
 
     def serve(self, conn):
@@ -219,7 +223,8 @@ class Mqtt311Front(ScriptedBroker):
             level = connect["level"]
             self.levels.append(level)
             if level != 4:
-                conn.sendall(bytes([0x20, 2, 0, 1]))
+                if not self.silent:
+                    conn.sendall(bytes([0x20, 2, 0, 1]))
                 conn.close()
                 return
             broker = socket.create_connection(("127.0.0.1", self.upstream))
