@@ -761,8 +761,18 @@ class FromOutside(unittest.TestCase):
                   f"{size / 1000:.1f} kB", file=sys.stderr)
             sent = [m.topic for m in made if m.topic.endswith("/config")]
             self.assertEqual(sorted(sent), sorted(configs), "every config once, no more")
-            self.assertEqual(len(made) - len(sent), len({m.topic for m in made}) - len(configs),
-                             "every state and availability once, no more")
+            # A republication sends each state and availability as it is, the same as the last
+            # message on its topic; a module that timed out under load meanwhile sends changes
+            # (offline, then online), which are not republications.
+            repeats, last = {}, {}
+            for m in made:
+                if not m.topic.endswith("/config"):
+                    if last.get(m.topic, m.payload) == m.payload:
+                        repeats[m.topic] = repeats.get(m.topic, 0) + 1
+                    last[m.topic] = m.payload
+            self.assertEqual(set(repeats.values()), {1},
+                             "every state and availability once, no more: "
+                             + str([(m.topic, m.payload) for m in made if "/config" not in m.topic]))
             self.assertIsNone(self.rig.daemon.poll(), "ioportd is running")
             self.rig.wait_log(r"MQTT JSON: Home Assistant's birth on homeassistant/status served "
                               r"at most once every 30 s; the next republication when they are "
