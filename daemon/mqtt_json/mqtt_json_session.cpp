@@ -379,6 +379,10 @@ void MqttJsonSession::wait_for_held_birth() {
 }
 
 void MqttJsonSession::serve_home_assistant() {
+    // The gateway's status as well: on a cluster whose retained messages stay on the node they
+    // were published to (ejabberd), a Home Assistant on another node has never seen it, and
+    // every entity, whose availability includes it, stays unavailable.
+    publish(status_topic_, online_text, 1, true);
     // The configs are retained, but a broker restarted without persistence has lost them too.
     publish_discovery();
     // A Home Assistant restarted on a broker that keeps no retained messages has no state until

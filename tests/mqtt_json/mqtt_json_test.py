@@ -611,11 +611,14 @@ class Bridge(JsonCase):
 
     def test_home_assistants_birth_publishes_every_state_again(self):
         # A broker without persistence, restarted: what the gateway published is gone (Home
-        # Assistant shows "unknown"), the discovery configs aside.
+        # Assistant shows "unknown"), the discovery configs aside. The gateway's status too: on
+        # an ejabberd cluster, whose retained messages stay on their node, a Home Assistant on
+        # the other node never had it, and every entity stayed unavailable (issue 49).
         modules = ("hub0/dim16_0", "hub0/dom16_0", "hub0/acm3p_0", "hub0/rgbdm_0",
                    "hub0/mux8m_0", "press/id2")
         topics = [topic(m, leaf) for m in modules for leaf in ("state", "availability")] + [
-            f"{PREFIX}/bridge/connectivity/{link}" for link in ("hub0", "press")]
+            f"{PREFIX}/bridge/connectivity/{link}" for link in ("hub0", "press")] + [
+            f"{PREFIX}/status"]
         for name in topics:
             self.sub.publish(name, "", retain=True)
         eventually(lambda: not set(topics) & set(retained(self.broker.port, f"{PREFIX}/#")), 5,
@@ -637,6 +640,7 @@ class Bridge(JsonCase):
                                                .payload)), module)
         self.assertEqual([kept[f"{PREFIX}/bridge/connectivity/{link}"]
                           for link in ("hub0", "press")], ["ON", "ON"])
+        self.assertEqual(kept[f"{PREFIX}/status"], "online")
         self.assertTrue(self.sub.since(mark, topic("hub0/dim16_0", "availability")))
 
 
