@@ -4,6 +4,7 @@
 #include <fmt/ranges.h>
 
 #include "config/duration.hpp"
+#include "protocol/sparkplug.hpp"
 
 namespace ioport::config {
 namespace {
@@ -128,6 +129,10 @@ std::string check_config_text(const GatewayConfig& config) {
             mqtt->primary_host_id.empty() ? std::string()
                                           : fmt::format(", primary host {}", mqtt->primary_host_id),
             mqtt->templates ? ", templates (one per module type)" : "");
+        if (mqtt->device_id_separator != '.')
+            text += fmt::format("Sparkplug device ids with '{}': {}\n", mqtt->device_id_separator,
+                                sparkplug::device_id("hub0", ModuleAddress{ModuleType::dim16, 0},
+                                                     mqtt->device_id_separator));
         if (const auto& store = mqtt->store)
             text += fmt::format(
                 "Sparkplug store in {}, at most {} MiB, forwarded at {} messages/s at most\n",

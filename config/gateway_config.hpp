@@ -189,6 +189,7 @@ struct MqttSettings {
     double deadband = 0;                 // analog channels, in engineering units
     std::optional<StoreSettings> store;  // none: what changes while no session can publish is lost
     bool templates = false;              // gateway.md §7.2: one Sparkplug template per module type
+    char device_id_separator = '.';      // in device ids: one of sparkplug::device_id_separators
     friend bool operator==(const MqttSettings&, const MqttSettings&) = default;
 };
 

@@ -10,10 +10,10 @@
 namespace ioport::config::detail {
 namespace {
 
-constexpr std::array<std::string_view, 14> mqtt_keys{
-    "broker",   "brokers",       "group_id",  "edge_node_id",   "client_id",
-    "username", "password_file", "ca_file",   "keepalive",      "protocol",
-    "deadband", "store",         "templates", "primary_host_id"};
+constexpr std::array<std::string_view, 15> mqtt_keys{
+    "broker",   "brokers",       "group_id",  "edge_node_id",    "client_id",
+    "username", "password_file", "ca_file",   "keepalive",       "protocol",
+    "deadband", "store",         "templates", "primary_host_id", "device_id_separator"};
 constexpr std::array<std::string_view, 3> store_keys{"path", "max_size", "forward_rate"};
 
 constexpr std::string_view broker_help =
@@ -117,6 +117,17 @@ void Loader::read_mqtt(const Entry& entry, std::optional<MqttSettings>& mqtt) {
     read(f, "deadband", "a number of engineering units, e.g. 0.5", m.deadband, non_negative);
     if (const Entry* store = f.find("store")) read_store(*store, m.store);
     read(f, "templates", "true or false", m.templates, boolean);
+    read(f, "device_id_separator", "one of . - _ :", m.device_id_separator,
+         [](const YAML::Node& value) -> Parsed<char> {
+             const std::string& text = value.Scalar();
+             if (text.size() == 1 &&
+                 sparkplug::device_id_separators.find(text[0]) != std::string_view::npos)
+                 return text[0];
+             return Unexpected(fmt::format(
+                 "'{}' is not a separator of device ids: use \".\" (the default), \"-\", \"_\" "
+                 "or \":\"",
+                 printable(text)));
+         });
     mqtt = std::move(m);
 }
 

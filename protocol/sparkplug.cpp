@@ -175,9 +175,10 @@ std::string state_json(bool online, std::uint64_t timestamp) {
     return fmt::format(R"({{"online":{},"timestamp":{}}})", online, timestamp);
 }
 
-std::string device_id(std::string_view link, std::optional<ModuleAddress> module) {
-    if (!module) return fmt::format("{}.id2", link);
-    return fmt::format("{}.{}.{}", link, name(module->type), module->number);
+std::string device_id(std::string_view link, std::optional<ModuleAddress> module, char separator) {
+    if (!module) return fmt::format("{}{}id2", link, separator);
+    return fmt::format("{}{}{}{}{}", link, separator, name(module->type), separator,
+                       module->number);
 }
 
 std::vector<MetricSpec> module_metrics(std::optional<ModuleType> type) {

@@ -151,8 +151,13 @@ std::string state_json(bool online, std::uint64_t timestamp);
 
 // --- The metrics of a module (gateway.md §5.5) ------------------------------------------------
 
-// One Sparkplug device per module: "<link>.<type>.<number>", "<link>.id2" for the ID-2.
-std::string device_id(std::string_view link, std::optional<ModuleAddress> module);
+// One Sparkplug device per module: "<link>.<type>.<number>", "<link>.id2" for the ID-2, with
+// another `separator` where the configuration says so (a broker that rewrites the '.' of topics).
+// Unique whatever the link names: the last part is a number or "id2", and no type's name holds
+// a separator.
+inline constexpr std::string_view device_id_separators = ".-_:";
+std::string device_id(std::string_view link, std::optional<ModuleAddress> module,
+                      char separator = '.');
 
 struct MetricSpec {
     std::string name;

@@ -27,7 +27,23 @@ using sparkplug_node::value_text;
 
 void SparkplugNode::message(std::string_view topic_text, std::span<const std::uint8_t> payload) {
     const auto topic = sparkplug::parse_topic(topic_text);
-    if (!topic) return;
+    if (!topic) {
+        // On the DCMD subscription, so this node's, yet no topic Sparkplug has: a device id of
+        // several levels.
+        const auto dcmd =
+            sparkplug::topic(settings_.group_id, MessageType::dcmd, settings_.edge_node_id, "");
+        if (topic_text.starts_with(dcmd + "/")) {
+            ++stats_.commands;
+            ++stats_.commands_unknown_device;
+            refuse("unknown device", {},
+                   fmt::format("Sparkplug: a DCMD on {}, which names no device of this edge node "
+                               "(its device id has several levels: a broker that turns the '.' "
+                               "of topics into '/', as RabbitMQ does, needs another "
+                               "device_id_separator; docs/sparkplug.md)",
+                               shown(topic_text)));
+        }
+        return;
+    }
     if (topic->type == MessageType::state) {
         if (topic->node == settings_.primary_host_id) host_state(payload);
         return;
@@ -145,7 +161,7 @@ void SparkplugNode::command(const sparkplug::Topic& topic, std::span<const std::
                                      [&](const Device& d) { return d.id == topic.device; });
     if (device == devices_.end()) {
         ++stats_.commands;
-        ++stats_.commands_refused;
+        ++stats_.commands_unknown_device;
         refuse("unknown device", {},
                fmt::format("Sparkplug: DCMD to {}, which this edge node does not have",
                            shown(topic.device)));

@@ -128,7 +128,8 @@ void SparkplugNode::build(const Links& links) {
             Device device{link,
                           view.slot,
                           view.address,
-                          sparkplug::device_id(link->config().name, view.address),
+                          sparkplug::device_id(link->config().name, view.address,
+                                               settings_.device_id_separator),
                           sparkplug::module_metrics(type_of(view.address)),
                           alias,
                           *view.tags,
@@ -149,11 +150,12 @@ void SparkplugNode::watch_links() {
 }
 
 void SparkplugNode::set_links(const Links& links) {
-    const auto map_of = [](const Links& of) {
+    const auto map_of = [this](const Links& of) {
         std::vector<std::string> ids;
         for (const auto& link : of)
             for (const auto& view : link->modules())
-                ids.push_back(sparkplug::device_id(link->config().name, view.address));
+                ids.push_back(sparkplug::device_id(link->config().name, view.address,
+                                                   settings_.device_id_separator));
         return ids;
     };
     const bool same_map = map_of(links) == map_of(links_);
@@ -267,6 +269,11 @@ void SparkplugNode::connected() {
     const auto& node = settings_.edge_node_id;
     subscribe(sparkplug::topic(group, MessageType::ncmd, node), "commands (NCMD)");
     subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+"), "commands (DCMD)");
+    // And two levels or more, apart: a DCMD whose device id a broker split into levels
+    // (RabbitMQ makes hub0.dim16.0 hub0/dim16/0) arrives, to be counted and said, not lost
+    // unseen. Not one "#" for both: Sparkplug 3.0 names the subscription above.
+    subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+/+/#"),
+              "DCMDs to no device (device ids split into levels)");
     if (!settings_.primary_host_id.empty()) {
         host_online_ = false;  // until its STATE says so (retained, so it comes at once)
         // Timestamps are compared within a connection: the host's STATE on this broker may be

@@ -92,6 +92,7 @@ struct SparkplugStats {
     std::uint64_t births = 0;    // NBIRTHs, rebirths included
     std::uint64_t commands = 0;  // DCMD metrics; a DCMD refused whole counts as one
     std::uint64_t commands_refused = 0;
+    std::uint64_t commands_unknown_device = 0;  // a DCMD to a device this node does not have
     struct {
         std::uint64_t taken = 0;    // acted on, its timestamp the new mark
         std::uint64_t ahead = 0;    // beyond state_clock_tolerance: acted on, not the mark

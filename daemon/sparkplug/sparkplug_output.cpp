@@ -66,8 +66,10 @@ void SparkplugOutput::metrics(Exposition& out) const {
     out.sample("ioportd_sparkplug_births_total", {}, stats.births);
     out.family("ioportd_sparkplug_commands_total", "counter", "DCMD metrics received, by result");
     out.sample("ioportd_sparkplug_commands_total", {{"result", "accepted"}},
-               stats.commands - stats.commands_refused);
+               stats.commands - stats.commands_refused - stats.commands_unknown_device);
     out.sample("ioportd_sparkplug_commands_total", {{"result", "refused"}}, stats.commands_refused);
+    out.sample("ioportd_sparkplug_commands_total", {{"result", "unknown_device"}},
+               stats.commands_unknown_device);
     out.family("ioportd_sparkplug_host_states_total", "counter",
                "STATE messages of the primary host, by result (ahead: taken, its timestamp too "
                "far ahead of this clock to order later ones)");

@@ -576,6 +576,40 @@ class HostileCommands(OwnDaemon):
         finally:
             client.close()
 
+    def test_a_dcmd_that_names_no_device_is_counted_and_said(self):
+        # Before (issue 49): RabbitMQ turns hub0.dom16.0 into hub0/dom16/0, and such a DCMD
+        # never reached the node's subscription (DCMD/box7/+); nothing said where commands went.
+        self.start()
+        log = self.rig.log_mark()
+        on = command_payload([("out/0", "Boolean", True)])
+        self.host.publish_raw(f"spBv1.0/{GROUP}/DCMD/{NODE}/hub0/dom16/0", on)
+        self.host.publish_raw(dcmd_topic("hub0.dom16.7"), on)
+        self.rig.wait_log(rf"Sparkplug: a DCMD on spBv1\.0/{GROUP}/DCMD/{NODE}/hub0/dom16/0, "
+                          r"which names no device of this edge node \(its device id has several "
+                          r"levels: a broker that turns the '\.' of topics into '/', as RabbitMQ "
+                          r"does, needs another device_id_separator; docs/sparkplug\.md\)",
+                          since=log)
+        eventually(lambda: re.search(r'(?m)^ioportd_sparkplug_commands_total\{result='
+                                     r'"unknown_device"\} 2$', self.rig.metrics()), 10,
+                   lambda: self.rig.metrics())
+        self.assertEqual(int(self.rig.ctl("get dom16:0")) & 0x0001, 0)
+        # The host application saw the test's own DCMD of several levels too, a topic outside
+        # Sparkplug's namespace: that one violation is the test's, on purpose.
+        own = (f"[topic] topic outside the Sparkplug namespace: spBv1.0/{GROUP}/DCMD/{NODE}/"
+               "hub0/dom16/0")
+        eventually(lambda: own in self.host.violations, 10, lambda: self.host.violations)
+        self.host.violations.remove(own)
+
+    def test_device_ids_with_another_separator(self):
+        # A RabbitMQ fleet (issue 49): device ids of one topic level whatever the broker does.
+        self.rig.configure(HUB_MODULES, "  device_id_separator: _\n")
+        mark = self.host.mark()
+        self.rig.start_daemon()
+        self.host.wait_message("DBIRTH", "hub0_dom16_0", since=mark, timeout=10)
+        self.host.dcmd(GROUP, NODE, "hub0_dom16_0", [{"name": "out/1", "value": True}])
+        eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0002, 10, "out/1 on")
+        self.assertEqual(self.host.violations, [])
+
     def test_read_only_refuses_dcmd(self):
         self.rig.configure(HUB_MODULES, modbus_extra="  read_only: true\n")
         self.start()

@@ -364,6 +364,35 @@ TEST(GatewayConfig, MqttProtocolIsAutoFiveOr311) {
         << describe(wrong.error());
 }
 
+// issue 49: device_id_separator, "." by default; one of . - _ :, shown when not the default.
+TEST(GatewayConfig, DeviceIdSeparatorIsOneOfFour) {
+    const auto with = [](const std::string& line) {
+        return parse(
+            "mqtt:\n  broker: \"mqtt://127.0.0.1:1883\"\n  group_id: plant1\n"
+            "  edge_node_id: box7\n" +
+            line +
+            "links:\n  - { name: hub0, protocol: "
+            "ioport, device: /dev/ttyUSB0, modules: [{ type: dim16, number: 0 }] }\n");
+    };
+    const auto dot = with("");
+    ASSERT_TRUE(dot) << describe(dot.error());
+    EXPECT_EQ(dot->mqtt->device_id_separator, '.');
+    EXPECT_EQ(check_config_text(*dot).find("device ids"), std::string::npos);
+    const auto underscore = with("  device_id_separator: _\n");
+    ASSERT_TRUE(underscore) << describe(underscore.error());
+    EXPECT_EQ(underscore->mqtt->device_id_separator, '_');
+    EXPECT_NE(check_config_text(*underscore).find("Sparkplug device ids with '_': hub0_dim16_0\n"),
+              std::string::npos)
+        << check_config_text(*underscore);
+    for (const char* wrong : {"\"/\"", "\"ab\"", "\"\"", "x"}) {
+        const auto refused = with(std::string("  device_id_separator: ") + wrong + "\n");
+        ASSERT_FALSE(refused) << wrong;
+        EXPECT_NE(describe(refused.error()).find("is not a separator of device ids: use \".\""),
+                  std::string::npos)
+            << describe(refused.error());
+    }
+}
+
 // §5.3: `safe` takes what `initial` takes and defaults to it; comm_loss_timeout defaults to off.
 // §5.2: `identity` objects per link.
 TEST(GatewayConfig, SafeValuesCommLossAndIdentity) {

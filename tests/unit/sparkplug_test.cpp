@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <set>
+#include <string>
 #include <vector>
 
 #include <fmt/format.h>
@@ -250,6 +252,33 @@ TEST(SparkplugModule, DeviceIdsAsGatewayMdSays) {
     EXPECT_EQ(device_id("hub0", ModuleAddress{ModuleType::dim16, 0}), "hub0.dim16.0");
     EXPECT_EQ(device_id("hub0", ModuleAddress{ModuleType::mux8m, 7}), "hub0.mux8m.7");
     EXPECT_EQ(device_id("press", std::nullopt), "press.id2");
+}
+
+TEST(SparkplugModule, DeviceIdsWithAnotherSeparatorStayUnique) {
+    // RabbitMQ turns the '.' of topics into '/' (issue 49): '_' keeps a device one level.
+    EXPECT_EQ(device_id("hub0", ModuleAddress{ModuleType::dim16, 0}, '_'), "hub0_dim16_0");
+    EXPECT_EQ(device_id("press", std::nullopt, '-'), "press-id2");
+    // Links whose names hold the separator: still one id per device, as the last part is a
+    // number or "id2" and no type's name holds a separator.
+    for (const char separator : device_id_separators) {
+        std::set<std::string> ids;
+        std::size_t devices = 0;
+        const std::string with = std::string("a") + separator;
+        for (const std::string& link :
+             {std::string("a"), with + "dim16", with + "dim16" + separator + "0", with + "id2",
+              std::string("dim16")}) {
+            for (const auto type : {ModuleType::dim16, ModuleType::dom16}) {
+                for (const int number : {0, 1}) {
+                    ids.insert(device_id(
+                        link, ModuleAddress{type, static_cast<std::uint8_t>(number)}, separator));
+                    ++devices;
+                }
+            }
+            ids.insert(device_id(link, std::nullopt, separator));
+            ++devices;
+        }
+        EXPECT_EQ(ids.size(), devices) << separator;
+    }
 }
 
 TEST(SparkplugModule, EveryMetricOfEveryModule) {
