@@ -2015,7 +2015,9 @@ password_file {d}/passwd
         rig.start_daemon()
         rig.wait_log(r"mqtt: no TLS handshake with mqtts://127\.0\.0\.1:\d+ within 5 s; "
                      r"reconnecting within 1 s", 15 * SLOWDOWN)
-        self.assertGreater(time.monotonic() - started, 5, "not before the keepalive")
+        # libmosquitto counts the keepalive in whole seconds, and may end the attempt up to one
+        # early; the relay's own deadline is the keepalive to the millisecond.
+        self.assertGreater(time.monotonic() - started, 4, "not before the keepalive")
 
 
 if __name__ == "__main__":
