@@ -477,8 +477,17 @@ void SparkplugNode::changed(const LinkScheduler* link, int slot) {
 void SparkplugNode::keep(Device& device) {
     const auto view = device.link->module_at(device.slot);
     if (!view || view->status() != gateway::ModuleStatus::online) return;
+    // A module's first values in this process are no history: the DBIRTH carries them. Stored,
+    // they came back after it as historical DDATA repeating the birth, a duplicate sample per
+    // metric at every start (they are read before the first CONNACK).
+    const bool first =
+        std::ranges::none_of(device.published, [](const auto& v) { return v.has_value(); });
     auto data = changes(device, *view, MetricsBy::name);
     if (data.changed.empty()) return;
+    if (first) {
+        published(device, data);
+        return;
+    }
     if (!store_->pending()) backlog_oldest_ms_ = data.payload.timestamp;
     if (store_->append(sparkplug::encode_stored({device.id, data.payload})))
         published(device, data);

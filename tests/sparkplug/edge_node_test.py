@@ -1224,6 +1224,30 @@ class StoreAndForward(OwnDaemon):
         self.rig.start_daemon()
         self.rig.wait_log(r"Sparkplug store \S+: 0 record\(s\) to forward", 5)
 
+    def test_a_start_stores_nothing_that_the_births_carry(self):
+        # Before (issue 49): every start forwarded about 9 historical DDATA that repeated the
+        # DBIRTHs' values, as the first reads came before the first CONNACK and went to the
+        # store; a historian got a duplicate sample per metric per restart. The broker is away
+        # at the start here, so that every first read comes before any session.
+        self.broker.stop()
+        self.rig.start_daemon()
+        eventually(lambda: all(m["status_text"] == "online" for link in self.rig.state()["links"]
+                               for m in link["modules"]), 10, "every module polled")
+        mark = self.host.mark()
+        self.broker_back()
+        self.wait_births(mark)
+        store = self.store_state()
+        self.assertEqual((store["records"], store["forwarded"]), (0, 0), store)
+        self.assertEqual([m for m in self.host.since(mark, "DDATA") if m.historical], [])
+        # What changes after the first reads is history as ever.
+        self.broker_away()
+        self.change_while_away(self.WORDS[:2])
+        mark = self.host.mark()
+        self.broker_back()
+        self.wait_births(mark)
+        eventually(lambda: self.written_history(mark) == self.WORDS[:2], 20,
+                   lambda: f"history of dim16:0 word: {self.history(mark)}")
+
     def test_kill_9_in_the_outage_loses_nothing_written(self):
         self.start()
         self.broker_away()
