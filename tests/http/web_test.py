@@ -41,7 +41,7 @@ links:
     protocol: ioport
     device: {hub_link}
     unit_id: 1
-    timeout: 30ms
+    timeout: 300ms
     retries: 0
     max_pending_writes: 1
     modules:

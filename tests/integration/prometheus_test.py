@@ -31,7 +31,7 @@ links:
     protocol: ioport
     device: {hub_link}
     unit_id: 1
-    timeout: 30ms
+    timeout: 300ms
     modules:
       - {{ type: dim16, number: 0 }}
       - {{ type: dom16, number: 0 }}

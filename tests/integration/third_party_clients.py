@@ -33,7 +33,7 @@ links:
     protocol: ioport
     device: {rig.hub_link}
     unit_id: 1
-    timeout: 30ms
+    timeout: 300ms
     modules:
       - {{ type: dim16, number: 0 }}
       - {{ type: dom16, number: 0 }}

@@ -73,6 +73,7 @@ links:
     protocol: ioport
     device: {rig.hub_link}
     unit_id: 1
+    timeout: 300ms
     modules:
       - {{ type: dim16, number: 0 }}
       - {{ type: dom16, number: 0 }}
@@ -80,6 +81,7 @@ links:
     protocol: id2
     device: {rig.id2_link}
     unit_id: 2
+    timeout: 300ms
 """
 
 
