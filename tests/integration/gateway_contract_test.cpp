@@ -552,11 +552,14 @@ TEST_F(ContractTest, WritesToADeadModuleInALoopNeverStarvePollingOrOtherWrites) 
     const auto end = Clock::now() + 4s;
     std::uint16_t oldest = 0;  // dim16 0's age, slot 0
     milliseconds slowest{0};   // a write to the healthy dom16 1
+    int most_overtaken = 0;    // dead writes answered while one healthy write waited
     for (std::uint16_t i = 0; Clock::now() < end; ++i) {
         oldest = std::max(oldest, read_register(client, 1200));
         const auto sent = Clock::now();
+        const int dead_before = dead_writes;
         EXPECT_TRUE(client.write_register(1, i));
         slowest = std::max(slowest, since(sent));
+        most_overtaken = std::max(most_overtaken, dead_writes - dead_before);
     }
     writing = false;
     writer.join();
@@ -564,8 +567,12 @@ TEST_F(ContractTest, WritesToADeadModuleInALoopNeverStarvePollingOrOtherWrites) 
     // Seven polled inputs and a refresh, each after one of the 90 ms writes: under a second.
     // With writes always first the age grew for as long as they streamed: 4 s.
     EXPECT_LT(oldest, 2000) << "dim16 0 was not read while writes to a dead module streamed";
-    // In flight: a dead write (90 ms), then one poll read after its silence (31 ms).
-    EXPECT_LT(slowest, 300ms);
+    // In flight: the dead write (90 ms), then one poll read after its silence (31 ms); the dead
+    // writer's next write comes after the healthy one. Counted, not timed: beside two busy
+    // loops the slowest took 414 ms with no dead write more before it (300 ms was the bound).
+    EXPECT_LE(most_overtaken, 2) << "slowest " << slowest.count() << " ms";
+    std::cout << "[ figure   ] healthy write beside a dead module's: slowest " << slowest.count()
+              << " ms, at most " << most_overtaken << " dead write(s) answered meanwhile\n";
 }
 
 // §4: while writes keep coming, the turns between them alternate between due refreshes and due

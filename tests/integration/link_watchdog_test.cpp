@@ -63,7 +63,15 @@ TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
     link->start();
     ASSERT_TRUE(run_until(io, [&] { return !device.requests().empty(); }));
     asio::steady_timer chatter(io);
+    // The gaps in the chatter as long as a timeout, or nearly: a test starved of the CPU (beside
+    // busy loops, scripts/test --under-load) cannot chatter then, and the line is silent for
+    // the link as for any reader. Each may allow one more attempt; without them, none.
+    int silences = 0;
+    auto last_noise = Clock::now();
     std::function<void()> noise = [&] {
+        const auto now = Clock::now();
+        if (now - last_noise >= timeout * 4 / 5) ++silences;
+        last_noise = now;
         device.send("#");
         chatter.expires_after(5ms);
         chatter.async_wait([&](const boost::system::error_code& ec) {
@@ -78,9 +86,14 @@ TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
         ASSERT_TRUE(link->progressing(Clock::now())) << "stuck after " << checks * 20 << " ms";
         ++checks;
     }
-    // Still in its first step: each attempt met a line that never went silent.
-    EXPECT_EQ(device.requests().size(), 1u);
-    EXPECT_EQ(link->state().status[0], gateway::ModuleStatus::not_polled);
+    // Still in its first step: each attempt met a line that never went silent (but where the
+    // test itself fell silent).
+    EXPECT_LE(device.requests().size(), 1u + static_cast<std::size_t>(silences))
+        << silences << " silences of the test's own";
+    EXPECT_GE(device.requests().size(), 1u);
+    if (silences == 0) {
+        EXPECT_EQ(link->state().status[0], gateway::ModuleStatus::not_polled);
+    }
     chatter.cancel();
     link->stop();
 }
