@@ -53,6 +53,8 @@ class BrokerRelay : public std::enable_shared_from_this<BrokerRelay> {
     // At once; the connection with the broker is cut, not ended (MqttClient lets a relay end by
     // itself when libmosquitto closes its socket).
     void close();
+    // The broker's side was up (TCP, and TLS where it is TLS): what libmosquitto wrote went on.
+    bool reached() const { return connected_; }
     // Why the path to the broker ended, or why it is not there yet, for the log; empty when it
     // was there and did not end on the broker's side (libmosquitto then knows why).
     std::string failure() const;

@@ -162,6 +162,8 @@ void MqttClient::start() {
 // same resolver's answer. An IP literal needs no lookup at all.
 void MqttClient::resolve_then_connect() {
     attempt_ended_ = false;
+    connack_ = false;
+    written_ = false;
     const auto& broker = current();
     boost::system::error_code ec;
     asio::ip::make_address(broker.host, ec);
@@ -200,7 +202,6 @@ void MqttClient::connect() {
         host = "127.0.0.1";
         port = relay_->port();
     }
-    connack_ = false;
     const int rc =
         mosquitto_connect_async(client_, host.c_str(), port, static_cast<int>(keepalive.count()));
     if (rc != MOSQ_ERR_SUCCESS) {
@@ -208,6 +209,8 @@ void MqttClient::connect() {
                          mosquitto_error(rc)));
         return;
     }
+    // A connection that completed at once (loopback) had its CONNECT written within the call.
+    written_ = !mosquitto_want_write(client_);
     if (relay_) {
         // The relay takes the connection from this address only.
         asio::ip::tcp::endpoint from;
@@ -218,6 +221,14 @@ void MqttClient::connect() {
         }
     }
     watch();
+}
+
+bool MqttClient::connect_sent() const {
+    if (connack_) return true;
+    // Through the relay, libmosquitto's writes reach the relay at once: the broker had the
+    // CONNECT only if the relay reached it.
+    if (relay_) return relay_->reached();
+    return written_;
 }
 
 Result<> MqttClient::open_relay() {
@@ -288,7 +299,11 @@ void MqttClient::watch() {
                                    if (!self->stopping_ || self->stopped_) self->watch();
                                    return;
                                }
-                               self->after_io(mosquitto_loop_write(self->client_, 16), "writing");
+                               const int rc = mosquitto_loop_write(self->client_, 16);
+                               // The first write of a connection is its CONNECT; it fails when
+                               // the TCP connection did.
+                               if (rc == MOSQ_ERR_SUCCESS) self->written_ = true;
+                               self->after_io(rc, "writing");
                            });
     }
 }
@@ -325,12 +340,13 @@ void MqttClient::lost(const std::string& why, bool same_broker) {
     queued_.clear();
     queued_bytes_ = 0;
     forget_socket();
-    forget_relay();
     if (stopping_) {
         finish_stop();
         return;
     }
+    // The relay still there: the handler may ask connect_sent().
     if (handlers_.disconnected) handlers_.disconnected(why);
+    forget_relay();
     if (same_broker) {
         reconnect_.expires_after(std::chrono::seconds(0));
         reconnect_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {

@@ -117,6 +117,10 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     void stop(std::chrono::milliseconds deadline, std::function<void()> done);
 
     bool connected() const { return connected_; }
+    // Whether the CONNECT of the current (or just ended) attempt went out to a broker: not when
+    // the name did not resolve, the TCP connection or the TLS handshake failed. A will set for an
+    // attempt that sent none was never seen by any broker (Sparkplug's bdSeq is not spent).
+    bool connect_sent() const;
     std::uint64_t dropped() const { return dropped_; }
     std::uint64_t published() const { return published_; }
     std::string broker() const;  // the current one, as a URL
@@ -187,6 +191,7 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     std::vector<std::string> last_errors_;  // by broker: the reason last logged
     std::vector<bool> mqtt311_only_;        // by broker: it refused MQTT 5
     bool connack_ = false;                  // the current connection had its CONNACK
+    bool written_ = false;                  // libmosquitto wrote on the current connection
     // MQTT 3.1.1: the path to the current broker, and its TLS context (made at configure_for,
     // so that a CA file that cannot be loaded is found at once).
     std::shared_ptr<BrokerRelay> relay_;

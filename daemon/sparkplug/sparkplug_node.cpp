@@ -37,13 +37,11 @@ std::optional<Value> metric_value(const std::optional<gateway::PointValue>& valu
 
 }  // namespace
 
-Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_executor& executor,
-                                                             const config::MqttSettings& settings,
-                                                             Log& log, EventBus& bus,
-                                                             WorkerThread& disk,
-                                                             std::uint64_t next_bdseq) {
+Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(
+    const asio::any_io_executor& executor, const config::MqttSettings& settings, Log& log,
+    EventBus& bus, WorkerThread& disk, std::optional<std::uint64_t> next_bdseq) {
     std::shared_ptr<SparkplugNode> node(new SparkplugNode(executor, settings, log, bus));
-    node->next_bdseq_ = next_bdseq % 256;
+    node->next_bdseq_ = next_bdseq.value_or(0) % 256;
     std::weak_ptr<SparkplugNode> weak = node;
     // Nothing larger than a command can be reaches the node, in MQTT 5 or 3.1.1 (MqttClient);
     // in MQTT 5 its DISCONNECT asks for the will too
@@ -88,6 +86,10 @@ Result<std::shared_ptr<SparkplugNode>> SparkplugNode::create(const asio::any_io_
         });
         if (!opened) return Unexpected(opened.error());
         node->store_ = std::move(*opened);
+        // A restart goes on from the last run's bdSeq: a late will of that run never carries
+        // the new session's (issue 49).
+        if (!next_bdseq)
+            if (const auto saved = node->store_->saved_bdseq()) node->next_bdseq_ = *saved;
     }
     return node;
 }
@@ -247,8 +249,14 @@ void SparkplugNode::publish_death() {
 }
 
 void SparkplugNode::connecting() {
-    bdseq_ = next_bdseq_;
-    next_bdseq_ = (next_bdseq_ + 1) % 256;
+    // A new bdSeq for each CONNECT that goes out; an attempt whose CONNECT never did (the name
+    // not resolved, the TCP connection refused, no TLS) spent none, as no broker saw its will.
+    if (bdseq_spent_) {
+        bdseq_ = next_bdseq_;
+        next_bdseq_ = (next_bdseq_ + 1) % 256;
+        if (store_) store_->save_bdseq(next_bdseq_);
+    }
+    bdseq_spent_ = true;
     const auto death = death_payload();
     const auto will = client_->set_will(
         sparkplug::topic(settings_.group_id, MessageType::ndeath, settings_.edge_node_id), death, 1,
@@ -318,6 +326,7 @@ void SparkplugNode::subscribe(const std::string& topic, std::string_view what) {
 }
 
 void SparkplugNode::disconnected() {
+    if (!client_->connect_sent()) bdseq_spent_ = false;
     ++session_;
     born_ = false;
     for (auto& device : devices_)

@@ -104,14 +104,13 @@ struct SparkplugStats {
 class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
   public:
     // `next_bdseq`: of the first CONNECT; a node that replaces another (a reload that changed
-    // the MQTT settings) goes on from the old one's, as bdSeq counts every CONNECT of the process.
+    // the MQTT settings) goes on from the old one's, as bdSeq counts every CONNECT sent. None: the
+    // process's first node, which goes on from what its store kept (0 without one).
     // Fails when the store's directory is refused (store.hpp). `disk`: the daemon's disk thread,
     // for the store.
-    static Result<std::shared_ptr<SparkplugNode>> create(const asio::any_io_executor& executor,
-                                                         const config::MqttSettings& settings,
-                                                         Log& log, EventBus& bus,
-                                                         WorkerThread& disk,
-                                                         std::uint64_t next_bdseq = 0);
+    static Result<std::shared_ptr<SparkplugNode>> create(
+        const asio::any_io_executor& executor, const config::MqttSettings& settings, Log& log,
+        EventBus& bus, WorkerThread& disk, std::optional<std::uint64_t> next_bdseq = {});
     ~SparkplugNode() = default;
     SparkplugNode(const SparkplugNode&) = delete;
     SparkplugNode& operator=(const SparkplugNode&) = delete;
@@ -222,6 +221,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     std::vector<LinkMetrics> links_published_;
     Links links_;
     std::uint64_t next_bdseq_ = 0;
+    bool bdseq_spent_ = true;  // the last CONNECT went out: the next takes a new bdSeq
     std::uint64_t bdseq_ = 0;
     std::uint64_t seq_ = 0;
     bool host_online_ = true;                 // always, without primary_host_id

@@ -37,7 +37,8 @@ class SparkplugOutput final : public Output {
     WorkerThread& disk_;
     std::optional<config::MqttSettings> settings_;
     std::shared_ptr<SparkplugNode> node_;  // null when the section is absent
-    std::uint64_t next_bdseq_ = 0;         // of the next node's first CONNECT
+    std::optional<std::uint64_t>
+        next_bdseq_;  // of the next node's first CONNECT; none: the store's
 };
 
 }  // namespace ioport::daemon

@@ -15,6 +15,8 @@ Result<std::shared_ptr<SparkplugStore>> SparkplugStore::open(const asio::any_io_
     auto directory = DiskDirectory::open(settings.path);
     if (!directory) return Unexpected(directory.error());
     std::shared_ptr<SparkplugStore> store(new SparkplugStore(loop, disk, settings, log));
+    // A few bytes, read on the loop as the directory was opened: the first CONNECT needs them.
+    store->saved_bdseq_ = ioport::daemon::saved_bdseq(**directory);
     store->scan(*std::move(directory), std::move(ready));
     store->start_syncing();
     return store;
@@ -190,6 +192,14 @@ void SparkplugStore::deliver(std::uint64_t through, std::uint64_t records) {
     on_disk([through](StoreFiles& files) { return files.deliver(through); },
             [](SparkplugStore& store, const Result<>& delivered) {
                 if (!delivered) store.failed("deliver", delivered.error());
+            });
+}
+
+void SparkplugStore::save_bdseq(std::uint64_t next) {
+    saved_bdseq_ = next;
+    on_disk([next](StoreFiles& files) { return files.save_bdseq(next); },
+            [](SparkplugStore& store, const Result<>& saved) {
+                if (!saved) store.failed("bdseq", saved.error());
             });
 }
 

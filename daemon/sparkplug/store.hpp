@@ -62,6 +62,10 @@ class SparkplugStore : public std::enable_shared_from_this<SparkplugStore> {
                     std::function<void(std::vector<StoredRecord>)> done);
     // The broker has every record through `through`.
     void deliver(std::uint64_t through, std::uint64_t records);
+    // The next bdSeq as the last run of the node left it in the directory, read at open().
+    std::optional<std::uint64_t> saved_bdseq() const { return saved_bdseq_; }
+    // Keeps `next` there for the next start (on the disk thread; a failure is logged).
+    void save_bdseq(std::uint64_t next);
 
     // The scan is done: what the files hold is known.
     bool ready() const { return ready_; }
@@ -99,6 +103,7 @@ class SparkplugStore : public std::enable_shared_from_this<SparkplugStore> {
     asio::steady_timer sync_timer_;
     LogLimiter errors_;
     StoreStats stats_;
+    std::optional<std::uint64_t> saved_bdseq_;
     bool ready_ = false;
     std::uint64_t delivered_ = 0;
     std::size_t queued_ = 0;          // bytes of appends the disk has not done yet

@@ -21,6 +21,8 @@ constexpr std::size_t name_digits = 20;
 constexpr std::string_view mark_name = "delivered";
 constexpr std::string_view mark_temporary = "delivered.tmp";
 constexpr std::size_t mark_bytes = 12;
+constexpr std::string_view bdseq_name = "bdseq";
+constexpr std::string_view bdseq_temporary = "bdseq.tmp";
 
 std::uint32_t crc32(std::span<const std::uint8_t> bytes) {
     boost::crc_32_type crc;
@@ -32,6 +34,18 @@ std::uint32_t crc32(std::span<const std::uint8_t> bytes) {
 
 std::string segment_name(std::uint64_t first) {
     return fmt::format("{:0{}}{}", first, name_digits, segment_suffix);
+}
+
+std::optional<std::uint64_t> saved_bdseq(StoreDirectory& dir) {
+    const auto bytes = dir.read(bdseq_name, 8);
+    if (!bytes) return std::nullopt;
+    const std::string_view text(reinterpret_cast<const char*>(bytes->data()), bytes->size());
+    std::uint64_t next = 0;
+    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), next);
+    if (ec != std::errc{} || end == text.data() || next > 255 ||
+        std::string_view(end, text.data() + text.size()) != "\n")
+        return std::nullopt;
+    return next;
 }
 
 std::optional<std::uint64_t> segment_number(std::string_view name) {
@@ -317,6 +331,19 @@ Result<> StoreFiles::write_mark() {
     dir_->close(*file);
     if (!written) return written;
     if (auto renamed = dir_->rename(mark_temporary, mark_name); !renamed) return renamed;
+    dir_dirty_ = true;
+    return {};
+}
+
+Result<> StoreFiles::save_bdseq(std::uint64_t next) {
+    const auto text = fmt::format("{}\n", next);
+    const auto file = dir_->open_append(bdseq_temporary, true);
+    if (!file) return Unexpected(file.error());
+    auto written = dir_->write(
+        *file, std::span(reinterpret_cast<const std::uint8_t*>(text.data()), text.size()));
+    dir_->close(*file);
+    if (!written) return written;
+    if (auto renamed = dir_->rename(bdseq_temporary, bdseq_name); !renamed) return renamed;
     dir_dirty_ = true;
     return {};
 }

@@ -64,6 +64,8 @@ std::uint64_t segment_bytes_for(std::uint64_t max_size);
 // higher than max_record_number: a name or a mark beyond it is not the store's.
 inline constexpr std::uint64_t max_record_number = std::uint64_t{1} << 62;
 std::string segment_name(std::uint64_t first);
+// The next bdSeq save_bdseq() kept in `dir`, if there is a valid one (0..255).
+std::optional<std::uint64_t> saved_bdseq(StoreDirectory& dir);
 std::optional<std::uint64_t> segment_number(std::string_view name);
 
 class StoreFiles {
@@ -93,6 +95,11 @@ class StoreFiles {
     // the mark moves (written by the next sync(): a crash before it forwards again what the
     // broker has, never loses what it has not).
     Result<> deliver(std::uint64_t through);
+
+    // Sparkplug's next bdSeq, kept beside the records so that a restart goes on from it
+    // (issue 49): written to a temporary name and renamed, not synced (a power cut may repeat
+    // one value, never lose the file).
+    Result<> save_bdseq(std::uint64_t next);
 
     StoreCounts counts() const;
     std::uint64_t delivered() const { return delivered_; }

@@ -87,6 +87,27 @@ TEST(StoreFiles, WhatWasAppendedIsThereAfterAReopen) {
     EXPECT_EQ(numbers_after(files, 0, 2), (std::vector<std::uint64_t>{1, 2}));
 }
 
+TEST(StoreFiles, TheNextBdSeqIsKeptBesideTheRecordsAndOnlyAValidOneIsRead) {
+    TempDir temp;
+    const auto dir = temp.path() / "store";
+    {
+        auto files = open_store(dir);
+        ASSERT_TRUE(files.save_bdseq(17));
+        ASSERT_TRUE(files.save_bdseq(18));  // replaced, never appended to
+    }
+    const auto read = [&] { return saved_bdseq(*DiskDirectory::open(dir).value()); };
+    EXPECT_EQ(read(), 18U);
+    EXPECT_FALSE(fs::exists(dir / "bdseq.tmp"));
+    for (const std::string bad : {"256\n", "18", "-1\n", "x\n", "", "18\n\n", "0018888\n"}) {
+        std::ofstream(dir / "bdseq", std::ios::trunc) << bad;
+        EXPECT_EQ(read(), std::nullopt) << bad;
+    }
+    fs::remove(dir / "bdseq");
+    EXPECT_EQ(read(), std::nullopt);
+    auto files = open_store(dir);  // the file is no segment: the store opens as ever
+    EXPECT_EQ(files.recovery().segments, 0U);
+}
+
 TEST(StoreFiles, ATornTailIsCutAndAppendingResumesThere) {
     TempDir temp;
     const auto dir = temp.path() / "store";

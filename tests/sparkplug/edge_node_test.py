@@ -1248,6 +1248,25 @@ class StoreAndForward(OwnDaemon):
         eventually(lambda: self.written_history(mark) == self.WORDS[:2], 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
 
+    def test_bdseq_goes_on_across_a_restart_and_refused_connects_spend_none(self):
+        # Before (issue 49): every process began at bdSeq 0, so a late will of the last run could
+        # carry the new session's; and every refused TCP connect spent one (0 -> 3 after a 3 s
+        # outage), though no broker saw its CONNECT. The next bdSeq is kept beside the store.
+        first = self.start().metric("bdSeq").value
+        self.rig.stop_daemon(signal.SIGTERM)
+        self.broker.stop()
+        self.rig.start_daemon()
+        self.rig.wait_log(r"mqtt: cannot connect to \S+: Connection refused; reconnecting "
+                          r"within 1 s")
+        # The broker away for 3.5 s: with 1 s then 2 s between attempts, three refused connects.
+        time.sleep(3.5)
+        mark = self.host.mark()
+        self.broker_back()
+        nbirth = self.wait_births(mark)
+        self.assertEqual(nbirth.metric("bdSeq").value, (first + 1) % 256)
+        with open(os.path.join(self.store, "bdseq")) as f:
+            self.assertEqual(f.read(), f"{(first + 2) % 256}\n")
+
     def test_kill_9_in_the_outage_loses_nothing_written(self):
         self.start()
         self.broker_away()
