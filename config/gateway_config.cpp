@@ -150,6 +150,12 @@ std::string to_string(const BrokerAddress& broker) {
                        host_port(broker.host, broker.port));
 }
 
+bool BrokerAddress::ip_literal() const {
+    boost::system::error_code ec;
+    ip::make_address(host, ec);
+    return !ec;
+}
+
 std::string_view to_string(MqttProtocol protocol) {
     switch (protocol) {
         case MqttProtocol::automatic:

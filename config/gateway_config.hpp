@@ -149,6 +149,8 @@ struct BrokerAddress {
     bool tls = false;  // mqtts://
     std::string host;  // an IP literal (IPv6 without brackets) or a host name
     std::uint16_t port = 1883;
+    // An IP address, not a name: nothing to resolve, and TLS checks it as an address.
+    bool ip_literal() const;
     friend bool operator==(const BrokerAddress&, const BrokerAddress&) = default;
 };
 // "mqtts://host:port", "mqtt://[::1]:1883": as the configuration could have written it.

@@ -12,12 +12,6 @@ constexpr std::size_t read_bytes = 16 << 10;
 // How long the broker has to close its end after libmosquitto closed its own.
 constexpr std::chrono::seconds closing_grace{5};
 
-bool is_ip_literal(const std::string& host) {
-    boost::system::error_code ec;
-    asio::ip::make_address(host, ec);
-    return !ec;
-}
-
 }  // namespace
 
 Result<std::shared_ptr<asio::ssl::context>> broker_tls_context(const std::string& ca_file) {
@@ -136,7 +130,7 @@ void BrokerRelay::handshake() {
     SSL* ssl = broker_.native_handle();
     const auto& host = settings_.broker.host;
     X509_VERIFY_PARAM* check = SSL_get0_param(ssl);
-    if (is_ip_literal(host)) {
+    if (settings_.broker.ip_literal()) {
         X509_VERIFY_PARAM_set1_ip_asc(check, host.c_str());
     } else {
         SSL_set_tlsext_host_name(ssl, host.c_str());
@@ -193,11 +187,9 @@ void BrokerRelay::upstream() {
                 }
                 self->upstream();
             };
-            if (self->settings_.broker.tls)
-                asio::async_write(self->broker_, asio::buffer(self->up_.data(), n), written);
-            else
-                asio::async_write(self->broker_.next_layer(), asio::buffer(self->up_.data(), n),
-                                  written);
+            self->on_broker([&](auto& stream) {
+                asio::async_write(stream, asio::buffer(self->up_.data(), n), written);
+            });
         });
 }
 
@@ -234,10 +226,7 @@ void BrokerRelay::downstream() {
                               self->downstream();
                           });
     };
-    if (settings_.broker.tls)
-        broker_.async_read_some(asio::buffer(down_), std::move(read));
-    else
-        broker_.next_layer().async_read_some(asio::buffer(down_), std::move(read));
+    on_broker([&](auto& stream) { stream.async_read_some(asio::buffer(down_), std::move(read)); });
 }
 
 // libmosquitto closed its end, after its DISCONNECT where it sent one. The broker gets a FIN

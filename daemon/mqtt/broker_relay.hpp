@@ -70,6 +70,14 @@ class BrokerRelay : public std::enable_shared_from_this<BrokerRelay> {
     void upstream();
     void downstream();
     void end(std::string why);
+    // `operation` on the broker's stream: the TLS one, or the TCP socket beneath it.
+    template <class Operation>
+    void on_broker(Operation&& operation) {
+        if (settings_.broker.tls)
+            operation(broker_);
+        else
+            operation(broker_.next_layer());
+    }
     void local_ended();
     std::string not_yet() const;  // what the connection to the broker still waits for
 

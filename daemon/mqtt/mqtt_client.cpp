@@ -165,9 +165,7 @@ void MqttClient::resolve_then_connect() {
     connack_ = false;
     written_ = false;
     const auto& broker = current();
-    boost::system::error_code ec;
-    asio::ip::make_address(broker.host, ec);
-    if (!ec || !mqtt5()) {  // MQTT 3.1.1: the relay resolves the name, with Asio
+    if (broker.ip_literal() || !mqtt5()) {  // MQTT 3.1.1: the relay resolves the name, with Asio
         connect();
         return;
     }
