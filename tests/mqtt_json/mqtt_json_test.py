@@ -830,25 +830,24 @@ class FromOutside(unittest.TestCase):
         self.rig.configure(HUB)
         self.rig.start_daemon()
 
-    def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
-        old = Mqtt311Broker()
+    def falls_back_to_3_1_1(self, old, how):
+        """The daemon on `old`, which does not take MQTT 5: it says `how` (a pattern) the broker
+        answered, then speaks 3.1.1 with it."""
         self.start_daemon_on(old)
-        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} refused MQTT 5, so MQTT "
-                          r"3\.1\.1 with it from now on; a message larger than 65536 bytes is "
-                          r"read in passing and refused", 10)
+        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} {how}, so MQTT 3\.1\.1 "
+                          r"with it from now on; a message larger than 65536 bytes is read in "
+                          r"passing and refused", 10)
         self.rig.wait_log(r"mqtt_json: connected to \S+ as \S+ \(MQTT 3\.1\.1\)", 10)
         self.assertEqual(old.levels[:2], [5, 4])
+
+    def test_a_broker_without_mqtt5_is_spoken_to_in_3_1_1(self):
+        self.falls_back_to_3_1_1(Mqtt311Broker(), "refused MQTT 5")
 
     def test_a_broker_that_closes_on_mqtt5_is_spoken_to_in_3_1_1(self):
         # RabbitMQ 3.10 closes the connection on an MQTT 5 CONNECT, without a CONNACK. Before,
         # the daemon tried 5 again and again and never connected (issue 49).
-        old = Mqtt311Broker(silent=True)
-        self.start_daemon_on(old)
-        self.rig.wait_log(rf"mqtt_json: mqtt://127\.0\.0\.1:{old.port} closed the connection "
-                          r"after an MQTT 5 CONNECT, without a CONNACK, so MQTT 3\.1\.1 with it "
-                          r"from now on", 10)
-        self.rig.wait_log(r"mqtt_json: connected to \S+ as \S+ \(MQTT 3\.1\.1\)", 10)
-        self.assertEqual(old.levels[:2], [5, 4])
+        self.falls_back_to_3_1_1(Mqtt311Broker(silent=True), "closed the connection after an MQTT "
+                                 "5 CONNECT, without a CONNACK")
 
     def test_protocol_5_keeps_to_5(self):
         old = Mqtt311Broker()
