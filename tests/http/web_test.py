@@ -485,8 +485,9 @@ class PrometheusWithPasswords(WebRig):
         bad = Prometheus(PROMETHEUS, os.path.join(self.dir, "bad"), self.port, scrape=(
             "    basic_auth: { username: bob, password: wrong }\n"))
         self.addCleanup(bad.stop)
-        eventually(lambda: "401" in bad.scrape_errors(), 30, bad.scrape_errors)
-        self.assertTrue(bad.query('up{job="ioportd"} == 0'))
+        # Prometheus shows a scrape's error before it commits that scrape's `up`: wait for both.
+        eventually(lambda: bad.query('up{job="ioportd"} == 0'), 30, bad.scrape_errors)
+        self.assertIn("401", bad.scrape_errors())
 
 
 if __name__ == "__main__":
