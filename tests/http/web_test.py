@@ -218,6 +218,31 @@ class Writes(WebRig):
         reply = self.write("out4", "ON", headers={"Origin": f"http://127.0.0.1:{self.port}"})
         self.assertEqual(reply.status, 200, reply.body)
 
+    def test_a_client_that_expects_100_continue_is_told_to_go_on_then_answered(self):
+        body = json.dumps({"link": "hub0", "module": "dom16_0", "point": "out5", "value": "ON"})
+        head = (f"POST /api/v1/write HTTP/1.1\r\nHost: 127.0.0.1:{self.port}\r\n"
+                f"Authorization: {basic('alice', 'alice-pw')}\r\n"
+                f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n"
+                "Expect: 100-continue\r\nConnection: close\r\n\r\n")
+
+        def answer(s):
+            received = b""
+            while b"\r\n\r\n" not in received:
+                chunk = s.recv(4096)
+                self.assertTrue(chunk, received)
+                received += chunk
+            return received
+        with socket.create_connection(("127.0.0.1", self.port), timeout=10) as s:
+            s.sendall(head.encode())
+            self.assertEqual(answer(s), b"HTTP/1.1 100 Continue\r\n\r\n")
+            s.sendall(body.encode())
+            received = answer(s)
+            while chunk := s.recv(4096):
+                received += chunk
+        self.assertTrue(received.startswith(b"HTTP/1.1 200 OK\r\n"), received)
+        self.assertTrue(received.endswith(b'\r\n\r\n{"result":"confirmed"}\n'), received)
+        self.assertTrue(self.outputs() & 0x0020)
+
     def refused(self, reply, status, result, error=""):
         self.assertEqual(reply.status, status, reply.body)
         answer = reply.json()
