@@ -33,6 +33,7 @@
 #include "bench/workload.hpp"
 #include "config/duration.hpp"
 #include "sim/control_client.hpp"
+#include "tests/support/beside_program.hpp"
 
 extern char** environ;
 

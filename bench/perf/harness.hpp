@@ -23,6 +23,7 @@
 #include "protocol/ioport.hpp"
 #include "sim/model.hpp"
 #include "sim/simulator.hpp"
+#include "tests/support/beside_program.hpp"
 
 namespace ioport::bench {
 

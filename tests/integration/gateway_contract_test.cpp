@@ -23,6 +23,7 @@
 
 #include <fmt/format.h>
 
+#include "tests/support/beside_program.hpp"
 #include "tests/support/gateway.hpp"
 #include "tests/support/process.hpp"
 #include "tests/support/raw_client.hpp"

@@ -24,6 +24,7 @@
 
 #include <fmt/format.h>
 
+#include "tests/support/beside_program.hpp"
 #include "tests/support/gateway.hpp"
 #include "tests/support/http_client.hpp"
 #include "tests/support/process.hpp"

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "tests/support/beside_program.hpp"
 #include "tests/support/process.hpp"
 #include "tests/support/timing.hpp"
 

@@ -21,6 +21,7 @@
 #include <fmt/format.h>
 #include <openssl/ssl.h>
 
+#include "tests/support/beside_program.hpp"
 #include "tests/support/datagram_socket.hpp"
 #include "tests/support/gateway.hpp"
 #include "tests/support/process.hpp"

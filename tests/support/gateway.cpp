@@ -13,6 +13,7 @@
 #include <sstream>
 #include <thread>
 
+#include "tests/support/beside_program.hpp"
 #include "tests/support/timing.hpp"
 
 namespace ioport::test {

@@ -1,4 +1,5 @@
 #include "tests/support/process.hpp"
+#include "tests/support/beside_program.hpp"
 
 #include <fcntl.h>
 #include <poll.h>

@@ -14,6 +14,7 @@
 
 #include "config/check_text.hpp"
 #include "config/gateway_config.hpp"
+#include "tests/support/beside_program.hpp"
 #include "tests/unit/tls_fixtures.hpp"
 
 namespace ioport::config {
