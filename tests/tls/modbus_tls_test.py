@@ -30,7 +30,7 @@ IOPORTD, IOPORT_SIM = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 
 from certificates import Certificates  # noqa: E402
-from rig import SLOWDOWN, Rig, eventually  # noqa: E402
+from rig import Rig, eventually  # noqa: E402
 from pymodbus.client import AsyncModbusTlsClient  # noqa: E402
 from pymodbus.framer.socket_framer import ModbusSocketFramer  # noqa: E402
 
@@ -159,6 +159,23 @@ def silent(port, source):
         return None
 
 
+def modules(rig):
+    """The state API's modules of every link, by id ("dim16 0", "ID-2")."""
+    return {m["module"]: m for link in rig.state()["links"] for m in link["modules"]}
+
+
+def wait_online(rig, condition=None, deadline=10):
+    """Until every module of every link is online by the state API (and `condition(modules)`
+    holds): the precondition of a read that must be served. Units 1 and 2 answer reads from the
+    image, 0B for a module not polled yet since the start, or offline since a transaction failed
+    (under load a timeout) until its next poll succeeds."""
+    def ready():
+        found = modules(rig)
+        return all(m["status_text"] == "online" for m in found.values()) and \
+            (condition is None or condition(found))
+    eventually(ready, deadline, lambda: f"every module online: {modules(rig)}")
+
+
 WRITES = [struct.pack(">BHH", 0x05, 0, 0xFF00), struct.pack(">BHH", 0x06, 0, 0x0001),
           struct.pack(">BHHBB", 0x0F, 0, 1, 1, 1), struct.pack(">BHHBH", 0x10, 0, 1, 2, 1),
           struct.pack(">BHHHHBH", 0x17, 0, 1, 0, 1, 2, 1)]
@@ -227,6 +244,8 @@ class ModbusTls(unittest.TestCase):
 
     def test_pymodbus_with_the_operator_certificate_reads_and_writes(self):
         self.rig.ctl("set dim16:0 0x0005")
+        # The set reaches the image with dim16 0's next poll: awaited before the read.
+        wait_online(self.rig, lambda found: found["dim16 0"]["word"] == 0x0005)
         context = self.certs.context("operator")
 
         async def session():
@@ -236,15 +255,7 @@ class ModbusTls(unittest.TestCase):
             await client.connect()
             self.assertTrue(client.connected)
             try:
-                # The set above reaches the image with dim16 0's next poll: on a loaded machine
-                # not before the first read.
-                deadline = time.monotonic() + 5 * SLOWDOWN
-                while True:
-                    inputs = await client.read_discrete_inputs(0, 16, slave=1)
-                    if inputs.isError() or inputs.bits[:4] == [True, False, True, False] or \
-                            time.monotonic() > deadline:
-                        break
-                    await asyncio.sleep(0.05)
+                inputs = await client.read_discrete_inputs(0, 16, slave=1)
                 written = await client.write_register(0, 0x0102, slave=1)
                 coils = await client.read_coils(0, 16, slave=1)
                 return inputs, written, coils
@@ -263,6 +274,7 @@ class ModbusTls(unittest.TestCase):
     def test_the_viewer_reads_and_gets_01_on_every_write(self):
         client = self.client("viewer")
         try:
+            wait_online(self.rig)
             for function in (0x01, 0x02, 0x03, 0x04):
                 self.assertIsNone(client.exception(1, read_pdu(function, 0, 1)), function)
             self.assertIsNone(client.exception(2, read_pdu(0x02, 0, 1)))
@@ -299,6 +311,7 @@ class ModbusTls(unittest.TestCase):
     def test_a_unit_outside_the_role_gets_01(self):
         client = self.client("line2")
         try:
+            wait_online(self.rig)
             self.assertIsNone(client.exception(2, read_pdu(0x02, 0, 1)))
             self.assertIsNone(client.exception(2, struct.pack(">BHH", 0x05, 0, 0x0000)))
             self.assertEqual(client.exception(1, read_pdu(0x03, 0, 1)), ILLEGAL_FUNCTION)
@@ -326,6 +339,7 @@ class ModbusTls(unittest.TestCase):
             started = time.monotonic()
             what = refused(self.tls_port, context, payload)
             self.assertLess(time.monotonic() - started, 2, what)
+            wait_online(self.rig)
             self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
             if log:
                 # Logged once a minute per address and reason: maybe by an earlier test already.
@@ -413,6 +427,7 @@ class ModbusTls(unittest.TestCase):
                 self.assertTrue(again.session_reused, version)
                 client = TlsClient.__new__(TlsClient)
                 client.socket, client.transaction = again, 0
+                wait_online(self.rig)
                 self.assertIsNone(client.exception(1, read_pdu(0x03, 0, 1)))
                 self.assertEqual(client.exception(1, WRITES[1]), ILLEGAL_FUNCTION)
             finally:
@@ -451,6 +466,7 @@ class ModbusTls(unittest.TestCase):
             sender.join()
             raw.close()
             for _ in range(20):
+                wait_online(self.rig)
                 t = time.monotonic()
                 self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
                 worst = max(worst, time.monotonic() - t)
@@ -494,6 +510,7 @@ class ModbusTls(unittest.TestCase):
             worst, answered, answered_last, closed_after = 0.0, -1, time.monotonic(), None
             deadline = time.monotonic() + 90
             while time.monotonic() < deadline:
+                wait_online(self.rig)
                 t = time.monotonic()
                 self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
                 worst = max(worst, time.monotonic() - t)
@@ -542,6 +559,7 @@ class ModbusTls(unittest.TestCase):
         try:
             while attacker.is_alive():
                 into = time.monotonic() - started
+                wait_online(self.rig)
                 t = time.monotonic()
                 try:
                     response = plain_request(self.port, 1, read_pdu(0x02, 0, 16))
@@ -550,6 +568,7 @@ class ModbusTls(unittest.TestCase):
                               f"{error!r}")
                 self.assertLess(response[0], 0x80, response.hex())
                 worst_plain = max(worst_plain, time.monotonic() - t)
+                wait_online(self.rig)
                 t = time.monotonic()
                 try:
                     operator = self.client("operator")
@@ -599,6 +618,7 @@ class ModbusTls(unittest.TestCase):
                        lambda: f"16 handshakes held: {self.rig.state()['modbus']}")
             self.rig.wait_log(r"refused Modbus client 127\.0\.1\.\d: tls\.max_handshakes \(16\) "
                               r"TLS handshakes in progress")
+            wait_online(self.rig)
             self.assertLess(plain_request(self.port, 1, read_pdu(0x02, 0, 16))[0], 0x80)
             self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
         finally:
@@ -606,6 +626,7 @@ class ModbusTls(unittest.TestCase):
                 s.close()
         eventually(lambda: self.rig.state()["modbus"]["handshakes"] == 0, 5, "the handshakes gone")
         fresh = self.client("viewer")
+        wait_online(self.rig)
         self.assertIsNone(fresh.exception(1, read_pdu(0x02, 0, 1)))
         fresh.close()
         keeper.close()
@@ -628,6 +649,7 @@ class ModbusTls(unittest.TestCase):
                 half_open.append(s)
             worst = 0.0
             for _ in range(50):
+                wait_online(self.rig)
                 t = time.monotonic()
                 self.assertIsNone(keeper.exception(1, read_pdu(0x02, 0, 16)))
                 worst = max(worst, time.monotonic() - t)
@@ -639,6 +661,7 @@ class ModbusTls(unittest.TestCase):
             # Another address is served at once; this one once the 4 handshake deadlines passed.
             other = TlsClient(self.tls_port, self.certs.context("viewer"), source="127.0.0.3")
             try:
+                wait_online(self.rig)
                 self.assertIsNone(other.exception(1, read_pdu(0x02, 0, 1)))
             finally:
                 other.close()
@@ -693,6 +716,7 @@ class Reload(unittest.TestCase):
         self.rig.start_daemon()
         self.port = self.rig.listening_port("Modbus TCP")
         self.tls_port = self.rig.listening_port("Modbus/TCP Security (TLS)")
+        wait_online(self.rig)  # the reads below answer from the image: 0B until polled
 
     def tearDown(self):
         shutil.rmtree(self.dir, ignore_errors=True)
@@ -706,6 +730,7 @@ class Reload(unittest.TestCase):
         log = self.rig.reload(config(self.rig, self.certs, tls_extra="    default_role: viewer\n"))
         self.assertIn("SIGHUP: reloaded", log)
         after = self.client("norole")
+        wait_online(self.rig)
         self.assertIsNone(after.exception(1, read_pdu(0x03, 0, 1)))
         self.assertEqual(after.exception(1, WRITES[0]), ILLEGAL_FUNCTION)
         self.assertEqual(before.exception(1, read_pdu(0x03, 0, 1)), ILLEGAL_FUNCTION)
@@ -724,6 +749,7 @@ class Reload(unittest.TestCase):
         self.assertIn(("commonName", "gateway1-renewed"),
                       [rdn[0] for rdn in fresh.socket.getpeercert()["subject"]])
         fresh.close()
+        wait_online(self.rig)
         self.assertIsNone(open_client.exception(1, read_pdu(0x02, 0, 1)))
         # A key that is not the certificate's: the reload is refused, nothing changes.
         shutil.copy(certs.path("operator.key"), certs.path("mismatch.key"))
@@ -731,6 +757,7 @@ class Reload(unittest.TestCase):
         log = self.rig.reload(config(self.rig, certs, server="mismatch"))
         self.assertIn("is not the key of the certificate", log)
         self.assertIn("the running configuration is kept", log)
+        wait_online(self.rig)
         self.assertIsNone(open_client.exception(1, read_pdu(0x02, 0, 1)))
         open_client.close()
 
@@ -748,6 +775,7 @@ class Reload(unittest.TestCase):
         refused_plain.close()
         self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: max_connections \(2\) reached",
                           5, mark)
+        wait_online(self.rig)
         self.assertIsNone(tls.exception(1, read_pdu(0x02, 0, 1)))
         plain.close()
         tls.close()
@@ -761,6 +789,7 @@ class Reload(unittest.TestCase):
         with self.assertRaises(ConnectionRefusedError):
             socket.create_connection(("127.0.0.1", self.port), timeout=5)
         client = self.client("operator")
+        wait_online(self.rig)
         self.assertIsNone(client.exception(1, read_pdu(0x02, 0, 1)))
         client.close()
 
@@ -775,6 +804,7 @@ class Reload(unittest.TestCase):
         with self.assertRaises(ConnectionRefusedError):
             socket.create_connection(("127.0.0.1", self.port), timeout=5)
         client = self.client("operator")
+        wait_online(self.rig)
         self.assertIsNone(client.exception(1, read_pdu(0x02, 0, 1)))
         client.close()
         state = self.rig.state()
@@ -800,23 +830,31 @@ class CommLoss(unittest.TestCase):
         self.rig.start_daemon()
         self.tls_port = self.rig.listening_port("Modbus/TCP Security (TLS)")
 
-    def ask_for(self, name, seconds, expected):
-        """Reads by `name` every 20 ms for `seconds`: the time the loss was logged, or None."""
-        client = TlsClient(self.tls_port, self.certs.context(name))
-        self.addCleanup(client.close)
-        mark = self.rig.log_mark()
+    def ask_for(self, client, seconds, expected, mark):
+        """Reads by `client` every 20 ms for `seconds`: the time the loss was logged (after the
+        log position `mark`), or None; and the log position of the last look, which a next
+        client's reads go on from."""
         start = time.monotonic()
         while time.monotonic() - start < seconds:
             self.assertEqual(client.exception(1, read_pdu(0x04, 1000, 1)), expected)
-            if "no Modbus request from any client" in self.rig.log_text()[mark:]:
-                return time.monotonic() - start
+            text = self.rig.log_text()
+            if "no Modbus request from any client" in text[mark:]:
+                return time.monotonic() - start, len(text)
+            mark = len(text)
             time.sleep(0.02)  # the pace of a polling client
-        return None
+        return None, mark
 
     def test_requests_refused_for_lack_of_rights_do_not_hold_off_the_safe_state(self):
+        # Both clients' handshakes first, outside the measurement: under load one can take
+        # longer than the timeout, and the norole client's reads must follow the viewer's last.
+        viewer = TlsClient(self.tls_port, self.certs.context("viewer"))
+        self.addCleanup(viewer.close)
+        norole = TlsClient(self.tls_port, self.certs.context("norole"))
+        self.addCleanup(norole.close)
         # The viewer first: served, its reads keep the loss away for longer than the timeout.
-        self.assertIsNone(self.ask_for("viewer", 2.5, None), "a viewer's reads did not count")
-        declared = self.ask_for("norole", 6, ILLEGAL_FUNCTION)
+        declared, mark = self.ask_for(viewer, 2.5, None, self.rig.log_mark())
+        self.assertIsNone(declared, "a viewer's reads did not count")
+        declared, _ = self.ask_for(norole, 6, ILLEGAL_FUNCTION, mark)
         self.assertIsNotNone(declared, "requests answered 01 held off the safe state for 6 s")
         self.assertLess(declared, 1.5 + 1.5)
 
@@ -840,8 +878,7 @@ class Revocation(unittest.TestCase):
         self.rig.write_config(self.config())
         self.rig.start_daemon()
         self.tls_port = self.rig.listening_port("Modbus/TCP Security (TLS)")
-        # The reads below answer from the image: 0x0B until the input module was polled once.
-        self.rig.wait_log(r"link hub0: dim16 0 online", 10)
+        wait_online(self.rig)  # the reads below answer from the image: 0B until polled
 
     def config(self):
         return config(self.rig, self.certs, plain="",
@@ -860,6 +897,7 @@ class Revocation(unittest.TestCase):
 
     def test_a_revoked_certificate_is_refused_at_the_handshake(self):
         before = self.client("leaked")
+        wait_online(self.rig)
         self.assertIsNone(before.exception(1, read_pdu(0x02, 0, 1)))
         before.close()
         self.revoke("leaked")
@@ -867,6 +905,7 @@ class Revocation(unittest.TestCase):
         self.rig.wait_log(r"refused Modbus client 127\.0\.0\.1: TLS handshake failed: "
                           r"certificate verify failed.*: certificate revoked")
         operator = self.client("operator")
+        wait_online(self.rig)
         self.assertIsNone(operator.exception(1, read_pdu(0x02, 0, 1)))
         operator.close()
         print(f"\n  a revoked certificate: {what}", file=sys.stderr)
@@ -879,6 +918,7 @@ class Revocation(unittest.TestCase):
                               (ssl.TLSVersion.TLSv1_3, "resumer13")):
             context = self.certs.context(name, maximum_version=version)
             first = TlsClient(self.tls_port, context)
+            wait_online(self.rig)
             self.assertIsNone(first.exception(1, read_pdu(0x03, 0, 1)))  # 1.3: the ticket
             session = first.socket.session
             first.close()
@@ -914,6 +954,7 @@ class Revocation(unittest.TestCase):
 
     def test_a_sighup_that_revokes_a_certificate_closes_its_connections(self):
         victim, bystander = self.client("victim"), self.client("operator")
+        wait_online(self.rig)
         self.assertIsNone(victim.exception(1, read_pdu(0x02, 0, 1)))
         self.assertIsNone(bystander.exception(1, read_pdu(0x02, 0, 1)))
         log = self.revoke("victim")
@@ -922,6 +963,7 @@ class Revocation(unittest.TestCase):
                               r"revoked by the reloaded modbus\.tls\.client_crl")
         with self.assertRaises((ssl.SSLError, ConnectionError)):
             victim.request(1, read_pdu(0x02, 0, 1))
+        wait_online(self.rig)
         self.assertIsNone(bystander.exception(1, read_pdu(0x02, 0, 1)))
         victim.close()
         bystander.close()
@@ -934,6 +976,7 @@ class Revocation(unittest.TestCase):
         self.assertRegex(log, r"ioportd\.yaml:\d+: modbus\.tls\.client_crl: .*crl\.pem has no "
                               r"PEM CRL")
         self.assertIn("the running configuration is kept", log)
+        wait_online(self.rig)
         self.assertIsNone(operator.exception(1, read_pdu(0x02, 0, 1)))
         operator.close()
 
