@@ -8,17 +8,15 @@
                                       # bridge/request/health_check, and the answer that echoes
                                       # it comes out on ANSWER (`bridge`: <prefix>/bridge)
 """
-import filecmp
 import json
 import os
-import shutil
 import subprocess
 import sys
-import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "support"))
 
+import npm  # noqa: E402
 from rig import die_with_parent, eventually, free_port  # noqa: E402
 
 # The test's side of the health check flow: a transaction to ask with, the answer Node-RED
@@ -28,22 +26,8 @@ ANSWER = "test/node-red/answer"
 
 
 def install(directory):
-    lock = os.path.join(HERE, "node-red", "package-lock.json")
-    installed = os.path.join(directory, "package-lock.json")
-    red = os.path.join(directory, "node_modules", "node-red", "red.js")
-    if os.path.exists(red) and os.path.exists(installed) and filecmp.cmp(lock, installed, False):
-        return
-    os.makedirs(directory, exist_ok=True)
-    for name in ("package.json", "package-lock.json"):
-        shutil.copy(os.path.join(HERE, "node-red", name), directory)
-    started = time.monotonic()
-    done = subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--omit=dev", "--prefix",
-                           directory], capture_output=True, text=True, timeout=600)
-    if done.returncode != 0:
-        sys.exit(f"node_red.py: npm ci of Node-RED into {directory} failed "
-                 f"(exit {done.returncode}); the npm registry must be reachable:\n{done.stderr}")
-    print(f"node_red.py: Node-RED installed into {directory} in "
-          f"{time.monotonic() - started:.0f} s")
+    npm.install(os.path.join(HERE, "node-red"), directory,
+                os.path.join("node_modules", "node-red", "red.js"))
 
 
 def flow(broker_port, state_topic, set_topic, bridge):
