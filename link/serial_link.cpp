@@ -427,6 +427,11 @@ asio::awaitable<Result<>> SerialLink::wait_for_silence() {
                 needs_silence_ = false;
                 co_return Result<>{};
             }
+            // Not silent: a timeout more. These bytes came before the timer ran, which may be
+            // long after its deadline when the loop is short of the CPU: they say nothing of how
+            // long the line has chattered, so only bytes read as they came make it noisy.
+            last_activity_ = Clock::now();
+            continue;
         }
         last_activity_ = Clock::now();
         if (last_activity_ >= deadline) {
