@@ -11,8 +11,6 @@
 
 #include <fmt/format.h>
 
-#include "link/tty_read.hpp"
-
 namespace ioport {
 namespace {
 
@@ -268,16 +266,23 @@ Error SerialLink::port_error(const boost::system::error_code& ec, std::string_vi
 
 // The timer's handler only marks the deadline passed; whether anything came before it is judged
 // here, by what the tty holds. A process short of the CPU can meet the expired timer and the input
-// that came in time in one turn of its loop, the timer first: the bytes then wait in the tty,
-// unread. They are input like any other, and the timeout stands only when there are none. Bytes
-// still in the kernel's flip buffer are not waited for (link/tty_read.hpp): the line is judged as
-// the kernel has handed it over.
+// that came in time in one turn of its loop, the timer first: the bytes then wait in the tty's
+// read queue, unread. They are input like any other (read into read_buffer_, at most a buffer),
+// and the timeout stands only when there are none. The queue is asked first (FIONREAD): a read
+// of an empty tty waits for the kernel worker that hands the driver's input to the tty (its
+// flip buffer), which a machine short of the CPU runs late, by seconds beside busy loops; the
+// loop must never wait on it. Bytes still in the flip buffer are not seen: the line is judged
+// as the kernel has handed it over.
 Result<std::size_t> SerialLink::read_pending(std::string_view during) {
     if (!is_open()) return std::size_t{0};  // closed meanwhile: the timeout stands
-    boost::system::error_code ec;
-    const auto n = read_queued(port_.native_handle(), asio::buffer(read_buffer_), ec);
-    if (ec) return Unexpected(port_error(ec, during));
-    return n;
+    int queued = 0;
+    if (::ioctl(port_.native_handle(), FIONREAD, &queued) != 0 || queued <= 0)
+        return std::size_t{0};
+    const auto n = ::read(port_.native_handle(), read_buffer_.data(), read_buffer_.size());
+    if (n > 0) return static_cast<std::size_t>(n);
+    if (n == 0) return Unexpected(port_error(asio::error::eof, during));
+    if (errno == EAGAIN || errno == EINTR) return std::size_t{0};
+    return Unexpected(port_error({errno, boost::system::system_category()}, during));
 }
 
 // The coroutine owns the exchange, so callers may pass a temporary.
@@ -347,7 +352,8 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
         std::size_t n = 0;
         // The timer may have fired while the previous read was already complete.
         if (!timed_out_) {
-            n = co_await read_tty(port_, asio::buffer(read_buffer_), ec);
+            n = co_await port_.async_read_some(asio::buffer(read_buffer_),
+                                               redirect_error(use_awaitable, ec));
             if (ec && !timed_out_) {
                 disarm_timeout();
                 failed = port_error(ec, "reading");
@@ -416,7 +422,8 @@ asio::awaitable<Result<>> SerialLink::wait_for_silence() {
     for (;;) {
         arm_timeout(settings_.timeout);
         boost::system::error_code ec;
-        co_await read_tty(port_, asio::buffer(read_buffer_), ec);
+        co_await port_.async_read_some(asio::buffer(read_buffer_),
+                                       redirect_error(use_awaitable, ec));
         if (ec) {
             disarm_timeout();
             if (!timed_out_) co_return Unexpected(port_error(ec, "waiting for silence"));

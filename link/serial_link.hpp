@@ -110,9 +110,7 @@ class SerialLink {
     Error port_error(const boost::system::error_code& ec, std::string_view during);
 
     LinkSettings settings_;
-    // A descriptor, not an asio::serial_port: it can wait for readiness without reading
-    // (link/tty_read.hpp); open() configures the tty with termios.
-    asio::posix::stream_descriptor port_;
+    asio::serial_port port_;
     // The timeout of the current attempt is `deadline_` (max: none). The timer is not re-armed
     // for every attempt: it is armed when none is pending, and when it fires before the
     // deadline (which has moved on with later attempts) it waits again.

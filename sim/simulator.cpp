@@ -12,7 +12,6 @@
 
 #include <fmt/format.h>
 
-#include "link/tty_read.hpp"
 #include "sim/control.hpp"
 
 namespace ioport::sim {
@@ -139,9 +138,8 @@ asio::awaitable<void> Simulator::read_requests(std::uint64_t generation) {
     std::array<char, 256> buffer{};
     while (generation == plug_generation_) {
         boost::system::error_code ec;
-        // Not async_read_some: its first read, of an empty pty, waits for the kernel's worker
-        // (link/tty_read.hpp), and the control socket's commands with it.
-        const auto n = co_await read_tty(master_, asio::buffer(buffer), ec);
+        const auto n = co_await master_.async_read_some(asio::buffer(buffer),
+                                                        redirect_error(use_awaitable, ec));
         if (generation != plug_generation_) co_return;
         if (ec == asio::error::eof || ec.value() == EIO) {
             // No master has the pty open (only if our own slave fd was lost): poll for one.

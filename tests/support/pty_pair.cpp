@@ -11,8 +11,6 @@
 #include <array>
 #include <thread>
 
-#include "link/tty_read.hpp"
-
 namespace ioport::test {
 
 PtyDevice::PtyDevice(asio::io_context& io, char terminator)
@@ -71,9 +69,8 @@ asio::awaitable<void> PtyDevice::read_requests() {
     std::string line;
     for (;;) {
         boost::system::error_code ec;
-        // Not async_read_some: its first read, of an empty pty, waits for the kernel's worker
-        // (link/tty_read.hpp), and the link under test, on the same loop, with it.
-        const auto n = co_await read_tty(master_, asio::buffer(buffer), ec);
+        const auto n = co_await master_.async_read_some(
+            asio::buffer(buffer), asio::redirect_error(asio::use_awaitable, ec));
         if (ec) co_return;
         for (std::size_t i = 0; i < n; ++i) {
             const bool one_byte_requests = terminator_ == '\0';
