@@ -264,6 +264,27 @@ Error SerialLink::port_error(const boost::system::error_code& ec, std::string_vi
                                         settings_.device, during, ec.message())};
 }
 
+// The timer's handler only marks the deadline passed; whether anything came before it is judged
+// here, by what the tty holds. A process short of the CPU can meet the expired timer and the input
+// that came in time in one turn of its loop, the timer first: the bytes then wait in the tty's
+// read queue, unread. They are input like any other (read into read_buffer_, at most a buffer),
+// and the timeout stands only when there are none. The queue is asked first (FIONREAD): a read
+// of an empty tty waits for the kernel worker that hands the driver's input to the tty (its
+// flip buffer), which a machine short of the CPU runs late, by seconds beside busy loops; the
+// loop must never wait on it. Bytes still in the flip buffer are not seen: the line is judged
+// as the kernel has handed it over.
+Result<std::size_t> SerialLink::read_pending(std::string_view during) {
+    if (!is_open()) return std::size_t{0};  // closed meanwhile: the timeout stands
+    int queued = 0;
+    if (::ioctl(port_.native_handle(), FIONREAD, &queued) != 0 || queued <= 0)
+        return std::size_t{0};
+    const auto n = ::read(port_.native_handle(), read_buffer_.data(), read_buffer_.size());
+    if (n > 0) return static_cast<std::size_t>(n);
+    if (n == 0) return Unexpected(port_error(asio::error::eof, during));
+    if (errno == EAGAIN || errno == EINTR) return std::size_t{0};
+    return Unexpected(port_error({errno, boost::system::system_category()}, during));
+}
+
 // The coroutine owns the exchange, so callers may pass a temporary.
 asio::awaitable<Result<Reading>> SerialLink::transact(Exchange exchange) {
     for (int tried = 0;; ++tried) {
@@ -328,14 +349,26 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
     bool confirming = false;
     Clock::time_point framed{};
     for (;;) {
+        std::size_t n = 0;
         // The timer may have fired while the previous read was already complete.
-        if (timed_out_) break;
-        const std::size_t n = co_await port_.async_read_some(asio::buffer(read_buffer_),
-                                                             redirect_error(use_awaitable, ec));
-        if (ec) {
-            disarm_timeout();
-            if (!timed_out_) failed = port_error(ec, "reading");
-            break;
+        if (!timed_out_) {
+            n = co_await port_.async_read_some(asio::buffer(read_buffer_),
+                                               redirect_error(use_awaitable, ec));
+            if (ec && !timed_out_) {
+                disarm_timeout();
+                failed = port_error(ec, "reading");
+                break;
+            }
+        }
+        if (timed_out_) {
+            // The deadline has passed; what the tty holds came before this moment.
+            auto pending = read_pending("reading");
+            if (!pending) {
+                failed = pending.error();
+                break;
+            }
+            if (*pending == 0) break;  // nothing came: no answer in time
+            n = *pending;
         }
         last_input_ = Clock::now();
         last_activity_ = last_input_;
@@ -394,8 +427,18 @@ asio::awaitable<Result<>> SerialLink::wait_for_silence() {
         if (ec) {
             disarm_timeout();
             if (!timed_out_) co_return Unexpected(port_error(ec, "waiting for silence"));
-            needs_silence_ = false;
-            co_return Result<>{};
+            // Silent for a timeout, unless the tty holds bytes that came meanwhile.
+            auto pending = read_pending("waiting for silence");
+            if (!pending) co_return Unexpected(pending.error());
+            if (*pending == 0) {
+                needs_silence_ = false;
+                co_return Result<>{};
+            }
+            // Not silent: a timeout more. These bytes came before the timer ran, which may be
+            // long after its deadline when the loop is short of the CPU: they say nothing of how
+            // long the line has chattered, so only bytes read as they came make it noisy.
+            last_activity_ = Clock::now();
+            continue;
         }
         last_activity_ = Clock::now();
         if (last_activity_ >= deadline) {

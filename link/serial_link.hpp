@@ -105,6 +105,8 @@ class SerialLink {
     void arm_timeout(std::chrono::microseconds after);
     void disarm_timeout();
     void wait_for_deadline();
+    // After the deadline passed: the bytes the tty holds (0: none, the line was silent).
+    Result<std::size_t> read_pending(std::string_view during);
     Error port_error(const boost::system::error_code& ec, std::string_view during);
 
     LinkSettings settings_;

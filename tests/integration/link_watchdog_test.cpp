@@ -54,24 +54,14 @@ TEST_F(LinkWatchdog, ALoopThatStopsActingIsStuckOneTimeoutAndTheSlackLater) {
 // The old bound, (retries + 1) timeouts + 10 timeouts + 1 s, was 2.05 s here; a step on this
 // line takes 11 × (10 timeouts of noise + 1): 5.5 s. Every moment of it is progress.
 TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
-    // The line falls silent for the link if the test's own chatter (every 5 ms) stalls for a
-    // timeout: stretched where the test runs slower (under qemu-user a starved test stalled
-    // past 50 ms).
+    // Stretched where the test runs slower (under qemu-user a starved test stalled past 50 ms).
     const auto timeout = 50ms * test::slowdown;
     auto link = std::make_shared<LinkScheduler>(io.get_executor(), hub_link(device.path(), timeout),
                                                 log, bus);
-    link->start();
-    ASSERT_TRUE(run_until(io, [&] { return !device.requests().empty(); }));
+    // The line chatters from before the start (a byte every 5 ms), so that the link's first
+    // request already meets it.
     asio::steady_timer chatter(io);
-    // The gaps in the chatter as long as a timeout, or nearly: a test starved of the CPU (beside
-    // busy loops, scripts/test --under-load) cannot chatter then, and the line is silent for
-    // the link as for any reader. Each may allow one more attempt; without them, none.
-    int silences = 0;
-    auto last_noise = Clock::now();
     std::function<void()> noise = [&] {
-        const auto now = Clock::now();
-        if (now - last_noise >= timeout * 4 / 5) ++silences;
-        last_noise = now;
         device.send("#");
         chatter.expires_after(5ms);
         chatter.async_wait([&](const boost::system::error_code& ec) {
@@ -79,6 +69,12 @@ TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
         });
     };
     noise();
+    link->start();
+    // Measured once the link has met the chatter (an answer of its was noise): the kernel hands
+    // a pty's bytes to the reader through a worker thread, which beside busy loops runs late
+    // (seen: 4 s), and until then the line the link reads is silent.
+    ASSERT_TRUE(run_until(
+        io, [&] { return link->counters().bad_answer > 0; }, 10s * test::slowdown));
     const auto end = Clock::now() + 3s;
     int checks = 0;
     while (Clock::now() < end) {
@@ -86,14 +82,9 @@ TEST_F(LinkWatchdog, ALoopOnAChatteringLineIsNeverStuck) {
         ASSERT_TRUE(link->progressing(Clock::now())) << "stuck after " << checks * 20 << " ms";
         ++checks;
     }
-    // Still in its first step: each attempt met a line that never went silent (but where the
-    // test itself fell silent).
-    EXPECT_LE(device.requests().size(), 1u + static_cast<std::size_t>(silences))
-        << silences << " silences of the test's own";
-    EXPECT_GE(device.requests().size(), 1u);
-    if (silences == 0) {
-        EXPECT_EQ(link->state().status[0], gateway::ModuleStatus::not_polled);
-    }
+    // How often the link found the line silent is not counted: whenever that worker runs late,
+    // the line the link reads falls silent where the test's writes never did, and each such
+    // silence lets one more attempt go out.
     chatter.cancel();
     link->stop();
 }

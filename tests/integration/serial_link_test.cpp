@@ -7,6 +7,7 @@
 
 #include "link/serial_link.hpp"
 #include "tests/support/pty_pair.hpp"
+#include "tests/support/timing.hpp"
 
 namespace ioport {
 namespace {
@@ -270,6 +271,83 @@ TEST_F(SerialLinkTest, ALineThatNeverFallsSilentIsReportedNotWaitedOnForever) {
     EXPECT_EQ(outcomes[1].result.error().code, Errc::line_noisy);
     EXPECT_GE(outcomes[1].elapsed, 500ms);  // ten timeouts
     EXPECT_LT(outcomes[1].elapsed, 3s);
+}
+
+// A loop short of the CPU judges a deadline late, and the answer that came in time may wait in
+// the tty unread by then: the expired timer and the readable tty meet in one turn, the timer
+// first. Here the test's own loop stalls past the link's deadline, as a starved daemon's does,
+// while the answer comes within it; after the stall the answer (in the tty before the link's timer
+// runs) and the link's timer run in one turn, the timer last. The answer came in time: it is the
+// reply, not a timeout. The test writes the answer itself, at a moment of its own: the device's
+// reading of the request is the kernel's to deliver, late on a busy machine.
+TEST_F(SerialLinkTest, AnAnswerThatCameInTimeIsTakenWhenTheLoopRunsTheTimerFirst) {
+    const auto timeout = 200ms * test::slowdown;
+    SerialLink slow(io.get_executor(), settings(timeout, 0));
+    link.close();
+    ASSERT_TRUE(slow.open());
+    // The link arms its deadline (later than `before` + timeout) before the stall begins.
+    const auto before = Clock::now();
+    asio::steady_timer stall(io, 1ms);
+    stall.async_wait([&](const boost::system::error_code& ec) {
+        if (!ec) test::pace_until(Clock::now() + timeout + timeout / 4);
+    });
+    asio::steady_timer answer(io, before + timeout / 2);
+    answer.async_wait([&](const boost::system::error_code& ec) {
+        if (ec) return;
+        device.send("8000\r");
+        // In the tty's queue, not only in the kernel's hands, when the link's timer runs.
+        EXPECT_TRUE(device.wait_until_queued(5, 10s * test::slowdown));
+    });
+    const auto outcomes = transact_all(io, slow, {read(dim0)});
+    ASSERT_EQ(outcomes.size(), 1u);
+    ASSERT_TRUE(outcomes[0].result) << outcomes[0].result.error().message;
+    EXPECT_EQ(outcomes[0].result->raw[0], 0x8000);
+    EXPECT_EQ(slow.counters().no_answer, 0u);
+}
+
+// The same for the silence the link waits for after a failure: noise that came within the
+// timeout but was read only after the timer's handler ran breaks the silence, and the request
+// goes again only once the line has been silent for a timeout after the noise.
+TEST_F(SerialLinkTest, NoiseThatCameInTimeBreaksTheSilenceWhenTheLoopRunsTheTimerFirst) {
+    const auto timeout = 200ms * test::slowdown;
+    SerialLink retrying(io.get_executor(), settings(timeout, 1));
+    link.close();
+    ASSERT_TRUE(retrying.open());
+    std::vector<Clock::time_point> heard;
+    device.serve([&](const std::string&) {
+        heard.push_back(Clock::now());
+        return std::vector<Reply>{};
+    });
+    // A malformed answer just after the request: the link then waits for a timeout of silence,
+    // which begins after `start` and ends later than start + timeout.
+    asio::steady_timer garbage(io, 1ms);
+    asio::steady_timer stall(io);
+    asio::steady_timer noise(io);
+    Clock::time_point noise_sent{};
+    garbage.async_wait([&](const boost::system::error_code& ec) {
+        if (ec) return;
+        const auto start = Clock::now();
+        device.send("12G4\r");
+        stall.expires_at(start + timeout / 10);
+        stall.async_wait([&](const boost::system::error_code& error) {
+            if (!error) test::pace_until(Clock::now() + timeout + timeout / 4);
+        });
+        noise.expires_at(start + timeout / 2);
+        noise.async_wait([&](const boost::system::error_code& error) {
+            if (error) return;
+            noise_sent = Clock::now();
+            device.send("~");
+            EXPECT_TRUE(device.wait_until_queued(1, 10s * test::slowdown));
+        });
+    });
+    const auto outcomes = transact_all(io, retrying, {read(dim0)});
+    ASSERT_EQ(outcomes.size(), 1u);
+    EXPECT_GE(retrying.counters().bad_answer, 1u);  // the garbage
+    // Both requests at the device (the kernel delivers them, late on a busy machine).
+    ASSERT_TRUE(test::run_until(
+        io, [&] { return heard.size() >= 2; }, 10s * test::slowdown));
+    ASSERT_NE(noise_sent, Clock::time_point{});
+    EXPECT_GE(heard[1] - noise_sent, timeout) << "the request went again within a timeout of noise";
 }
 
 TEST_F(SerialLinkTest, PortLossIsAnErrorValueAndClosesThePort) {
