@@ -141,7 +141,11 @@ def ids(payload):
     return {m["name"]: m["type"] for m in payload.get("metrics", [])}
 
 
-class Tahu(unittest.TestCase):
+class TahuCase(unittest.TestCase):
+    """A broker, Tahu's host and a daemon (with MQTT_EXTRA under mqtt:) for the class; the daemon
+    started again for the next test when one killed it."""
+    MQTT_EXTRA = ""
+
     @classmethod
     def setUpClass(cls):
         cls.dir = tempfile.mkdtemp(prefix="ioportd-tahu-")
@@ -162,13 +166,16 @@ class Tahu(unittest.TestCase):
         if self.rig is None or self.rig.daemon.poll() is not None:
             if self.rig:
                 self.rig.close()
-            type(self).rig = EdgeNodeRig(tempfile.mkdtemp(dir=self.dir), self.broker.port)
+            type(self).rig = EdgeNodeRig(tempfile.mkdtemp(dir=self.dir), self.broker.port,
+                                         mqtt_extra=self.MQTT_EXTRA)
             self.rig.ctl("set dim16:0 0x0005")
             mark = self.host.mark()
             self.rig.start_daemon()
             type(self).nbirth = self.host.wait("NBIRTH", since=mark)
             type(self).births = mark
 
+
+class Tahu(TahuCase):
     def test_tahu_decodes_every_birth_with_the_metrics_and_types_ioportd_announces(self):
         node = metrics(self.nbirth)
         self.assertEqual(node["Node Control/Rebirth"]["type"], "Boolean")
@@ -242,6 +249,53 @@ class Tahu(unittest.TestCase):
         death = self.host.wait("NDEATH", since=mark, timeout=20)
         self.assertEqual(metrics(death)["bdSeq"]["value"], bdseq)
         self.assertEqual(metrics(death)["bdSeq"]["type"], "Int64")
+
+
+class TahuTemplates(TahuCase):
+    """With templates (gateway.md §7.2): the definitions in NBIRTH, an instance per module, its
+    changed members in DDATA, and a DCMD to an instance's member, all through Tahu."""
+    MQTT_EXTRA = "  templates: true\n"
+
+    def test_tahu_decodes_the_definitions_and_each_instance(self):
+        node = metrics(self.nbirth)
+        for device, expected in METRICS.items():
+            if device == "hub0.mux8m.0":
+                continue
+            kind = device.split(".")[1]
+            definition = node[f"_types_/{kind}"]
+            self.assertEqual(definition["type"], "Template")
+            self.assertTrue(definition["value"]["isDefinition"])
+            self.assertEqual(definition["value"]["version"], "1")
+            self.assertEqual(ids(definition["value"]), dict(expected), kind)
+            instance = metrics(self.host.wait("DBIRTH", device, since=self.births))[kind]
+            self.assertEqual((instance["type"], instance["value"]["templateRef"]),
+                             ("Template", kind))
+            self.assertFalse(instance["value"]["isDefinition"])
+            self.assertEqual(set(ids(instance["value"])), {name for name, _ in expected})
+        dim16 = metrics(self.host.wait("DBIRTH", "hub0.dim16.0", since=self.births))["dim16"]
+        self.assertEqual(metrics(dim16["value"])["word"]["value"], 5)
+
+    def test_tahu_decodes_the_members_that_changed(self):
+        mark = self.host.mark()
+        self.rig.ctl("set dim16:0 0x8001")
+
+        def word_of(payload):
+            instance = metrics(payload).get("dim16", {}).get("value", {})
+            return metrics(instance).get("word", {}).get("value")
+        data = self.host.wait("DDATA", "hub0.dim16.0", since=mark,
+                              condition=lambda p: word_of(p) == 0x8001)
+        members = metrics(metrics(data)["dim16"]["value"])
+        self.assertEqual(members["word"]["type"], "UInt16")
+        self.assertTrue(members["in/15"]["value"])
+
+    def test_a_dcmd_to_an_instance_member_that_tahu_encodes_sets_the_output(self):
+        self.host.send(f"spBv1.0/{GROUP}/DCMD/{NODE}/hub0.dom16.0", {
+            "timestamp": int(time.time() * 1000),
+            "metrics": [{"name": "dom16", "type": "Template", "value": {
+                "templateRef": "dom16", "isDefinition": False,
+                "metrics": [{"name": "out/3", "type": "Boolean", "value": True}]}}]})
+        eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) == 0x0008, 10,
+                   lambda: f"dom16:0 = {self.rig.ctl('get dom16:0')}; {self.rig.log_text()[-2000:]}")
 
 
 if __name__ == "__main__":

@@ -48,32 +48,49 @@ client.on("connect", () => {
         print({subscribed: true});
     });
 });
-// Sparkplug 3.0 leaves the datatype out of a DATA message's metrics: only the births have it,
-// and Tahu's decodePayload, which knows no births, returns null for such a value. A host keeps
-// each node's and device's births and gives a DATA metric its birth's datatype (by alias, or by
-// name) before Tahu decodes it.
-const births = new Map();  // "group/node[/device]" -> Map(alias or name -> datatype)
+// Sparkplug 3.0 leaves the datatype out of a DATA message's metrics, and of a template
+// instance's members (the definition has them): only the births say. Tahu's decodePayload, which
+// knows no births, returns null for such a value. A host keeps each node's and device's births
+// and gives a DATA metric its birth's datatype (by alias, or by name), and a member its
+// definition's, before Tahu decodes it.
+const TEMPLATE = 19;
+const births = new Map();       // "group/node[/device]" -> Map(alias or name -> metric's birth)
+const definitions = new Map();  // "group/node/type" -> Map(member name -> datatype)
+function key(metric) {
+    // protobufjs puts a field's default on the prototype: own means on the wire.
+    if (metric.name) return `name ${metric.name}`;
+    return Object.prototype.hasOwnProperty.call(metric, "alias") ? `alias ${metric.alias}` : null;
+}
 function withBirthTypes(topic, message) {
     const [, group, kind, node, device] = topic.split("/");
     const source = [group, node, device].filter((part) => part !== undefined).join("/");
     const payload = Payload.decode(message);
     if (kind === "NBIRTH" || kind === "DBIRTH") {
-        const types = new Map();
+        const metrics = new Map();
         for (const metric of payload.metrics) {
-            // protobufjs puts a field's default on the prototype: own means on the wire.
+            const birth = {datatype: metric.datatype, templateRef: metric.templateValue?.templateRef};
+            if (metric.name) metrics.set(`name ${metric.name}`, birth);
             if (Object.prototype.hasOwnProperty.call(metric, "alias"))
-                types.set(`alias ${metric.alias}`, metric.datatype);
-            if (metric.name) types.set(`name ${metric.name}`, metric.datatype);
+                metrics.set(`alias ${metric.alias}`, birth);
+            if (metric.datatype === TEMPLATE && metric.templateValue?.isDefinition) {
+                const type = metric.name.replace(/^_types_\//, "");
+                definitions.set(`${group}/${node}/${type}`, new Map(
+                    metric.templateValue.metrics.map((member) => [member.name, member.datatype])));
+            }
         }
-        births.set(source, types);
+        births.set(source, metrics);
         return message;
     }
-    const types = births.get(source);
-    if (!types || (kind !== "NDATA" && kind !== "DDATA")) return message;
+    const known = births.get(source);
+    if (!known || (kind !== "NDATA" && kind !== "DDATA")) return message;
     for (const metric of payload.metrics) {
-        if (metric.datatype) continue;
-        const byName = metric.name ? types.get(`name ${metric.name}`) : undefined;
-        metric.datatype = byName ?? types.get(`alias ${metric.alias}`) ?? 0;
+        const birth = known.get(key(metric)) ?? known.get(`alias ${metric.alias}`);
+        if (!birth) continue;
+        if (!metric.datatype) metric.datatype = birth.datatype;
+        const members = definitions.get(`${group}/${node}/${birth.templateRef}`);
+        if (metric.datatype !== TEMPLATE || !members || !metric.templateValue) continue;
+        for (const member of metric.templateValue.metrics)
+            if (!member.datatype) member.datatype = members.get(member.name) ?? 0;
     }
     return Payload.encode(payload).finish();
 }
