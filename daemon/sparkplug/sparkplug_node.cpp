@@ -460,6 +460,7 @@ void SparkplugNode::device_birth(Device& device, const ModuleState& view) {
     if (!publish(MessageType::dbirth, device.id, payload)) return;
     device.published = values;
     device.born = true;
+    device.first_unstored.reset();  // the birth carries the values now, newer or not
 }
 
 void SparkplugNode::changed(const LinkScheduler* link, int slot) {
@@ -488,14 +489,22 @@ void SparkplugNode::keep(Device& device) {
     if (!view || view->status() != gateway::ModuleStatus::online) return;
     // A module's first values in this process are no history: the DBIRTH carries them. Stored,
     // they came back after it as historical DDATA repeating the birth, a duplicate sample per
-    // metric at every start (they are read before the first CONNACK).
+    // metric at every start (they are read before the first CONNACK). But a value that changes
+    // before the DBIRTH is in none: then the first values are stored after all, before the
+    // change (ioportd started while the broker was away lost them; soak_every_path).
     const bool first =
         std::ranges::none_of(device.published, [](const auto& v) { return v.has_value(); });
     auto data = changes(device, *view, MetricsBy::name);
     if (data.changed.empty()) return;
     if (first) {
+        device.first_unstored = data.payload;
         published(device, data);
         return;
+    }
+    if (device.first_unstored) {
+        if (!store_->pending()) backlog_oldest_ms_ = device.first_unstored->timestamp;
+        store_->append(sparkplug::encode_stored({device.id, *device.first_unstored}));
+        device.first_unstored.reset();
     }
     if (!store_->pending()) backlog_oldest_ms_ = data.payload.timestamp;
     if (store_->append(sparkplug::encode_stored({device.id, data.payload})))

@@ -142,6 +142,9 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
         std::vector<std::vector<sparkplug::Property>> properties{};
         bool born = false;  // DBIRTH sent, no DDEATH since, in this session
         std::vector<std::optional<gateway::PointValue>> published{};
+        // The module's first values in this process, read while no session could take them:
+        // not stored, as its DBIRTH will carry them, unless they change before it does.
+        std::optional<sparkplug::Payload> first_unstored{};
     };
     struct LinkMetrics {
         std::string name;

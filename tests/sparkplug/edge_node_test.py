@@ -1255,6 +1255,23 @@ class StoreAndForward(OwnDaemon):
         eventually(lambda: self.written_history(mark) == self.WORDS[:2], 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
 
+    def test_first_reads_that_change_before_the_births_are_history(self):
+        # Before: a start while the broker was away kept the first reads out of the store, for
+        # the DBIRTH to carry; a value that changed before the birth was in none and was lost
+        # (soak_every_path under load: a value set just before a kill -9 in the outage, read
+        # first by the next run, changed before the broker came back).
+        self.rig.ctl(f"set dim16:0 {self.WORDS[0]:#06x}")
+        self.broker.stop()
+        self.rig.start_daemon()
+        eventually(lambda: all(m["status_text"] == "online" for link in self.rig.state()["links"]
+                               for m in link["modules"]), 10, "every module polled")
+        self.change_while_away(self.WORDS[1:3])
+        mark = self.host.mark()
+        self.broker_back()
+        self.wait_births(mark)
+        eventually(lambda: self.written_history(mark) == self.WORDS[:3], 20,
+                   lambda: f"history of dim16:0 word: {self.history(mark)}")
+
     def test_bdseq_goes_on_across_a_restart_and_refused_connects_spend_none(self):
         # Before (issue 49): every process began at bdSeq 0, so a late will of the last run could
         # carry the new session's; and every refused TCP connect spent one (0 -> 3 after a 3 s

@@ -13,19 +13,21 @@ in which the simulator held it. docs/faults.md ("The soak on every path") define
 lost, wrong and duplicated; in short:
 
   held       value v was held from the return of its `set` to the start of the next `set`
-  readable   ioportd ran and had dim16 0 online: from its "dim16 0 online" line to its
-             "offline" line less OFFLINE_LAG (the failed transactions before it gives up), or to
-             its SIGKILL; the broker's state does not matter (while it is away, the store keeps
-             what changes)
-  expected   v was held for at least HOLD (0.4 s) while dim16 0 was readable
+  taken      ioportd took an answer carrying v: in the simulator's transaction log, a correct
+             reading of dim16 0 after which ioportd's next request came within the link's
+             timeout (after any answer it did not take, a late one included, it waits a timeout
+             of silence first), both from one run of ioportd
+  expected   v was taken, unless it was the last value a run took before its kill -9 and no
+             later run took it (it may have been on its way to the store's disk or the broker's
+             socket: a kill loses nothing *written*)
   lost       an expected value that never reached the host: not live, not historical, not in a
              birth, after the final drain (broker and ioportd up, until the store is empty and
              the last value arrived)
-  wrong      a value received that was never set, or whose timestamp lies outside the interval
-             in which the simulator could have held it (from the start of its `set` to the
-             return of the next) widened by TOLERANCE (0.15 s: the transaction, the clock's ms);
-             a birth's timestamp is the birth's time, so for births the end is widened by
-             BIRTH_TOLERANCE (1 s)
+  wrong      a value received that the simulator never answered, or stamped before its first
+             answer carrying it or after ioportd's request that followed the last such answer
+             (SLACK aside: the ms of the timestamps); in a birth (stamped with the birth's time),
+             a value not yet answered at the birth, or older than one ioportd had surely taken
+             by then (its next request had come)
   duplicated a value received in DDATA (live or historical) more than once: allowed, counted
              (docs/sparkplug.md, the store: after a lost connection a record can arrive twice;
              and after a restart the first read is stored as a change again)
@@ -76,13 +78,10 @@ from rig import Rig, die_with_parent, eventually  # noqa: E402
 GROUP, NODE = "plant1", "box7"
 JSON_PREFIX = "ioportd/box7"
 INPUT, OUTPUT = "hub0.dim16.0", "hub0.dom16.0"
-HOLD = 0.4  # s: a value held this long while ioportd read it must arrive
-# s: how long before its "offline" line the gateway may have failed to read a module: retries + 1
-# transactions of `timeout` (4 × 100 ms) and a poll cycle
-OFFLINE_LAG = 0.6
-TOLERANCE = 0.15
-# s: a birth's value may be the one read up to a poll cycle (slowed by faults) before the birth
-BIRTH_TOLERANCE = 1.0  # s: a read's timestamp beyond the simulator's interval (transaction, ms)
+TIMEOUT = 0.1  # s: the link's `timeout` (the configuration below)
+READ_INPUT = "a0"  # dim16 0's request; its answer is the word in 4 hex digits
+# s: the daemon's millisecond timestamps, and this process's two clocks read one after the other
+SLACK = 0.005
 FAULT_KINDS = ["silent", "error-ack", "garbage", "short", "long", "delay"]
 
 
@@ -156,6 +155,11 @@ class Soak:
         self.rig = Rig(self.dir, ARGS.ioportd, ARGS.ioport_sim, preexec_fn=die_with_parent)
         self.rig.start_hub("dim16:0,dom16:0")
         self.sim = SimControl(self.rig.hub_ctl)
+        # The simulator's transaction log, on this process's clock: its times are µs since its
+        # start on CLOCK_MONOTONIC, which time.monotonic() reads too.
+        self.sim_started = int(self.sim.command("clock").split()[0]) / 1e6
+        self.sim.command("log clear")
+        self.transactions = []  # (time, request, answer), answer "-" when silent
         store = os.path.join(self.dir, "store")
         os.mkdir(store, 0o700)
         store_line = "" if ARGS.no_store else f"  store: {{ path: {store}, forward_rate: 50 }}\n"
@@ -168,7 +172,7 @@ links:
     protocol: ioport
     device: {self.rig.hub_link}
     unit_id: 1
-    timeout: 100ms
+    timeout: {TIMEOUT * 1000:.0f}ms
     retries: 3
     modules:
       - {{ type: dim16, number: 0 }}
@@ -188,6 +192,7 @@ mqtt:
         self.counter = 0
         self.up = []  # [start, end) of each run of ioportd, end None while it runs
         self.kills = 0
+        self.kill_windows = []  # (the kill, the next start) of each kill -9
         self.broker_restarts = 0
         self.fault_rolls = 0
         self.writes = {"modbus": 0, "json": 0, "dcmd": 0}
@@ -208,6 +213,7 @@ mqtt:
         self.marks()
 
     def kill_daemon(self):
+        self.kill_windows.append([time.time(), None])
         if self.modbus:
             self.modbus.close()
             self.modbus = None
@@ -329,6 +335,8 @@ mqtt:
                 else:
                     self.kill_daemon()
                     self.start_daemon()
+                    self.kill_windows[-1][1] = time.time()
+            self.take_log()
             if not ARGS.no_faults and time.monotonic() >= next_faults:
                 self.roll_faults()
                 next_faults = time.monotonic() + 0.5
@@ -367,6 +375,53 @@ mqtt:
             eventually(drained, 60, "the store drained and the last value arrived", 0.1)
         except AssertionError as e:
             print(f"soak: {e}", file=sys.stderr)
+        self.take_log()
+
+    def take_log(self):
+        """Moves the simulator's transaction log here (it keeps the last 100,000 transactions:
+        taken at every turn of the run, it never fills)."""
+        lines = self.sim.command("log take").split("\n")
+        count = int(lines.pop())
+        entries = [line.split(" ", 2) for line in lines]
+        assert len(entries) == count and all(len(e) == 3 for e in entries), lines[:5]
+        # On the wall clock as it is now: a slewed clock moves little within one take.
+        epoch = self.sim_started + time.time() - time.monotonic()
+        self.transactions += [(epoch + int(at) / 1e6, request, answer)
+                              for at, request, answer in entries]
+
+    def taken(self):
+        """(time, time of the next request, value) of every answer to dim16 0 that ioportd took, from the simulator's
+        log: a correct reading, after which ioportd's next request came within TIMEOUT of this
+        one. That is the one way to go on so soon: after a reading it did not take (no answer
+        within the timeout, a wrong one, an answer followed by another) the link first waits for
+        a timeout of silence on the line, and after a first reading that follows a failure it
+        waits a timeout for any answer still owed (link/serial_link.cpp). So a late answer (a
+        delay fault, or a machine too slow to read it in time) never counts, nor does a pair of
+        transactions across a kill -9 and the restart after it (two processes)."""
+        readings = []
+        log = self.transactions
+        for (t, request, answer), (t_next, _, _) in zip(log, log[1:]):
+            if request != READ_INPUT or not re.fullmatch(r"[0-9A-F]{4}", answer) or \
+                    t_next - t >= TIMEOUT:
+                continue
+            if any(t <= restarted and killed <= t_next for killed, restarted in self.kill_windows):
+                continue
+            readings.append((t, t_next, int(answer, 16)))
+        return readings
+
+    def answered(self):
+        """value -> [when the simulator first answered it, when ioportd's request after its last
+        answer carrying it came]: every correct reading of dim16 0, taken or not. ioportd can
+        stamp a value only between the two (its next request follows whatever it made of an
+        answer)."""
+        spans = {}
+        log = self.transactions
+        for i, (t, request, answer) in enumerate(log):
+            if request != READ_INPUT or not re.fullmatch(r"[0-9A-F]{4}", answer):
+                continue
+            after = log[i + 1][0] if i + 1 < len(log) else float("inf")
+            spans.setdefault(int(answer, 16), [t, after])[1] = after
+        return spans
 
     # --- the verdict ---------------------------------------------------------------------------
 
@@ -374,34 +429,38 @@ mqtt:
         sets = self.sets
         received = {}  # value -> [(kind, timestamp s)]
         wrong = []
-        by_value = {}
-        for index, (value, called, returned) in enumerate(sets):
-            nxt = sets[index + 1] if index + 1 < len(sets) else None
-            by_value[value] = (called, returned, nxt[1] if nxt else self.setting_ended,
-                               nxt[2] if nxt else self.setting_ended + 3600)
+        order = {value: index for index, (value, _, _) in enumerate(sets)}
+        answered = self.answered()
+        readings = self.taken()
         for kind, device, name, value, stamp in list(self.host.records):
             if device != INPUT or name != "word":
                 continue
             t = stamp / 1000.0
             received.setdefault(value, []).append((kind, t))
-            span = by_value.get(value)
-            # A birth carries the last value read, stamped with the birth's own time.
-            late = BIRTH_TOLERANCE if kind == "birth" else TOLERANCE
-            if span is None or not (span[0] - TOLERANCE <= t <= span[3] + late) and \
-                    not (value == 0 and t <= span[3] + late):
+            span = answered.get(value)
+            if span is None:  # never on the line
                 wrong.append((kind, value, t))
-        expected = []
-        unreadable = []
-        readable = self.readable()
-        for value, (_, returned, next_called, _) in by_value.items():
-            if value == 0:
-                continue
-            overlap = max([min(next_called, b) - max(returned, a) for a, b in readable] or [0])
-            if overlap >= HOLD:
-                expected.append(value)
-            elif max(min(next_called, end) - max(returned, start)
-                     for start, end in self.up) >= HOLD:
-                unreadable.append(value)
+            elif kind == "birth":
+                # The last value read, stamped with the birth's own time: on the line before the
+                # birth, and no older than any value ioportd had surely taken by then.
+                known = [v for _, t_next, v in readings if t_next <= t - SLACK]
+                if span[0] > t + SLACK or (known and order[value] < order[known[-1]]):
+                    wrong.append((kind, value, t))
+            elif not span[0] - SLACK <= t <= span[1] + SLACK:
+                wrong.append((kind, value, t))
+        taken = {}  # value -> times ioportd took an answer carrying it
+        for t, _, value in readings:
+            taken.setdefault(value, []).append(t)
+        # The last value a run killed with SIGKILL took may have been on its way to the store's
+        # disk thread or to the broker's socket (a kill loses nothing *written*,
+        # docs/sparkplug.md): it is expected only if a later run took it too.
+        last_before_kill = set()
+        for killed, _ in self.kill_windows:
+            before = [value for t, _, value in readings if t < killed]
+            if before and max(taken[before[-1]]) < killed:
+                last_before_kill.add(before[-1])
+        expected = [v for v, _, _ in sets[1:] if v in taken and v not in last_before_kill]
+        not_taken = [v for v, _, _ in sets[1:] if v not in taken]
         lost = [v for v in expected if v not in received]
         duplicated = sum(max(0, sum(1 for k, _ in r if k != "birth") - 1)
                          for r in received.values())
@@ -409,40 +468,8 @@ mqtt:
         for r in received.values():
             for k, _ in r:
                 kinds[k] += 1
-        return expected, unreadable, lost, wrong, duplicated, kinds, received
-
-    def readable(self):
-        """When ioportd could read dim16 0: from its "online" line to its "offline" line less
-        OFFLINE_LAG (the failed transactions before the gateway gives up), or to the end of that
-        run of ioportd (its kill, or the end of the input's changes)."""
-        events = []
-        with open(self.rig.log) as f:
-            for line in f:
-                m = re.match(r"(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)(\.\d+) \w+ (.*)", line)
-                if not m:
-                    continue
-                t = time.mktime(time.strptime(m.group(1), "%Y-%m-%d %H:%M:%S")) + \
-                    float(m.group(2))
-                text = m.group(3)
-                if text.startswith("ioportd ") and " started: " in text:
-                    events.append((t, "started"))
-                elif text.startswith("link hub0: dim16 0 online"):
-                    events.append((t, "online"))
-                elif text.startswith("link hub0: dim16 0 offline"):
-                    events.append((t, "offline"))
-        intervals = []
-        since = None
-        for t, what in events:
-            if what == "online":
-                since = since or t
-            elif since is not None:
-                intervals.append((since, t - OFFLINE_LAG if what == "offline" else t))
-                since = None
-        if since is not None:
-            intervals.append((since, self.setting_ended))
-        # Cut by the runs of ioportd (a killed run logs no end).
-        return [(max(a, start), min(b, end)) for a, b in intervals for start, end in self.up
-                if min(b, end) > max(a, start)]
+        return (expected, not_taken, last_before_kill, lost, wrong, duplicated, kinds, received,
+                taken)
 
     def close(self):
         self.stop_setting.set()
@@ -457,7 +484,8 @@ def main():
     started = time.monotonic()
     try:
         planned, faults = soak.run()
-        expected, unreadable, lost, wrong, duplicated, kinds, received = soak.analyse()
+        (expected, not_taken, last_before_kill, lost, wrong, duplicated, kinds, received,
+         taken) = soak.analyse()
     finally:
         elapsed = time.monotonic() - started
         soak.close()
@@ -468,10 +496,16 @@ def main():
         f"ioportd soak on every path: {elapsed:.0f} s ({ARGS.duration:.0f} s of disruption), "
         f"seed {ARGS.seed}{store}",
         f"  input changes          {changes} (dim16 0 word, a counter, every 0.5-1 s)",
-        f"  expected at the host   {len(expected)} (held >= {HOLD} s while ioportd ran and read "
-        "dim16 0)",
-        f"  not readable           {len(unreadable)} (held while ioportd ran, but dim16 0 failed "
-        "or was offline)",
+        f"  expected at the host   {len(expected)} (ioportd took an answer carrying it: "
+        f"{sum(len(t) for t in taken.values())} readings of {len(soak.transactions)} "
+        "transactions)",
+        f"  never taken            {len(not_taken)} (never in an answer ioportd took: dim16 0 "
+        "failing, the daemon down, or too short)",
+        f"  cut by a kill -9       {len(last_before_kill)} (the last value a killed run took, "
+        "taken by no later run" + "".join(
+            f"; {v} at {max(taken[v]) - soak.t0:.3f} s, "
+            f"{'received' if v in received else 'not received'}" for v in last_before_kill)
+        + ")",
         f"  received               {kinds['live']} live, {kinds['historical']} historical, "
         f"{kinds['birth']} in births ({len(received)} distinct values)",
         f"  broker restarts        {soak.broker_restarts} (down {ARGS.broker_down:.0f} s each)",
@@ -491,15 +525,15 @@ def main():
         called, returned, nxt = next((c, r, n) for (x, c, r), (_, n, _) in
                                      zip(soak.sets, soak.sets[1:] + [(0, soak.setting_ended, 0)])
                                      if x == v)
-        print(f"  lost: {v}, held {returned - soak.t0:.3f}-{nxt - soak.t0:.3f} s")
+        print(f"  lost: {v}, held {returned - soak.t0:.3f}-{nxt - soak.t0:.3f} s, taken at "
+              + ", ".join(f"{t - soak.t0:.3f}" for t in taken[v][:5])
+              + (f" and {len(taken[v]) - 5} more" if len(taken[v]) > 5 else ""))
     if lost or wrong:
-        print("  dim16 0 readable: " + ", ".join(
-            f"{a - soak.t0:.3f}-{b - soak.t0:.3f}" for a, b in soak.readable()))
         print("  runs of ioportd: " + ", ".join(
             f"{a - soak.t0:.3f}-{b - soak.t0:.3f}" for a, b in soak.up))
         print("  events: " + ", ".join(f"{t:.3f} {e}" for t, e in soak.timeline))
-    for w in wrong[:20]:
-        print(f"  wrong: {w}")
+    for kind, value, t in wrong[:20]:
+        print(f"  wrong: {value} ({kind}) stamped {t - soak.t0:.3f} s")
     for w in soak.writes_not_applied[:20]:
         print(f"  write not applied: {w}")
     for v in violations[:20]:
@@ -521,6 +555,9 @@ def main():
             for kind, device, name, value, stamp in soak.host.records:
                 if device == INPUT and name == "word":
                     f.write(f"{kind} {value} {stamp / 1000 - soak.t0:.3f}\n")
+        with open(os.path.join(soak.dir, "transactions.txt"), "w") as f:
+            for t, request, answer in soak.transactions:
+                f.write(f"{t - soak.t0:.6f} {request} {answer}\n")
         print(f"soak: logs kept in {soak.dir}", file=sys.stderr)
     return 0 if ok else 1
 
