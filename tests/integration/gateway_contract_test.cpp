@@ -1427,7 +1427,10 @@ TEST_F(CommLossTest, AReloadDuringCommLossRestartsTheLinkInTheSafeState) {
         ASSERT_TRUE(all_online(scada));
         ASSERT_TRUE(scada.write_register(0, 0x1234));
     }
+    // The loss has set every output (dom16 0 first, rgbdm 0 after it) before the reload: a
+    // SIGHUP the moment dom16 0 shows its safe value found rgbdm 0 still green.
     ASSERT_TRUE(sim_becomes("dom16:0", "1"));
+    ASSERT_TRUE(sim_becomes("rgbdm:0", "1"));
     auto changed = modules;
     changed[1] = {"dom16", 0, ", initial: 0x00F0, safe: 0x0002"};
     gateway.rewrite_config(config(hub_link(hub.link(), changed), "  comm_loss_timeout: 1500ms"));
