@@ -84,7 +84,7 @@ function withBirthTypes(topic, message) {
     const known = births.get(source);
     if (!known || (kind !== "NDATA" && kind !== "DDATA")) return message;
     for (const metric of payload.metrics) {
-        const birth = known.get(key(metric)) ?? known.get(`alias ${metric.alias}`);
+        const birth = known.get(key(metric));
         if (!birth) continue;
         if (!metric.datatype) metric.datatype = birth.datatype;
         const members = definitions.get(`${group}/${node}/${birth.templateRef}`);
