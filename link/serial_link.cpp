@@ -164,7 +164,9 @@ bool retryable(Errc code) {
 }  // namespace
 
 SerialLink::SerialLink(const asio::any_io_executor& executor, LinkSettings settings)
-    : settings_(std::move(settings)), port_(executor), timer_(executor) {}
+    : settings_(std::move(settings)),
+      input_signal_(executor, asio::steady_timer::time_point::max()),
+      timer_(executor) {}
 
 SerialLink::~SerialLink() {
     close();
@@ -189,13 +191,9 @@ Result<> SerialLink::open() {
     ::ioctl(fd, TIOCEXCL);
     low_latency_ = request_low_latency(fd);
     ::tcflush(fd, TCIOFLUSH);
-    boost::system::error_code ec;
-    port_.assign(fd, ec);
-    if (ec) {
-        ::close(fd);
-        return fail(Errc::io_error,
-                    fmt::format("cannot use {}: {}", settings_.device, ec.message()));
-    }
+    fd_ = fd;
+    reader_ = std::make_unique<PortReader>(input_signal_.get_executor(), fd,
+                                           [this] { input_signal_.cancel(); });
     needs_silence_ = false;
     // Not answers_may_be_owed_: what came before the open is flushed with the port's input, and
     // a device that still answers requests of a port it lost shows a burst (ReplyWindow's
@@ -209,8 +207,10 @@ void SerialLink::close() {
     disarm_timeout();
     timer_.cancel();
     timer_pending_ = false;
-    boost::system::error_code ignored;
-    port_.close(ignored);
+    input_signal_.cancel();  // a transaction waiting for input ends as cancelled
+    reader_.reset();         // before the descriptor it reads is closed
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = -1;
 }
 
 // A transaction takes about a millisecond and its timeout is a hundred: arming the timer for
@@ -244,8 +244,7 @@ void SerialLink::wait_for_deadline() {
             link.deadline_ = Clock::time_point::max();
             link.timed_out_ = true;
             link.last_activity_ = Clock::now();
-            boost::system::error_code ignored;
-            link.port_.cancel(ignored);
+            link.input_signal_.cancel();
         });
 }
 
@@ -265,24 +264,20 @@ Error SerialLink::port_error(const boost::system::error_code& ec, std::string_vi
 }
 
 // The timer's handler only marks the deadline passed; whether anything came before it is judged
-// here, by what the tty holds. A process short of the CPU can meet the expired timer and the input
-// that came in time in one turn of its loop, the timer first: the bytes then wait in the tty's
-// read queue, unread. They are input like any other (read into read_buffer_, at most a buffer),
-// and the timeout stands only when there are none. The queue is asked first (FIONREAD): a read
-// of an empty tty waits for the kernel worker that hands the driver's input to the tty (its
-// flip buffer), which a machine short of the CPU runs late, by seconds beside busy loops; the
-// loop must never wait on it. Bytes still in the flip buffer are not seen: the line is judged
-// as the kernel has handed it over.
-Result<std::size_t> SerialLink::read_pending(std::string_view during) {
-    if (!is_open()) return std::size_t{0};  // closed meanwhile: the timeout stands
-    int queued = 0;
-    if (::ioctl(port_.native_handle(), FIONREAD, &queued) != 0 || queued <= 0)
-        return std::size_t{0};
-    const auto n = ::read(port_.native_handle(), read_buffer_.data(), read_buffer_.size());
-    if (n > 0) return static_cast<std::size_t>(n);
-    if (n == 0) return Unexpected(port_error(asio::error::eof, during));
-    if (errno == EAGAIN || errno == EINTR) return std::size_t{0};
-    return Unexpected(port_error({errno, boost::system::system_category()}, during));
+// here, by what the reader holds. A process short of the CPU can meet the expired timer and the
+// input that came in time in one turn of its loop, the timer first: those bytes are input like
+// any other, and the timeout stands only when there are none. Bytes the kernel has not yet
+// handed to the tty (its flip buffer) are not seen: the line is judged as the kernel handed it
+// over.
+asio::awaitable<Result<std::size_t>> SerialLink::next_input(std::string_view during) {
+    for (;;) {
+        if (!reader_) co_return Unexpected(port_error(asio::error::operation_aborted, during));
+        if (const auto n = reader_->take(read_buffer_); n > 0) co_return n;
+        if (const auto ec = reader_->error()) co_return Unexpected(port_error(ec, during));
+        if (timed_out_) co_return std::size_t{0};
+        boost::system::error_code ignored;  // cancelled: input came, or the deadline passed
+        co_await input_signal_.async_wait(redirect_error(use_awaitable, ignored));
+    }
 }
 
 // The coroutine owns the exchange, so callers may pass a temporary.
@@ -318,28 +313,21 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
     // have come yet, so back-to-back polling skips this system call (a fifth of them).
     auto sent = Clock::now();
     if (sent - last_input_ >= character_time(settings_.baud)) {
-        ::tcflush(port_.native_handle(), TCIFLUSH);
+        ::tcflush(fd_, TCIFLUSH);
+        reader_->discard();
         sent = Clock::now();
     }
 
     arm_timeout(settings_.timeout);
-    // A request is a few bytes into an empty output buffer: write() takes it whole, at once. An
-    // Asio write would cost a posted completion and another turn of the event loop (with an
-    // epoll_wait) per transaction; it only sends what write() did not take, if ever.
+    // A request is a few bytes into an empty output buffer: write() takes it whole, at once. The
+    // reader sends only what write() did not take, if ever (the other side not reading).
     std::string_view unsent = exchange.request;
-    auto ec = write_now(port_.native_handle(), unsent);
-    if (!ec && !unsent.empty())
-        co_await asio::async_write(port_, asio::buffer(unsent), redirect_error(use_awaitable, ec));
-    if (ec) {
+    if (const auto ec = write_now(fd_, unsent)) {
         disarm_timeout();
         answers_may_be_owed_ = true;  // part of the request may have gone out
-        co_return Unexpected(
-            timed_out_
-                ? Error{Errc::timeout,
-                        fmt::format("{}: could not send to {} within {} ms", settings_.device,
-                                    describe(exchange.target), as_ms(settings_.timeout))}
-                : port_error(ec, "sending"));
+        co_return Unexpected(port_error(ec, "sending"));
     }
+    if (!unsent.empty()) reader_->send(unsent);
     // The reply is read here rather than in a coroutine of its own: one coroutine frame less to
     // allocate and resume per transaction.
     Reply reply(exchange, settings_.device, settings_.timeout);
@@ -349,27 +337,14 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
     bool confirming = false;
     Clock::time_point framed{};
     for (;;) {
-        std::size_t n = 0;
-        // The timer may have fired while the previous read was already complete.
-        if (!timed_out_) {
-            n = co_await port_.async_read_some(asio::buffer(read_buffer_),
-                                               redirect_error(use_awaitable, ec));
-            if (ec && !timed_out_) {
-                disarm_timeout();
-                failed = port_error(ec, "reading");
-                break;
-            }
+        auto input = co_await next_input("reading");
+        if (!input) {
+            disarm_timeout();
+            failed = input.error();
+            break;
         }
-        if (timed_out_) {
-            // The deadline has passed; what the tty holds came before this moment.
-            auto pending = read_pending("reading");
-            if (!pending) {
-                failed = pending.error();
-                break;
-            }
-            if (*pending == 0) break;  // nothing came: no answer in time
-            n = *pending;
-        }
+        if (*input == 0) break;  // nothing came in time
+        const auto n = *input;
         last_input_ = Clock::now();
         last_activity_ = last_input_;
         const auto state = reply.feed({read_buffer_.data(), n});
@@ -390,6 +365,14 @@ asio::awaitable<Result<Reading>> SerialLink::attempt(const Exchange& exchange) {
         // the window `extra`.
         confirming = true;
         arm_timeout(settings_.timeout);
+    }
+    if (!failed && timed_out_ && is_open() && reader_->unsent() > 0) {
+        // The request never went out whole: the other side is not reading.
+        reader_->drop_unsent();
+        ::tcflush(fd_, TCOFLUSH);
+        failed = Error{Errc::timeout,
+                       fmt::format("{}: could not send to {} within {} ms", settings_.device,
+                                   describe(exchange.target), as_ms(settings_.timeout))};
     }
     Result<std::string> frame = failed ? Result<std::string>(Unexpected(*failed)) : reply.frame();
     Result<Reading> reading = frame ? decode(exchange, *frame) : Unexpected(frame.error());
@@ -421,26 +404,21 @@ asio::awaitable<Result<>> SerialLink::wait_for_silence() {
     const auto deadline = Clock::now() + 10 * settings_.timeout;
     for (;;) {
         arm_timeout(settings_.timeout);
-        boost::system::error_code ec;
-        co_await port_.async_read_some(asio::buffer(read_buffer_),
-                                       redirect_error(use_awaitable, ec));
-        if (ec) {
+        auto input = co_await next_input("waiting for silence");
+        if (!input) {
             disarm_timeout();
-            if (!timed_out_) co_return Unexpected(port_error(ec, "waiting for silence"));
-            // Silent for a timeout, unless the tty holds bytes that came meanwhile.
-            auto pending = read_pending("waiting for silence");
-            if (!pending) co_return Unexpected(pending.error());
-            if (*pending == 0) {
-                needs_silence_ = false;
-                co_return Result<>{};
-            }
-            // Not silent: a timeout more. These bytes came before the timer ran, which may be
-            // long after its deadline when the loop is short of the CPU: they say nothing of how
-            // long the line has chattered, so only bytes read as they came make it noisy.
-            last_activity_ = Clock::now();
-            continue;
+            co_return Unexpected(input.error());
+        }
+        if (*input == 0) {  // silent for a timeout
+            needs_silence_ = false;
+            co_return Result<>{};
         }
         last_activity_ = Clock::now();
+        // Not silent: a timeout more. Bytes found once the deadline had passed came before the
+        // timer ran, which may be long after its deadline when the loop is short of the CPU:
+        // they say nothing of how long the line has chattered, so only bytes taken as they came
+        // make it noisy.
+        if (timed_out_) continue;
         if (last_activity_ >= deadline) {
             disarm_timeout();
             answers_may_be_owed_ = true;

@@ -9,7 +9,8 @@
 // (ReplyWindow), and after a failure, until the device has caught up, a frame is taken only
 // once the line stays silent for a timeout after it. On a line that owes nothing the
 // reply is taken the moment its terminator arrives. Port loss is an error value, the fd is
-// closed, and open() may be called again.
+// closed, and open() may be called again. The tty is read on a thread of its own (PortReader:
+// a read or poll of a tty can wait for a kernel worker); everything else happens on the loop.
 #pragma once
 
 #include <chrono>
@@ -19,6 +20,7 @@
 #include <string_view>
 
 #include "link/asio.hpp"
+#include "link/port_reader.hpp"
 #include "protocol/error.hpp"
 #include "protocol/exchange.hpp"
 #include "protocol/reply_window.hpp"
@@ -75,7 +77,7 @@ class SerialLink {
     // allows it. Fails with port_not_found, permission_denied, port_busy, io_error.
     Result<> open();
     void close();
-    bool is_open() const { return port_.is_open(); }
+    bool is_open() const { return fd_ >= 0; }
     // The driver accepted ASYNC_LOW_LATENCY (real UARTs and FTDI; a pty does not).
     bool low_latency() const { return low_latency_; }
 
@@ -98,6 +100,8 @@ class SerialLink {
     const LinkCounters& counters() const { return counters_; }
     // Request sent → reply framed, of the last attempt that got a reply (no silence wait).
     std::chrono::microseconds last_round_trip() const { return last_round_trip_; }
+    // Bytes read from the port since it was opened (0 while closed).
+    std::uint64_t bytes_read() const { return reader_ ? reader_->bytes_read() : 0; }
 
   private:
     asio::awaitable<Result<Reading>> attempt(const Exchange& exchange);
@@ -105,12 +109,17 @@ class SerialLink {
     void arm_timeout(std::chrono::microseconds after);
     void disarm_timeout();
     void wait_for_deadline();
-    // After the deadline passed: the bytes the tty holds (0: none, the line was silent).
-    Result<std::size_t> read_pending(std::string_view during);
+    // The next bytes the reader has, as they come; once the deadline has passed, what came
+    // before it (0: nothing, the line was silent).
+    asio::awaitable<Result<std::size_t>> next_input(std::string_view during);
     Error port_error(const boost::system::error_code& ec, std::string_view during);
 
     LinkSettings settings_;
-    asio::serial_port port_;
+    int fd_ = -1;
+    std::unique_ptr<PortReader> reader_;  // while open; stopped before fd_ is closed
+    // A timer that never expires, cancelled to wake next_input(): by the reader when input
+    // came, and by the deadline.
+    asio::steady_timer input_signal_;
     // The timeout of the current attempt is `deadline_` (max: none). The timer is not re-armed
     // for every attempt: it is armed when none is pending, and when it fires before the
     // deadline (which has moved on with later attempts) it waits again.

@@ -1,11 +1,18 @@
 // The serial link against a device the test scripts byte for byte on a pty.
+#include <sys/socket.h>
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 
 #include <fstream>
 #include <functional>
+#include <memory>
+#include <string>
 #include <thread>
 
+#include "link/port_reader.hpp"
 #include "link/serial_link.hpp"
+#include "tests/support/gateway.hpp"
 #include "tests/support/pty_pair.hpp"
 #include "tests/support/timing.hpp"
 
@@ -194,8 +201,10 @@ TEST_F(SerialLinkTest, InputThatCameWhileTheLinkWasIdleIsFlushed) {
     const auto outcomes = transact_all(io, link, {read(dim0), read(dim0)}, [&](std::size_t i) {
         if (i != 1) return;
         const auto idle_since = Clock::now();  // after the last reply
-        device.send("FFFF\r");                 // unasked
-        EXPECT_TRUE(device.wait_until_queued(5)) << "the unasked bytes never reached the link";
+        const auto before = link.bytes_read();
+        device.send("FFFF\r");  // unasked
+        EXPECT_TRUE(test::eventually([&] { return link.bytes_read() >= before + 5; }))
+            << "the unasked bytes never reached the link";
         // And the line idle for longer than a character time (87 µs at 115200 baud): the link
         // only flushes after that. Time is what this waits for, not a condition.
         std::this_thread::sleep_until(idle_since + 200us);
@@ -295,8 +304,8 @@ TEST_F(SerialLinkTest, AnAnswerThatCameInTimeIsTakenWhenTheLoopRunsTheTimerFirst
     answer.async_wait([&](const boost::system::error_code& ec) {
         if (ec) return;
         device.send("8000\r");
-        // In the tty's queue, not only in the kernel's hands, when the link's timer runs.
-        EXPECT_TRUE(device.wait_until_queued(5, 10s * test::slowdown));
+        // Read from the tty, not only in the kernel's hands, when the link's timer runs.
+        EXPECT_TRUE(test::eventually([&] { return slow.bytes_read() >= 5; }, 10s * test::slowdown));
     });
     const auto outcomes = transact_all(io, slow, {read(dim0)});
     ASSERT_EQ(outcomes.size(), 1u);
@@ -336,8 +345,10 @@ TEST_F(SerialLinkTest, NoiseThatCameInTimeBreaksTheSilenceWhenTheLoopRunsTheTime
         noise.async_wait([&](const boost::system::error_code& error) {
             if (error) return;
             noise_sent = Clock::now();
+            const auto before = retrying.bytes_read();
             device.send("~");
-            EXPECT_TRUE(device.wait_until_queued(1, 10s * test::slowdown));
+            EXPECT_TRUE(test::eventually([&] { return retrying.bytes_read() > before; },
+                                         10s * test::slowdown));
         });
     });
     const auto outcomes = transact_all(io, retrying, {read(dim0)});
@@ -380,6 +391,124 @@ TEST(SerialLinkOpen, ErrorsSayWhatToDo) {
 
     SerialLink odd_baud(io.get_executor(), {file, 12345, 100ms, 1});
     EXPECT_EQ(odd_baud.open().error().code, Errc::invalid_argument);
+}
+
+// --- The port's reader: the thread that reads the tty for the loop ---------------------------
+// A socket pair stands in for the tty: what the reader does with a descriptor is the same, and
+// the test holds the other end.
+
+class PortReaderTest : public ::testing::Test {
+  protected:
+    void SetUp() override {
+        std::array<int, 2> ends{};
+        ASSERT_EQ(::socketpair(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0, ends.data()),
+                  0);
+        port = ends[0];
+        device = ends[1];
+    }
+    void TearDown() override {
+        reader.reset();  // before the descriptor it reads is closed
+        ::close(port);
+        if (device >= 0) ::close(device);
+    }
+    void start() {
+        reader = std::make_unique<PortReader>(io.get_executor(), port, [this] {
+            ++wakeups;
+            std::array<char, 64> buffer{};
+            while (const auto n = reader->take(buffer))
+                taken.append(buffer.data(), n);
+        });
+    }
+    void send(std::string_view bytes) const {
+        ASSERT_EQ(::write(device, bytes.data(), bytes.size()), static_cast<ssize_t>(bytes.size()));
+    }
+    bool reader_has_read(std::uint64_t count) const {
+        return test::eventually([&] { return reader->bytes_read() >= count; },
+                                10s * test::slowdown);
+    }
+
+    asio::io_context io;
+    int port = -1;
+    int device = -1;
+    std::unique_ptr<PortReader> reader;
+    std::string taken;
+    int wakeups = 0;
+};
+
+TEST_F(PortReaderTest, InputReachesTheLoopInOrder) {
+    start();
+    send("12");
+    send("34\r");
+    ASSERT_TRUE(test::run_until(
+        io, [&] { return taken.size() >= 5; }, 10s * test::slowdown));
+    EXPECT_EQ(taken, "1234\r");
+    EXPECT_GE(wakeups, 1);
+    EXPECT_FALSE(reader->error());
+}
+
+// The link's flush of stale input: what was read and not taken is gone, what comes after is not.
+TEST_F(PortReaderTest, DiscardForgetsWhatWasReadAndNotTaken) {
+    start();
+    send("stale");
+    ASSERT_TRUE(reader_has_read(5));
+    reader->discard();
+    send("new");
+    ASSERT_TRUE(test::run_until(
+        io, [&] { return taken.size() >= 3; }, 10s * test::slowdown));
+    EXPECT_EQ(taken, "new");
+}
+
+// A loop that does not take what comes (it never should for long) costs a bounded queue; the
+// excess is dropped and counted, never buffered without end.
+TEST_F(PortReaderTest, InputBeyondTheQueuesBoundIsDroppedAndCounted) {
+    start();
+    const std::string flood(PortReader::max_queued + 100, '~');
+    for (std::size_t sent = 0; sent < flood.size(); sent += 1000)
+        send(std::string_view(flood).substr(sent, 1000));
+    ASSERT_TRUE(reader_has_read(flood.size()));
+    EXPECT_EQ(reader->bytes_dropped(), 100u);
+    ASSERT_TRUE(test::run_until(
+        io, [&] { return taken.size() >= PortReader::max_queued; }, 10s * test::slowdown));
+    EXPECT_EQ(taken.size(), PortReader::max_queued);
+}
+
+TEST_F(PortReaderTest, TheOtherSideGoingAwayIsAnErrorForTheLoop) {
+    start();
+    ::close(device);
+    device = -1;
+    ASSERT_TRUE(test::run_until(
+        io, [&] { return wakeups > 0; }, 10s * test::slowdown));
+    EXPECT_TRUE(reader->error());
+}
+
+// What the tty does not take at once goes out as the other side makes room, in order.
+TEST_F(PortReaderTest, WhatTheTtyDoesNotTakeIsSentAsRoomComes) {
+    const int small = 4096;
+    ASSERT_EQ(::setsockopt(port, SOL_SOCKET, SO_SNDBUF, &small, sizeof small), 0);
+    start();
+    std::string request(256 * 1024, '\0');
+    for (std::size_t i = 0; i < request.size(); ++i)
+        request[i] = static_cast<char>('a' + i % 26);
+    std::string_view unsent = request;
+    while (!unsent.empty()) {  // as the link writes: what the descriptor takes now
+        const auto n = ::write(port, unsent.data(), unsent.size());
+        if (n <= 0) break;
+        unsent.remove_prefix(static_cast<std::size_t>(n));
+    }
+    ASSERT_FALSE(unsent.empty()) << "the socket took everything: nothing left to test";
+    reader->send(unsent);
+    EXPECT_GT(reader->unsent(), 0u);
+    std::string received;
+    ASSERT_TRUE(test::eventually(
+        [&] {
+            std::array<char, 4096> buffer{};
+            const auto n = ::read(device, buffer.data(), buffer.size());
+            if (n > 0) received.append(buffer.data(), static_cast<std::size_t>(n));
+            return received.size() >= request.size();
+        },
+        10s * test::slowdown));
+    EXPECT_EQ(received, request);
+    EXPECT_EQ(reader->unsent(), 0u);
 }
 
 }  // namespace

@@ -46,17 +46,6 @@ void PtyDevice::send(std::string_view bytes) {
     EXPECT_FALSE(ec) << ec.message();
 }
 
-bool PtyDevice::wait_until_queued(std::size_t count, std::chrono::milliseconds deadline) const {
-    const auto until = std::chrono::steady_clock::now() + deadline;
-    for (;;) {
-        int queued = 0;
-        if (::ioctl(slave_fd_, TIOCINQ, &queued) != 0) return false;
-        if (static_cast<std::size_t>(queued) >= count) return true;
-        if (std::chrono::steady_clock::now() >= until) return false;
-        std::this_thread::sleep_for(100us);
-    }
-}
-
 void PtyDevice::hang_up() {
     boost::system::error_code ignored;
     master_.close(ignored);

@@ -30,9 +30,6 @@ class PtyDevice {
     void serve(Script script);
     // Writes bytes at once, unasked.
     void send(std::string_view bytes);
-    // True once `count` bytes wait in the input queue of the side the link opened (the pty
-    // hands them over through a kernel worker, not at once); false if not within `deadline`.
-    bool wait_until_queued(std::size_t count, std::chrono::milliseconds deadline = 1s) const;
     // Closes both ends, as when a USB adapter is pulled out.
     void hang_up();
     const std::vector<std::string>& requests() const { return requests_; }
