@@ -384,7 +384,11 @@ Result<> Workload::start() {
     if (!clock) return Unexpected(clock.error());
     sim_clock_ = *clock;
     checker_control_ = std::make_unique<sim::ControlClient>();
-    if (auto connected = checker_control_->connect(settings_.sim_control); !connected)
+    // The checker cannot judge anything without the simulator's log, and a simulator kept from
+    // the CPU (its own loop reads a pty: the kernel's tty worker) can take seconds to answer on a
+    // machine whose cores are busy: this bound catches a hang, not a slow answer.
+    if (auto connected = checker_control_->connect(settings_.sim_control, std::chrono::seconds(60));
+        !connected)
         return connected;
     // The log is not cleared: the commands from before the start (the gateway setting the
     // outputs to `initial`) are part of what the device had.
