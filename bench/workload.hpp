@@ -93,7 +93,11 @@ struct WorkloadSettings {
     std::chrono::microseconds pause = 2ms;
     double write_share = 0.3;  // of the requests of a client that owns write jobs
     std::chrono::milliseconds input_period = 20ms;  // every input module gets a new state
-    std::chrono::milliseconds response_timeout = 5s;
+    // A client's wait for any answer: a hang's bound, not a latency target. A write waits for
+    // the device's confirmation, behind the writes queued before it; on a busy machine the
+    // simulator was seen to read nothing for seconds, and 16 writes queued behind a module
+    // answering 30 ms late then took more than 5 s.
+    std::chrono::milliseconds response_timeout = 30s;
     std::uint64_t seed = 1;
     int retries = 1;  // the link's: how many times a write may be sent again
     std::chrono::milliseconds timeout = 50ms;  // the link's, per attempt

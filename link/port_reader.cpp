@@ -49,7 +49,12 @@ PortReader::PortReader(const asio::any_io_executor& loop, int fd, std::function<
     shared_->on_input = std::move(on_input);
     if (wake_fd_ < 0)
         throw std::system_error(errno, std::generic_category(), "eventfd for the port's reader");
-    thread_ = std::thread([this] { run(); });
+    try {
+        thread_ = std::thread([this] { run(); });
+    } catch (...) {
+        ::close(wake_fd_);
+        throw;
+    }
 }
 
 PortReader::~PortReader() {

@@ -8,6 +8,7 @@
 
 #include <cerrno>
 #include <cstring>
+#include <system_error>
 
 #include <fmt/format.h>
 
@@ -191,9 +192,16 @@ Result<> SerialLink::open() {
     ::ioctl(fd, TIOCEXCL);
     low_latency_ = request_low_latency(fd);
     ::tcflush(fd, TCIOFLUSH);
+    try {
+        reader_ = std::make_unique<PortReader>(input_signal_.get_executor(), fd,
+                                               [this] { input_signal_.cancel(); });
+    } catch (const std::system_error& e) {  // no thread or eventfd to be had: out of resources
+        ::close(fd);
+        return fail(Errc::io_error,
+                    fmt::format("cannot read {}: {}; the port is closed and is opened again later",
+                                settings_.device, e.what()));
+    }
     fd_ = fd;
-    reader_ = std::make_unique<PortReader>(input_signal_.get_executor(), fd,
-                                           [this] { input_signal_.cancel(); });
     needs_silence_ = false;
     // Not answers_may_be_owed_: what came before the open is flushed with the port's input, and
     // a device that still answers requests of a port it lost shows a burst (ReplyWindow's
