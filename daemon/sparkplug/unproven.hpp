@@ -9,7 +9,7 @@
 // answered for yet then arrives twice, live and as history, with the same timestamp and value.
 //
 // Pure bookkeeping: no I/O, no clock. Bounded: beyond max_unproven_bytes the oldest are forgotten
-// (counted), as a broker that answers nothing for that long has most likely read them.
+// (counted), as the broker has most likely read the oldest.
 #pragma once
 
 #include <cstddef>
@@ -26,12 +26,13 @@
 
 namespace ioport::daemon {
 
-// What the unproven live DDATA may hold in memory (an estimate of the bytes, below): some 5000
-// messages of a few metrics, where the proofs, one in flight at a time every sparkplug
-// live_proof_interval, normally leave a tenth of a second's worth; and a quarter of what may
-// wait for the store's disk (max_store_queue), which takes them at once when the connection is
-// lost.
-inline constexpr std::size_t max_unproven_bytes = std::size_t{256} << 10;
+// What the unproven live DDATA may hold in memory (bytes_of's estimate): some 1800 DDATA of an
+// analog module (six metrics), or 3900 of one metric. The proofs normally leave a tenth of a
+// second's worth here; a broker that went silent (a cable pulled) leaves everything until
+// keepalive finds it out, up to 1.5 × keepalive: 45 s of 40 DDATA a second at the default 30 s.
+// Encoded, that is less than half of max_store_queue, which takes them at once when the
+// connection is lost.
+inline constexpr std::size_t max_unproven_bytes = std::size_t{512} << 10;
 
 // One live DDATA as it went out: its device, the time its values were read, and the metrics that
 // changed, as indexes into sparkplug::module_metrics(type) with their values (names and wire
