@@ -1365,6 +1365,30 @@ class StoreAndForward(OwnDaemon):
               f"{sum(w in live for w in history)} sent both ways", file=sys.stderr)
         self.check_history_form(mark)
 
+    def test_live_data_the_broker_proved_it_read_is_not_sent_again(self):
+        # The other side of the test above: a live DDATA is let go once the SUBACK of a later
+        # SUBSCRIBE proves the broker read it, so a broker stopped after that has it once, not
+        # again as history.
+        self.start()
+        offset = os.path.getsize(self.broker.log)
+        mark = self.host.mark()
+        self.rig.ctl("set dim16:0 0x0ace")
+        self.host.wait_metric("hub0.dim16.0", self.WORD, 0x0ace, since=mark)
+
+        def proven():
+            with open(self.broker.log, errors="replace") as f:
+                f.seek(offset)
+                text = f.read()
+            ddata = text.find(f"'spBv1.0/{GROUP}/DDATA/{NODE}/hub0.dim16.0'")
+            return ddata >= 0 and f"Sending SUBACK to {CLIENT_ID}" in text[ddata:]
+        eventually(proven, 5, "a SUBACK to the node after its DDATA")
+        self.broker_away()
+        births = self.host.mark()
+        self.broker_back()
+        self.wait_births(births)
+        eventually(lambda: self.store_state()["records"] == 0, 10, "the store empty")
+        self.assertNotIn(0x0ace, [value for value, _ in self.history(mark)])
+
     def test_kill_9_in_the_outage_loses_nothing_written(self):
         self.start()
         self.broker_away()
