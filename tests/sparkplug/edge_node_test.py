@@ -1365,6 +1365,33 @@ class StoreAndForward(OwnDaemon):
               f"{sum(w in live for w in history)} sent both ways", file=sys.stderr)
         self.check_history_form(mark)
 
+    @covers("gateway.md §6.2")
+    def test_values_sent_to_a_silent_broker_arrive_as_history(self):
+        # A broker that stops answering without closing the connection (frozen here, a pulled
+        # cable in the field) is found out when keepalive (5 s) runs out. Before, the live DDATA
+        # of that time, published into a connection nobody read again, were lost from the
+        # history; now they stay unproven and are stored when the connection is given up. The
+        # broker then exits without reading them (SIGTERM, then SIGCONT).
+        self.start()
+        mark = self.host.mark()
+        pid = self.broker.process.pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            self.change_while_away(self.WORDS)
+            eventually(lambda: not self.rig.state()["sparkplug"]["connected"], 15,
+                       "the node gives the silent broker up")
+            os.kill(pid, signal.SIGTERM)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        self.broker.process.wait(10 * SLOWDOWN)
+        births = self.host.mark()
+        self.broker_back()
+        self.wait_births(births)
+        eventually(lambda: self.written_history(mark) == self.WORDS, 20,
+                   lambda: f"history of dim16:0 word: {self.history(mark)}")
+        self.rig.wait_log(r"Sparkplug: [1-9]\d* live DDATA the broker had not proven it read kept "
+                          r"in the store", 1)
+
     def test_live_data_the_broker_proved_it_read_is_not_sent_again(self):
         # The other side of the test above: a live DDATA is let go once the SUBACK of a later
         # SUBSCRIBE proves the broker read it, so a broker stopped after that has it once, not
