@@ -104,6 +104,7 @@ SparkplugNode::SparkplugNode(const asio::any_io_executor& executor, config::Mqtt
       rebirth_timer_(executor),
       host_online_(settings_.primary_host_id.empty()),
       forward_timer_(executor),
+      proof_timer_(executor),
       host_timer_(executor) {}
 
 void SparkplugNode::start(const Links& links) {
@@ -205,6 +206,8 @@ void SparkplugNode::stop(std::chrono::milliseconds deadline, std::function<void(
     ticker_.cancel();
     rebirth_timer_.cancel();
     forward_timer_.cancel();
+    proof_timer_.cancel();
+    proof_timer_armed_ = false;
     host_timer_.cancel();
     subscription_.reset();
     // The will is for an unexpected end; a clean one says so itself (Sparkplug 3.0 §7.3).
@@ -270,6 +273,7 @@ void SparkplugNode::connected() {
     ++session_;
     born_ = false;
     proofs_.clear();
+    live_proofs_.clear();
     if (store_) forward_sent_ = store_->delivered();
     for (auto& device : devices_)
         device.born = false;
@@ -331,7 +335,9 @@ void SparkplugNode::disconnected() {
     born_ = false;
     for (auto& device : devices_)
         device.born = false;
-    // What the broker did not provably get goes out again in the next session.
+    // What the broker did not provably get goes out again in the next session: the live DDATA
+    // first, before anything that changes from now on goes to the store.
+    keep_unproven();
     proofs_.clear();
     forward_timer_.cancel();
     host_timer_.cancel();
@@ -603,7 +609,10 @@ void SparkplugNode::forward(std::uint64_t session, std::vector<StoredRecord> rec
         // node has anyway, so repeating it changes nothing at the broker.
         const auto mid = client_->subscribe(
             sparkplug::topic(settings_.group_id, MessageType::ncmd, settings_.edge_node_id), 1);
-        if (mid) proofs_[*mid] = Proof{forward_sent_, sent};
+        if (mid) {
+            proofs_[*mid] = Proof{forward_sent_, sent};
+            live_proofs_[*mid] = unproven_.mark();  // the live DDATA before it, too
+        }
     }
     // Over when nothing is left after what was sent and the store holds nothing undelivered:
     // its mark only moves on a SUBACK, so the broker has had every record. A proof still
@@ -632,6 +641,11 @@ void SparkplugNode::by_alias(const Device& device, Metric& metric) {
 }
 
 void SparkplugNode::subscribed(int mid) {
+    if (const auto live = live_proofs_.find(mid); live != live_proofs_.end()) {
+        unproven_.proven(live->second);
+        live_proofs_.erase(live);
+        prove_live();
+    }
     const auto proof = proofs_.find(mid);
     if (proof == proofs_.end()) return;
     store_->deliver(proof->second.through, proof->second.records);
@@ -656,7 +670,68 @@ void SparkplugNode::update(Device& device) {
     auto data = changes(device, *view, MetricsBy::alias);
     if (data.changed.empty()) return;
     data.payload.seq = next_seq();
-    if (publish(MessageType::ddata, device.id, data.payload)) published(device, data);
+    if (!publish(MessageType::ddata, device.id, data.payload)) return;
+    published(device, data);
+    if (store_) sent_live(device, data);
+}
+
+void SparkplugNode::sent_live(const Device& device, const Changes& data) {
+    SentData sent{device.id, type_of(device.module), data.payload.timestamp, {}};
+    sent.points.reserve(data.changed.size());
+    for (const auto i : data.changed)
+        sent.points.emplace_back(static_cast<std::uint32_t>(i), data.values[i]);
+    unproven_.sent(std::move(sent));
+    if (unproven_.forgotten() != forgotten_logged_)
+        if (const auto held = refusals_.admit("unproven", std::chrono::steady_clock::now())) {
+            log_.warn({},
+                      "Sparkplug: {} live DDATA wait for the broker to prove it read them; the "
+                      "oldest {} were let go unproven, beyond {} KiB (a connection lost now "
+                      "may lose them){}",
+                      unproven_.size(), unproven_.forgotten() - forgotten_logged_,
+                      max_unproven_bytes >> 10, held_back(*held));
+            forgotten_logged_ = unproven_.forgotten();
+        }
+    prove_live();
+}
+
+// A SUBSCRIBE's SUBACK proves the broker read every live DDATA sent before it: one in flight at a
+// time, the next live_proof_interval after the last was answered, and none while nothing waits
+// for one. The NCMD subscription is one the node has anyway (as forward()'s proofs).
+void SparkplugNode::prove_live() {
+    if (unproven_.empty() || !live_proofs_.empty() || proof_timer_armed_ || stopping_) return;
+    proof_timer_armed_ = true;
+    proof_timer_.expires_after(live_proof_interval);
+    proof_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
+        auto self = weak.lock();
+        if (!self || ec) return;  // cancelled: whoever cancelled it disarmed it
+        self->proof_timer_armed_ = false;
+        self->send_live_proof();
+    });
+}
+
+void SparkplugNode::send_live_proof() {
+    if (stopping_ || !client_->connected() || unproven_.empty() || !live_proofs_.empty()) return;
+    const auto mid = client_->subscribe(
+        sparkplug::topic(settings_.group_id, MessageType::ncmd, settings_.edge_node_id), 1);
+    if (mid) live_proofs_[*mid] = unproven_.mark();
+}
+
+void SparkplugNode::keep_unproven() {
+    live_proofs_.clear();
+    proof_timer_.cancel();
+    proof_timer_armed_ = false;
+    if (!store_ || unproven_.empty()) return;
+    const auto records = unproven_.take();
+    if (records.empty()) return;
+    std::size_t kept = 0;
+    for (const auto& record : records) {
+        if (!store_->pending()) backlog_oldest_ms_ = record.payload.timestamp;
+        if (store_->append(sparkplug::encode_stored(record))) ++kept;
+    }
+    log_.info({},
+              "Sparkplug: {} live DDATA the broker had not proven it read kept in the store, for "
+              "after the next births (any it did read arrive twice, the second as history)",
+              kept);
 }
 
 SparkplugNode::Changes SparkplugNode::changes(Device& device, const ModuleState& view,
