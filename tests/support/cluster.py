@@ -578,6 +578,10 @@ class RabbitCluster(_ErlangCluster):
                      "^mqtt-subscription-",
                      '{"ha-mode":"all","ha-sync-mode":"automatic"}')
 
+    def clear_policy(self):
+        """No mirrored-queue policy (again): a queue lives on the node it was declared on."""
+        self._ctl_ok(self.nodes[0], "clear_policy", "mqtt-ha")
+
     def _stop_command(self, node):
         return self._ctl(node, "stop", timeout=60)
 
