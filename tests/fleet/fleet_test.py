@@ -8,8 +8,10 @@ Sparkplug edge node (`mqtt:`, with a store) and plain MQTT (`mqtt_json:`).
 On node 2, which stays up throughout, a Sparkplug host application (host_app.py, which checks the
 specification's rules on every message) and a Home Assistant-like subscriber. Node 1 is stopped
 cleanly, or killed (SIGKILL of its Erlang VM), while dim16 0's inputs change CHANGES times at the
-simulator, each change waited for in the daemon's Modbus image: every change must reach the host
-on node 2 once, live or as history forwarded from the store (none lost, none twice); the JSON
+simulator (and on until the daemon's new session began), each change waited for in the daemon's
+Modbus image: every change must reach the host on node 2 once, live or as history forwarded from
+the store (none twice; none lost but, at most, the live DDATA in flight when node 1 closed the
+connection, which Sparkplug's QoS 0 leaves unproven), and no will of the dead node's sessions reaches it; the JSON
 state on node 2 must be current, and the gateway's status online after a Home Assistant birth on
 node 2. Each run prints its failover figures (seconds from the stop or kill to the daemon's new
 session on node 2, per output; values live, historical, lost, duplicated), and the module ends
@@ -304,8 +306,13 @@ class FleetCase(unittest.TestCase):
                 stopper.start()
             else:
                 stopped.append(cluster.kill_node(0))
-            for value in range(1, CHANGES + 1):
-                self.set_word(client, value)
+            # CHANGES at least, and on until the new session began, so that they span it (a
+            # node stopping cleanly may take longer than the changes do)
+            total = 0
+            while total < CHANGES or not (blocked_for or host.since(mark, "NBIRTH", node=NODE)):
+                total += 1
+                self.set_word(client, total)
+                self.assertLess(total, BARRIER, "no new session while the input changed")
             changed = time.monotonic() - began
             if mode == "stop":
                 stopper.join(90 * SLOWDOWN)
@@ -355,7 +362,7 @@ class FleetCase(unittest.TestCase):
 
             def all_arrived():
                 live, history, _ = values()
-                return set(range(1, CHANGES + 1)) <= set(live) | set(history)
+                return set(range(1, total + 1)) <= set(live) | set(history)
             try:
                 eventually(all_arrived, 60, "every change at the host on node 2")
             except AssertionError:
@@ -367,12 +374,12 @@ class FleetCase(unittest.TestCase):
             live, history, births = values()
             live = [v for v in live if v != BARRIER]
             counted = live + history
-            lost = sorted(set(range(1, CHANGES + 1)) - set(counted))
+            lost = sorted(set(range(1, total + 1)) - set(counted))
             duplicated = sorted({v for v in counted if counted.count(v) > 1})
             figures = {
                 "broker": cluster.kind, "mode": label or mode,
                 "node 1 gone": stopped[0] if stopped else float("nan"),
-                "changes took": changed, "sparkplug": spb_seconds, "json": json_seconds,
+                "changes": total, "changes took": changed, "sparkplug": spb_seconds, "json": json_seconds,
                 "live": len(set(live)), "historical": len(set(history) - set(live)),
                 "lost": len(lost), "duplicated": len(duplicated), "closed": closed,
                 "ndeath": [m.metric("bdSeq").value for m in host.since(mark, "NDEATH", node=NODE)
@@ -380,13 +387,18 @@ class FleetCase(unittest.TestCase):
             }
             FIGURES.append(figures)
             print(f"\n  {cluster.kind}, node 1 {figures['mode']}: node 1 gone after "
-                  f"{figures['node 1 gone']:.2f} s; {CHANGES} changes in {changed:.2f} s; new "
+                  f"{figures['node 1 gone']:.2f} s; {total} changes in {changed:.2f} s; new "
                   f"session {'on node 2 ' if not blocked_for else ''}after {spb_seconds:.2f} s "
                   f"(Sparkplug NBIRTH) and {json_seconds:.2f} s (JSON status online); values "
                   f"live {figures['live']}, historical {figures['historical']}, lost {len(lost)} "
                   f"{lost[:10]}, duplicated {len(duplicated)} {duplicated[:10]}; the old "
                   f"session's NDEATH at the host: {figures['ndeath'] or 'none'}", file=sys.stderr)
-            self.assertEqual(lost, [], "changes lost")
+            # Live DDATA goes at QoS 0 (Sparkplug 3.0) and leaves no trace in the store: the one
+            # in flight when node 1 closed the connection can be lost with it (docs/sparkplug.md,
+            # "What the store cannot see"), and nothing else: the last value that went out live
+            # before the change that was stored.
+            in_flight = [v for v in lost if v - 1 in [0] + live and v + 1 in history]
+            self.assertEqual(lost, in_flight[:1], "changes lost, beyond the one in flight")
             self.assertEqual(duplicated, [], "changes twice at the host")
             self.assertEqual(figures["ndeath"], [], "the will of a session of a dead node")
             # the JSON side on node 2: the state current, live and retained
@@ -521,15 +533,15 @@ class RabbitMQ(FleetCase):
 def print_figures():
     if not FIGURES:
         return
-    print("\nFailover figures (seconds from node 1's stop or kill; values of "
-          f"{CHANGES} changes at the host on node 2):", file=sys.stderr)
-    print("| broker | node 1 | Sparkplug on node 2 | JSON on node 2 | live | historical | lost | "
+    print("\nFailover figures (seconds from node 1's stop or kill to the new session; the "
+          "values of the changes at the host on node 2):", file=sys.stderr)
+    print("| broker | node 1 | Sparkplug | JSON | changes | live | historical | lost | "
           "duplicated |", file=sys.stderr)
-    print("|---|---|---|---|---|---|---|---|", file=sys.stderr)
+    print("|---|---|---|---|---|---|---|---|---|", file=sys.stderr)
     for f in FIGURES:
         print(f"| {f['broker']} | {f['mode']} | {f['sparkplug']:.2f} | {f['json']:.2f} | "
-              f"{f['live']} | {f['historical']} | {f['lost']} | {f['duplicated']} |",
-              file=sys.stderr)
+              f"{f['changes']} | {f['live']} | {f['historical']} | {f['lost']} | "
+              f"{f['duplicated']} |", file=sys.stderr)
 
 
 def tearDownModule():
