@@ -279,19 +279,29 @@ void SparkplugNode::connected() {
         device.born = false;
     const auto& group = settings_.group_id;
     const auto& node = settings_.edge_node_id;
-    subscribe(sparkplug::topic(group, MessageType::ncmd, node), "commands (NCMD)");
-    subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+"), "commands (DCMD)");
+    // Until the SUBACK of the last of them, no births and so no DATA: what changes meanwhile
+    // goes to the store. A broker that takes the CONNECT but closes the connection at a
+    // SUBSCRIBE (RabbitMQ, while the node of the session's queue is down) once had the live
+    // DDATA of that moment, lost with the connection (issue 49).
+    births_await_suback_.reset();
+    std::optional<int> last;
+    const auto subscribe_to = [&](const std::string& topic, std::string_view what) {
+        if (const auto mid = subscribe(topic, what)) last = mid;
+    };
+    subscribe_to(sparkplug::topic(group, MessageType::ncmd, node), "commands (NCMD)");
+    subscribe_to(sparkplug::topic(group, MessageType::dcmd, node, "+"), "commands (DCMD)");
     // And two levels or more, apart: a DCMD whose device id a broker split into levels
     // (RabbitMQ makes hub0.dim16.0 hub0/dim16/0) arrives, to be counted and said, not lost
     // unseen. Not one "#" for both: Sparkplug 3.0 names the subscription above.
-    subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+/+/#"),
-              "DCMDs to no device (device ids split into levels)");
+    subscribe_to(sparkplug::topic(group, MessageType::dcmd, node, "+/+/#"),
+                 "DCMDs to no device (device ids split into levels)");
     if (!settings_.primary_host_id.empty()) {
         host_online_ = false;  // until its STATE says so (retained, so it comes at once)
         // Timestamps are compared within a connection: the host's STATE on this broker may be
         // older than the one it left on the last.
         host_state_timestamp_ = 0;
-        subscribe(sparkplug::state_topic(settings_.primary_host_id), "the primary host's STATE");
+        subscribe_to(sparkplug::state_topic(settings_.primary_host_id), "the primary host's STATE");
+        births_await_suback_ = last;
         if (settings_.brokers.size() > 1) {
             // A host that is not on this broker at all: no STATE within keepalive.
             host_timer_.expires_after(settings_.keepalive);
@@ -306,6 +316,7 @@ void SparkplugNode::connected() {
         }
         return;
     }
+    births_await_suback_ = last;
     birth();
 }
 
@@ -323,16 +334,20 @@ void SparkplugNode::walk(const std::string& why) {
     client_->walk();
 }
 
-void SparkplugNode::subscribe(const std::string& topic, std::string_view what) {
-    if (auto subscribed = client_->subscribe(topic, 1); !subscribed)
-        log_.error({}, "Sparkplug: {}: {} will not arrive in this session",
-                   subscribed.error().message, what);
+// The SUBSCRIBE's message id; none when it could not be sent (logged).
+std::optional<int> SparkplugNode::subscribe(const std::string& topic, std::string_view what) {
+    auto subscribed = client_->subscribe(topic, 1);
+    if (subscribed) return *subscribed;
+    log_.error({}, "Sparkplug: {}: {} will not arrive in this session", subscribed.error().message,
+               what);
+    return std::nullopt;
 }
 
 void SparkplugNode::disconnected() {
     if (!client_->connect_sent()) bdseq_spent_ = false;
     ++session_;
     born_ = false;
+    births_await_suback_.reset();
     for (auto& device : devices_)
         device.born = false;
     // What the broker did not provably get goes out again in the next session: the live DDATA
@@ -385,7 +400,7 @@ ioport::daemon::SparkplugNode::LinkMetrics SparkplugNode::link_metrics(
 }
 
 void SparkplugNode::birth() {
-    if (!client_->connected() || !host_online_ || stopping_) return;
+    if (!client_->connected() || !host_online_ || stopping_ || births_await_suback_) return;
     rebirth_due_ = false;
     seq_ = 0;
     const auto now = now_ms();
@@ -641,6 +656,11 @@ void SparkplugNode::by_alias(const Device& device, Metric& metric) {
 }
 
 void SparkplugNode::subscribed(int mid) {
+    if (births_await_suback_ == mid) {
+        births_await_suback_.reset();
+        birth();  // with a primary host, once its STATE says online
+        return;
+    }
     if (const auto live = live_proofs_.find(mid); live != live_proofs_.end()) {
         unproven_.proven(live->second);
         live_proofs_.erase(live);

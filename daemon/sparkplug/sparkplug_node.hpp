@@ -170,7 +170,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void watch_links();
     void connecting();
     void connected();
-    void subscribe(const std::string& topic, std::string_view what);
+    std::optional<int> subscribe(const std::string& topic, std::string_view what);
     void disconnected();
     void message(std::string_view topic, std::span<const std::uint8_t> payload);
     // A message larger than sparkplug_maximum_packet_size, refused unread (MQTT 3.1.1).
@@ -246,6 +246,10 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     bool host_online_ = true;                 // always, without primary_host_id
     std::uint64_t host_state_timestamp_ = 0;  // of the last STATE taken: older ones are stale
     bool born_ = false;
+    // The message id of the session's last SUBSCRIBE: the births wait for its SUBACK, which
+    // proves the broker took the subscriptions (a broker may close the connection at one
+    // instead, as RabbitMQ does when the queue's node is down).
+    std::optional<int> births_await_suback_;
     bool rebirth_due_ = false;  // a message was dropped: the host's view is incomplete
     bool stopping_ = false;
     bool read_only_ = false;

@@ -33,7 +33,7 @@ from host_app import BrokerLog, HostApp, encode_value  # noqa: E402
 from tck import covers  # noqa: E402
 from broker import Broker  # noqa: E402
 from process_memory import RSS_TELLS, MemoryLimit, cpu_seconds, peak_rss  # noqa: E402
-from raw_mqtt import Mqtt311Front, RawClient  # noqa: E402
+from raw_mqtt import Mqtt311Front, RawClient, SubackHoldingFront  # noqa: E402
 from rig import SLOWDOWN, Rig, eventually, free_port  # noqa: E402
 
 GROUP, NODE = "plant1", "box7"
@@ -1251,6 +1251,35 @@ class StoreAndForward(OwnDaemon):
         self.change_while_away(self.WORDS[:2])
         mark = self.host.mark()
         self.broker_back()
+        self.wait_births(mark)
+        eventually(lambda: self.written_history(mark) == self.WORDS[:2], 20,
+                   lambda: f"history of dim16:0 word: {self.history(mark)}")
+
+    def test_nothing_is_published_before_the_subscriptions_are_acknowledged(self):
+        # Before (issue 49): the births, and live DDATA after them, went out right after the
+        # CONNACK. RabbitMQ takes the CONNECT of a session whose queue's node is down and then
+        # closes the connection at the SUBSCRIBE: a change published live in that moment was
+        # lost with the connection, in no store (mqtt_fleet, a kill of node 1 without the
+        # mirrored policy). Now what changes before the SUBACK is stored, and goes as history.
+        front = SubackHoldingFront(self.broker.port)
+        front.start()
+        self.addCleanup(front.close)
+        self.addCleanup(front.release.set)
+        self.rig.broker_url = f"mqtt://127.0.0.1:{front.port}"
+        self.rig.configure(HUB_MODULES, f"  store: {{ path: {self.store}, forward_rate: 20 }}\n"
+                           + self.MQTT_EXTRA)
+        mark = self.host.mark()
+        self.rig.start_daemon()
+        eventually(lambda: sum(kind == 8 for kind, _ in front.sent) >= 3, 10,
+                   lambda: f"the node's SUBSCRIBEs: {front.sent}")
+        eventually(lambda: all(m["status_text"] == "online" for link in self.rig.state()["links"]
+                               for m in link["modules"]), 10, "every module polled")
+        self.change_while_away(self.WORDS[:2])
+        eventually(lambda: self.store_state()["records"] >= 2, 5,
+                   lambda: f"the changes in the store: {self.store_state()}")
+        self.assertEqual([topic for kind, topic in front.sent if kind == 3], [],
+                         "published before the SUBACK")
+        front.release.set()
         self.wait_births(mark)
         eventually(lambda: self.written_history(mark) == self.WORDS[:2], 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
