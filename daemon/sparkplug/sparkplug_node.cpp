@@ -104,6 +104,7 @@ SparkplugNode::SparkplugNode(const asio::any_io_executor& executor, config::Mqtt
       rebirth_timer_(executor),
       host_online_(settings_.primary_host_id.empty()),
       forward_timer_(executor),
+      proof_timer_(executor),
       host_timer_(executor) {}
 
 void SparkplugNode::start(const Links& links) {
@@ -205,6 +206,8 @@ void SparkplugNode::stop(std::chrono::milliseconds deadline, std::function<void(
     ticker_.cancel();
     rebirth_timer_.cancel();
     forward_timer_.cancel();
+    proof_timer_.cancel();
+    proof_timer_armed_ = false;
     host_timer_.cancel();
     subscription_.reset();
     // The will is for an unexpected end; a clean one says so itself (Sparkplug 3.0 §7.3).
@@ -270,24 +273,35 @@ void SparkplugNode::connected() {
     ++session_;
     born_ = false;
     proofs_.clear();
+    live_proofs_.clear();
     if (store_) forward_sent_ = store_->delivered();
     for (auto& device : devices_)
         device.born = false;
     const auto& group = settings_.group_id;
     const auto& node = settings_.edge_node_id;
-    subscribe(sparkplug::topic(group, MessageType::ncmd, node), "commands (NCMD)");
-    subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+"), "commands (DCMD)");
+    // Until the SUBACK of the last of them, no births and so no DATA: what changes meanwhile
+    // goes to the store. A broker that takes the CONNECT but closes the connection at a
+    // SUBSCRIBE (RabbitMQ, while the node of the session's queue is down) once had the live
+    // DDATA of that moment, lost with the connection (issue 49).
+    births_await_suback_.reset();
+    std::optional<int> last;
+    const auto subscribe_to = [&](const std::string& topic, std::string_view what) {
+        if (const auto mid = subscribe(topic, what)) last = mid;
+    };
+    subscribe_to(sparkplug::topic(group, MessageType::ncmd, node), "commands (NCMD)");
+    subscribe_to(sparkplug::topic(group, MessageType::dcmd, node, "+"), "commands (DCMD)");
     // And two levels or more, apart: a DCMD whose device id a broker split into levels
     // (RabbitMQ makes hub0.dim16.0 hub0/dim16/0) arrives, to be counted and said, not lost
     // unseen. Not one "#" for both: Sparkplug 3.0 names the subscription above.
-    subscribe(sparkplug::topic(group, MessageType::dcmd, node, "+/+/#"),
-              "DCMDs to no device (device ids split into levels)");
+    subscribe_to(sparkplug::topic(group, MessageType::dcmd, node, "+/+/#"),
+                 "DCMDs to no device (device ids split into levels)");
     if (!settings_.primary_host_id.empty()) {
         host_online_ = false;  // until its STATE says so (retained, so it comes at once)
         // Timestamps are compared within a connection: the host's STATE on this broker may be
         // older than the one it left on the last.
         host_state_timestamp_ = 0;
-        subscribe(sparkplug::state_topic(settings_.primary_host_id), "the primary host's STATE");
+        subscribe_to(sparkplug::state_topic(settings_.primary_host_id), "the primary host's STATE");
+        births_await_suback_ = last;
         if (settings_.brokers.size() > 1) {
             // A host that is not on this broker at all: no STATE within keepalive.
             host_timer_.expires_after(settings_.keepalive);
@@ -302,6 +316,7 @@ void SparkplugNode::connected() {
         }
         return;
     }
+    births_await_suback_ = last;
     birth();
 }
 
@@ -319,19 +334,25 @@ void SparkplugNode::walk(const std::string& why) {
     client_->walk();
 }
 
-void SparkplugNode::subscribe(const std::string& topic, std::string_view what) {
-    if (auto subscribed = client_->subscribe(topic, 1); !subscribed)
-        log_.error({}, "Sparkplug: {}: {} will not arrive in this session",
-                   subscribed.error().message, what);
+// The SUBSCRIBE's message id; none when it could not be sent (logged).
+std::optional<int> SparkplugNode::subscribe(const std::string& topic, std::string_view what) {
+    auto subscribed = client_->subscribe(topic, 1);
+    if (subscribed) return *subscribed;
+    log_.error({}, "Sparkplug: {}: {} will not arrive in this session", subscribed.error().message,
+               what);
+    return std::nullopt;
 }
 
 void SparkplugNode::disconnected() {
     if (!client_->connect_sent()) bdseq_spent_ = false;
     ++session_;
     born_ = false;
+    births_await_suback_.reset();
     for (auto& device : devices_)
         device.born = false;
-    // What the broker did not provably get goes out again in the next session.
+    // What the broker did not provably get goes out again in the next session: the live DDATA
+    // first, before anything that changes from now on goes to the store.
+    keep_unproven();
     proofs_.clear();
     forward_timer_.cancel();
     host_timer_.cancel();
@@ -379,7 +400,7 @@ ioport::daemon::SparkplugNode::LinkMetrics SparkplugNode::link_metrics(
 }
 
 void SparkplugNode::birth() {
-    if (!client_->connected() || !host_online_ || stopping_) return;
+    if (!client_->connected() || !host_online_ || stopping_ || births_await_suback_) return;
     rebirth_due_ = false;
     seq_ = 0;
     const auto now = now_ms();
@@ -603,7 +624,10 @@ void SparkplugNode::forward(std::uint64_t session, std::vector<StoredRecord> rec
         // node has anyway, so repeating it changes nothing at the broker.
         const auto mid = client_->subscribe(
             sparkplug::topic(settings_.group_id, MessageType::ncmd, settings_.edge_node_id), 1);
-        if (mid) proofs_[*mid] = Proof{forward_sent_, sent};
+        if (mid) {
+            proofs_[*mid] = Proof{forward_sent_, sent};
+            live_proofs_[*mid] = unproven_.mark();  // the live DDATA before it, too
+        }
     }
     // Over when nothing is left after what was sent and the store holds nothing undelivered:
     // its mark only moves on a SUBACK, so the broker has had every record. A proof still
@@ -632,6 +656,16 @@ void SparkplugNode::by_alias(const Device& device, Metric& metric) {
 }
 
 void SparkplugNode::subscribed(int mid) {
+    if (births_await_suback_ == mid) {
+        births_await_suback_.reset();
+        birth();  // with a primary host, once its STATE says online
+        return;
+    }
+    if (const auto live = live_proofs_.find(mid); live != live_proofs_.end()) {
+        unproven_.proven(live->second);
+        live_proofs_.erase(live);
+        prove_live();
+    }
     const auto proof = proofs_.find(mid);
     if (proof == proofs_.end()) return;
     store_->deliver(proof->second.through, proof->second.records);
@@ -656,7 +690,68 @@ void SparkplugNode::update(Device& device) {
     auto data = changes(device, *view, MetricsBy::alias);
     if (data.changed.empty()) return;
     data.payload.seq = next_seq();
-    if (publish(MessageType::ddata, device.id, data.payload)) published(device, data);
+    if (!publish(MessageType::ddata, device.id, data.payload)) return;
+    published(device, data);
+    if (store_) sent_live(device, data);
+}
+
+void SparkplugNode::sent_live(const Device& device, const Changes& data) {
+    SentData sent{device.id, type_of(device.module), data.payload.timestamp, {}};
+    sent.points.reserve(data.changed.size());
+    for (const auto i : data.changed)
+        sent.points.emplace_back(static_cast<std::uint32_t>(i), data.values[i]);
+    unproven_.sent(std::move(sent));
+    if (unproven_.forgotten() != forgotten_logged_)
+        if (const auto held = refusals_.admit("unproven", std::chrono::steady_clock::now())) {
+            log_.warn({},
+                      "Sparkplug: {} live DDATA wait for the broker to prove it read them; the "
+                      "oldest {} were let go unproven, beyond {} KiB (a connection lost now "
+                      "may lose them){}",
+                      unproven_.size(), unproven_.forgotten() - forgotten_logged_,
+                      max_unproven_bytes >> 10, held_back(*held));
+            forgotten_logged_ = unproven_.forgotten();
+        }
+    prove_live();
+}
+
+// A SUBSCRIBE's SUBACK proves the broker read every live DDATA sent before it: one in flight at a
+// time, the next live_proof_interval after the last was answered, and none while nothing waits
+// for one. The NCMD subscription is one the node has anyway (as forward()'s proofs).
+void SparkplugNode::prove_live() {
+    if (unproven_.empty() || !live_proofs_.empty() || proof_timer_armed_ || stopping_) return;
+    proof_timer_armed_ = true;
+    proof_timer_.expires_after(live_proof_interval);
+    proof_timer_.async_wait([weak = weak_from_this()](const boost::system::error_code& ec) {
+        auto self = weak.lock();
+        if (!self || ec) return;  // cancelled: whoever cancelled it disarmed it
+        self->proof_timer_armed_ = false;
+        self->send_live_proof();
+    });
+}
+
+void SparkplugNode::send_live_proof() {
+    if (stopping_ || !client_->connected() || unproven_.empty() || !live_proofs_.empty()) return;
+    const auto mid = client_->subscribe(
+        sparkplug::topic(settings_.group_id, MessageType::ncmd, settings_.edge_node_id), 1);
+    if (mid) live_proofs_[*mid] = unproven_.mark();
+}
+
+void SparkplugNode::keep_unproven() {
+    live_proofs_.clear();
+    proof_timer_.cancel();
+    proof_timer_armed_ = false;
+    if (!store_ || unproven_.empty()) return;
+    const auto records = unproven_.take();
+    if (records.empty()) return;
+    std::size_t kept = 0;
+    for (const auto& record : records) {
+        if (!store_->pending()) backlog_oldest_ms_ = record.payload.timestamp;
+        if (store_->append(sparkplug::encode_stored(record))) ++kept;
+    }
+    log_.info({},
+              "Sparkplug: {} live DDATA the broker had not proven it read kept in the store, for "
+              "after the next births (any it did read arrive twice, the second as history)",
+              kept);
 }
 
 SparkplugNode::Changes SparkplugNode::changes(Device& device, const ModuleState& view,

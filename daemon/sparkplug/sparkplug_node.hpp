@@ -32,9 +32,13 @@
 // have gone out as DDATA goes to the store (SparkplugStore) with its acquisition time; after the
 // next births it is forwarded oldest first, is_historical, at most forward_rate a second beside
 // the live data. After each batch the node repeats its NCMD SUBSCRIBE: the SUBACK proves the
-// broker read the batch, and only then are its records deleted. Several brokers: MqttClient walks
-// the list on every loss; with primary_host_id, a broker where that host is offline (or sends no
-// STATE within keepalive), or an NCMD Node Control/Next Server, makes the node say NDEATH and walk.
+// broker read the batch, and only then are its records deleted. Live DDATA is QoS 0: each is
+// kept (UnprovenData) until a SUBACK proves the broker read it, one SUBSCRIBE in flight at a time
+// and at most one every live_proof_interval while live DDATA flows; what a lost connection leaves
+// unproven goes to the store, so that a broker that stopped reading (a clean stop) loses none of
+// it. Several brokers: MqttClient walks the list on every loss; with primary_host_id, a broker
+// where that host is offline (or sends no STATE within keepalive), or an NCMD Node Control/Next
+// Server, makes the node say NDEATH and walk.
 //
 // Templates (gateway.md §7.2, mqtt.templates): NBIRTH defines a template per module type
 // configured (_types_/<type>); each DBIRTH is one instance of its type with every member, each
@@ -60,6 +64,7 @@
 #include "daemon/core/link_scheduler.hpp"
 #include "daemon/mqtt/mqtt_client.hpp"
 #include "daemon/sparkplug/store.hpp"
+#include "daemon/sparkplug/unproven.hpp"
 #include "protocol/sparkplug.hpp"
 
 namespace ioport::daemon {
@@ -75,6 +80,11 @@ inline constexpr std::size_t node_command_metrics = 4;
 // is a DCMD (18 KiB at most, sparkplug::decode_command), an NCMD or a STATE (1 KiB); a 64 MiB
 // DCMD once took the daemon from 15 to 146 MB before it was refused.
 inline constexpr std::uint32_t sparkplug_maximum_packet_size = 64 << 10;
+// With a store, live DDATA that went out is proven read by the broker (a SUBSCRIBE's SUBACK) at
+// most this long after it, plus the round trip: what a lost connection leaves unproven is stored
+// and may arrive twice, so this bounds those duplicates; a SUBSCRIBE this often while data flows
+// is what it costs the broker (docs/sparkplug.md).
+inline constexpr std::chrono::milliseconds live_proof_interval{100};
 // A STATE whose timestamp is further ahead of this node's clock than this does not order the
 // STATEs after it (docs/sparkplug.md: clocks set by NTP agree to milliseconds; a forged
 // timestamp must not make the host's real offline look stale).
@@ -160,7 +170,7 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void watch_links();
     void connecting();
     void connected();
-    void subscribe(const std::string& topic, std::string_view what);
+    std::optional<int> subscribe(const std::string& topic, std::string_view what);
     void disconnected();
     void message(std::string_view topic, std::span<const std::uint8_t> payload);
     // A message larger than sparkplug_maximum_packet_size, refused unread (MQTT 3.1.1).
@@ -197,6 +207,12 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     void forward_tick();
     void forward(std::uint64_t session, std::vector<StoredRecord> records);
     static void by_alias(const Device& device, sparkplug::Metric& metric);
+    // A live DDATA went out: unproven until a round trip after it.
+    void sent_live(const Device& device, const Changes& data);
+    void prove_live();
+    void send_live_proof();
+    // The connection is lost: the live DDATA not proven go to the store, in order.
+    void keep_unproven();
     void subscribed(int mid);
     void walk(const std::string& why);
     void link_data(bool counters);
@@ -230,6 +246,10 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     bool host_online_ = true;                 // always, without primary_host_id
     std::uint64_t host_state_timestamp_ = 0;  // of the last STATE taken: older ones are stale
     bool born_ = false;
+    // The message id of the session's last SUBSCRIBE: the births wait for its SUBACK, which
+    // proves the broker took the subscriptions (a broker may close the connection at one
+    // instead, as RabbitMQ does when the queue's node is down).
+    std::optional<int> births_await_suback_;
     bool rebirth_due_ = false;  // a message was dropped: the host's view is incomplete
     bool stopping_ = false;
     bool read_only_ = false;
@@ -252,6 +272,12 @@ class SparkplugNode : public std::enable_shared_from_this<SparkplugNode> {
     std::optional<std::uint64_t> backlog_oldest_ms_;
     std::optional<std::chrono::steady_clock::time_point> forward_started_;
     std::uint64_t forwarded_in_run_ = 0;
+    // Live DDATA not yet proven read by the broker, with a store only.
+    UnprovenData unproven_;
+    std::map<int, std::uint64_t> live_proofs_;  // by SUBSCRIBE message id: UnprovenData::mark()
+    asio::steady_timer proof_timer_;
+    bool proof_timer_armed_ = false;
+    std::uint64_t forgotten_logged_ = 0;  // UnprovenData::forgotten() in the last log line
     // Several brokers and a primary host: its STATE must come within keepalive.
     asio::steady_timer host_timer_;
 };

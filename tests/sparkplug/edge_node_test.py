@@ -33,7 +33,7 @@ from host_app import BrokerLog, HostApp, encode_value  # noqa: E402
 from tck import covers  # noqa: E402
 from broker import Broker  # noqa: E402
 from process_memory import RSS_TELLS, MemoryLimit, cpu_seconds, peak_rss  # noqa: E402
-from raw_mqtt import Mqtt311Front, RawClient  # noqa: E402
+from raw_mqtt import Mqtt311Front, RawClient, SubackHoldingFront  # noqa: E402
 from rig import SLOWDOWN, Rig, eventually, free_port  # noqa: E402
 
 GROUP, NODE = "plant1", "box7"
@@ -1255,6 +1255,35 @@ class StoreAndForward(OwnDaemon):
         eventually(lambda: self.written_history(mark) == self.WORDS[:2], 20,
                    lambda: f"history of dim16:0 word: {self.history(mark)}")
 
+    def test_nothing_is_published_before_the_subscriptions_are_acknowledged(self):
+        # Before (issue 49): the births, and live DDATA after them, went out right after the
+        # CONNACK. RabbitMQ takes the CONNECT of a session whose queue's node is down and then
+        # closes the connection at the SUBSCRIBE: a change published live in that moment was
+        # lost with the connection, in no store (mqtt_fleet, a kill of node 1 without the
+        # mirrored policy). Now what changes before the SUBACK is stored, and goes as history.
+        front = SubackHoldingFront(self.broker.port)
+        front.start()
+        self.addCleanup(front.close)
+        self.addCleanup(front.release.set)
+        self.rig.broker_url = f"mqtt://127.0.0.1:{front.port}"
+        self.rig.configure(HUB_MODULES, f"  store: {{ path: {self.store}, forward_rate: 20 }}\n"
+                           + self.MQTT_EXTRA)
+        mark = self.host.mark()
+        self.rig.start_daemon()
+        eventually(lambda: sum(kind == 8 for kind, _ in front.sent) >= 3, 10,
+                   lambda: f"the node's SUBSCRIBEs: {front.sent}")
+        eventually(lambda: all(m["status_text"] == "online" for link in self.rig.state()["links"]
+                               for m in link["modules"]), 10, "every module polled")
+        self.change_while_away(self.WORDS[:2])
+        eventually(lambda: self.store_state()["records"] >= 2, 5,
+                   lambda: f"the changes in the store: {self.store_state()}")
+        self.assertEqual([topic for kind, topic in front.sent if kind == 3], [],
+                         "published before the SUBACK")
+        front.release.set()
+        self.wait_births(mark)
+        eventually(lambda: self.written_history(mark) == self.WORDS[:2], 20,
+                   lambda: f"history of dim16:0 word: {self.history(mark)}")
+
     def test_first_reads_that_change_before_the_births_are_history(self):
         # Before: a start while the broker was away kept the first reads out of the store, for
         # the DBIRTH to carry; a value that changed before the birth was in none and was lost
@@ -1291,6 +1320,130 @@ class StoreAndForward(OwnDaemon):
             self.rig.stop_daemon(signal.SIGTERM)
         with open(os.path.join(self.store, "bdseq")) as f:
             self.assertEqual(f.read(), "2\n")
+
+    STOPS = 20  # clean broker stops in test_a_value_in_flight_at_a_clean_broker_stop_…
+
+    def published(self):
+        """Messages the node has handed to its broker connection."""
+        found = re.search(r"(?m)^ioportd_mqtt_messages_published_total (\d+)$", self.rig.metrics())
+        return int(found.group(1))
+
+    def word_data(self, mark):
+        """(value, timestamp, historical) of dim16:0's word in every DDATA since `mark`."""
+        found = []
+        for m in self.host.since(mark, "DDATA", "hub0.dim16.0"):
+            if self.WORD in m.resolved:
+                found.append((m.resolved[self.WORD], m.timestamp, False))
+            found += [(value, stamp, True) for name, value, stamp in m.historical
+                      if name == self.WORD]
+        return found
+
+    @covers("gateway.md §6.2")
+    def test_a_value_in_flight_at_a_clean_broker_stop_arrives_live_or_as_history(self):
+        # Before: live DDATA (QoS 0) published just as the broker stopped cleanly went into a
+        # connection the broker never read again, and was not stored, as a session was up: the
+        # host never had the value (docs/sparkplug.md promised "a clean broker stop leaves no
+        # gap"). The broker is frozen (SIGSTOP) so that it reads nothing, the word changes, the
+        # node publishes it, and the broker is told to stop (SIGTERM, then SIGCONT): it exits
+        # without reading it. Then another word, stored while the broker is away.
+        self.start()
+        client = self.modbus(self.rig)
+        mark = self.host.mark()
+        words = []
+        try:
+            for stop in range(self.STOPS):
+                in_flight, meanwhile = 0x0100 + 2 * stop, 0x0101 + 2 * stop
+                words += [in_flight, meanwhile]
+                before, pid = self.published(), self.broker.process.pid
+                os.kill(pid, signal.SIGSTOP)
+                try:
+                    self.rig.ctl(f"set dim16:0 {in_flight:#06x}")
+                    eventually(lambda: client.read_input_registers(0, 1, slave=1).registers[0]
+                               == in_flight, 5, f"dim16:0 read as {in_flight:#06x}")
+                    eventually(lambda: self.published() > before, 5,
+                               f"the DDATA of {in_flight:#06x} published")
+                    os.kill(pid, signal.SIGTERM)
+                finally:
+                    os.kill(pid, signal.SIGCONT)
+                self.broker.process.wait(10 * SLOWDOWN)
+                eventually(lambda: not self.rig.state()["sparkplug"]["connected"], 15,
+                           "the node notices the broker is gone")
+                self.change_while_away([meanwhile])
+                births = self.host.mark()
+                self.broker_back()
+                self.wait_births(births)
+        finally:
+            client.close()
+
+        def arrived():
+            return {value for value, _, _ in self.word_data(mark)} >= set(words)
+        eventually(arrived, 20, lambda: "never arrived, live or as history: " + ", ".join(
+            f"{w:#06x}" for w in sorted(set(words) - {v for v, _, _ in self.word_data(mark)})))
+        data = self.word_data(mark)
+        # Each in its order: the value in flight was read before the one stored after it.
+        first = {}
+        for value, stamp, _ in data:
+            first.setdefault(value, stamp)
+        for stop in range(self.STOPS):
+            self.assertLess(first[words[2 * stop]], first[words[2 * stop + 1]])
+        live = {value for value, _, historical in data if not historical}
+        history = [value for value, _, historical in data if historical]
+        in_flight = words[0::2]
+        print(f"\n  {self.STOPS} clean broker stops: {sum(w in live for w in in_flight)} value(s) "
+              f"in flight arrived live, {sum(w not in live for w in in_flight)} only as history; "
+              f"{sum(w in live for w in history)} sent both ways", file=sys.stderr)
+        self.check_history_form(mark)
+
+    @covers("gateway.md §6.2")
+    def test_values_sent_to_a_silent_broker_arrive_as_history(self):
+        # A broker that stops answering without closing the connection (frozen here, a pulled
+        # cable in the field) is found out when keepalive (5 s) runs out. Before, the live DDATA
+        # of that time, published into a connection nobody read again, were lost from the
+        # history; now they stay unproven and are stored when the connection is given up. The
+        # broker then exits without reading them (SIGTERM, then SIGCONT).
+        self.start()
+        mark = self.host.mark()
+        pid = self.broker.process.pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            self.change_while_away(self.WORDS)
+            eventually(lambda: not self.rig.state()["sparkplug"]["connected"], 15,
+                       "the node gives the silent broker up")
+            os.kill(pid, signal.SIGTERM)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        self.broker.process.wait(10 * SLOWDOWN)
+        births = self.host.mark()
+        self.broker_back()
+        self.wait_births(births)
+        eventually(lambda: self.written_history(mark) == self.WORDS, 20,
+                   lambda: f"history of dim16:0 word: {self.history(mark)}")
+        self.rig.wait_log(r"Sparkplug: [1-9]\d* live DDATA the broker had not proven it read kept "
+                          r"in the store", 1)
+
+    def test_live_data_the_broker_proved_it_read_is_not_sent_again(self):
+        # The other side of the test above: a live DDATA is let go once the SUBACK of a later
+        # SUBSCRIBE proves the broker read it, so a broker stopped after that has it once, not
+        # again as history.
+        self.start()
+        offset = os.path.getsize(self.broker.log)
+        mark = self.host.mark()
+        self.rig.ctl("set dim16:0 0x0ace")
+        self.host.wait_metric("hub0.dim16.0", self.WORD, 0x0ace, since=mark)
+
+        def proven():
+            with open(self.broker.log, errors="replace") as f:
+                f.seek(offset)
+                text = f.read()
+            ddata = text.find(f"'spBv1.0/{GROUP}/DDATA/{NODE}/hub0.dim16.0'")
+            return ddata >= 0 and f"Sending SUBACK to {CLIENT_ID}" in text[ddata:]
+        eventually(proven, 5, "a SUBACK to the node after its DDATA")
+        self.broker_away()
+        births = self.host.mark()
+        self.broker_back()
+        self.wait_births(births)
+        eventually(lambda: self.store_state()["records"] == 0, 10, "the store empty")
+        self.assertNotIn(0x0ace, [value for value, _ in self.history(mark)])
 
     def test_kill_9_in_the_outage_loses_nothing_written(self):
         self.start()

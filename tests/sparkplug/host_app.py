@@ -340,9 +340,11 @@ class NodeState:
 
 
 class HostApp:
-    def __init__(self, port, host="127.0.0.1", client_id="ioportd-test-host", keep_session=False):
+    def __init__(self, port, host="127.0.0.1", client_id="ioportd-test-host", keep_session=False,
+                 credentials=None):
         """keep_session: a persistent session (Clean Session 0), for a broker that keeps it over
-        a restart (Broker(keep_sessions=True))."""
+        a restart (Broker(keep_sessions=True)); credentials: (user name, password), for a broker
+        that wants them (ejabberd's mod_mqtt, tests/support/cluster.py)."""
         self.violations = []
         self.messages = []
         self.nodes = {}
@@ -350,6 +352,8 @@ class HostApp:
         self._cond = threading.Condition()
         self._client = mqtt.Client(client_id=client_id, clean_session=not keep_session,
                                    protocol=mqtt.MQTTv311)
+        if credentials:
+            self._client.username_pw_set(*credentials)
         self._client.on_connect = self._on_connect
         self._client.on_message = self._on_message
         # Back soon after a broker restart; what comes before waits only if keep_session.

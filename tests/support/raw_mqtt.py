@@ -1,11 +1,12 @@
 """MQTT at the level of its packets, for the tests of what a client or a broker may do that a
 library would not: a client that publishes 250 MB in linear time, brokers that play one part
-(MQTT 3.1.1 only, a DISCONNECT at once), and a front that makes a real broker look like one of
-before MQTT 5.
+(MQTT 3.1.1 only, a DISCONNECT at once), a front that makes a real broker look like one of
+before MQTT 5, and one that holds its SUBACKs back.
 
     client = RawClient(port, "hostile"); client.publish(topic, payload, seconds); client.close()
     broker = Mqtt311Broker(); broker.start(); ...; broker.levels; broker.connects; broker.close()
     front = Mqtt311Front(real_broker_port); front.start(); ...; front.close()
+    front = SubackHoldingFront(real_broker_port); ...; front.sent; front.release.set()
     connect = parse_connect(body)   # a CONNECT's level, flags, properties, client id
 """
 
@@ -249,3 +250,56 @@ class Mqtt311Front(ScriptedBroker):
             except OSError:
                 pass
         source.close()
+
+
+class SubackHoldingFront(ScriptedBroker):
+    """A real broker (on `port`) whose SUBACKs, and all it sends after one, wait until `release`
+    is set, as a broker does that has not taken a SUBSCRIBE yet (or never will: RabbitMQ closes
+    the connection at one it cannot serve). `sent`: what the client sent meanwhile and after,
+    in order: (packet type, the topic of a PUBLISH or SUBSCRIBE's first filter, else None)."""
+
+    def __init__(self, port):
+        super().__init__()
+        self.upstream = port
+        self.release = threading.Event()
+        self.sent = []
+
+    def serve(self, conn):
+        try:
+            broker = socket.create_connection(("127.0.0.1", self.upstream))
+        except OSError:
+            conn.close()
+            return
+        threading.Thread(target=self.pump, args=(broker, conn, False), daemon=True).start()
+        self.pump(conn, broker, True)
+
+    def pump(self, source, sink, from_client):
+        """Packet by packet from `source` to `sink` until either ends; then both are shut."""
+        try:
+            while (packet := read_packet(source))[0] is not None:
+                kind, body = packet
+                if from_client:
+                    self.sent.append((kind >> 4, self.topic(kind, body)))
+                elif kind >> 4 == 9:  # SUBACK
+                    self.release.wait()
+                sink.sendall(bytes([kind]) + remaining_length(len(body)) + body)
+        except (OSError, IndexError, struct.error):
+            pass
+        for end in (source, sink):
+            try:
+                end.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+        source.close()
+
+    @staticmethod
+    def topic(kind, body):
+        if kind >> 4 == 3:  # PUBLISH: the topic first
+            n = struct.unpack(">H", body[:2])[0]
+            return body[2:2 + n].decode("utf-8", "replace")
+        if kind >> 4 == 8:  # SUBSCRIBE of MQTT 5: packet id, properties, then the filters
+            length, at = varint(body, 2)
+            at += length
+            n = struct.unpack(">H", body[at:at + 2])[0]
+            return body[at + 2:at + 2 + n].decode("utf-8", "replace")
+        return None
