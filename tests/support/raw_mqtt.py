@@ -244,12 +244,17 @@ class Mqtt311Front(ScriptedBroker):
                 sink.sendall(data)
         except OSError:
             pass
-        for end in (source, sink):
-            try:
-                end.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-        source.close()
+        shut_both(source, sink)
+
+
+def shut_both(source, sink):
+    """The end of a relay from `source` to `sink`: both shut, `source` closed."""
+    for end in (source, sink):
+        try:
+            end.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+    source.close()
 
 
 class SubackHoldingFront(ScriptedBroker):
@@ -285,12 +290,7 @@ class SubackHoldingFront(ScriptedBroker):
                 sink.sendall(bytes([kind]) + remaining_length(len(body)) + body)
         except (OSError, IndexError, struct.error):
             pass
-        for end in (source, sink):
-            try:
-                end.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-        source.close()
+        shut_both(source, sink)
 
     @staticmethod
     def topic(kind, body):
