@@ -160,7 +160,7 @@ class Watcher:
         with self.lock:
             return [m for m in self.messages[mark:] if topic is None or m[0] == topic]
 
-    def wait(self, topic, where=lambda m: True, since=0, timeout=10):
+    def wait(self, topic, where=lambda m: True, since=0, timeout=60):
         def found():
             return next((m for m in self.since(since, topic) if where(m)), None)
         return eventually(found, timeout, lambda: f"{topic} since #{since}; got "
@@ -237,7 +237,7 @@ class FleetCase(unittest.TestCase):
                 self.rig.stop_daemon(signal.SIGTERM)
                 state = self.host.node(GROUP, NODE)
                 if state and state.born:
-                    self.host.wait_message("NDEATH", node=NODE, since=mark, timeout=10)
+                    self.host.wait_message("NDEATH", node=NODE, since=mark, timeout=60)
             self.rig.close()
         violations = [v for v in self.host.violations
                       if not any(re.search(allowed, v) for allowed in self.host_violations_allowed)]
@@ -266,9 +266,9 @@ class FleetCase(unittest.TestCase):
         self.rig.start_daemon()
         for section in ("mqtt", "mqtt_json"):
             self.rig.wait_connected(section, self.url(0))
-        nbirth = self.host.wait_message("NBIRTH", node=NODE, since=mark, timeout=20)
+        nbirth = self.host.wait_message("NBIRTH", node=NODE, since=mark, timeout=60)
         for kind in ("dim16", "dom16"):
-            self.host.wait_message("DBIRTH", self.device(kind), since=nbirth.index, timeout=20)
+            self.host.wait_message("DBIRTH", self.device(kind), since=nbirth.index, timeout=60)
         return nbirth
 
     def modbus_word(self, client):
@@ -370,7 +370,8 @@ class FleetCase(unittest.TestCase):
             eventually(lambda: self.rig.state()["sparkplug"]["store"]["records"] == 0, 60,
                        lambda: f"the store emptied: {self.rig.state()['sparkplug']['store']}")
             self.set_word(client, BARRIER)
-            host.wait_metric(device, "word", BARRIER, since=mark, timeout=10, type_="DDATA")
+            # in a DDATA, or in the DBIRTH of a module back online after a busy moment
+            host.wait_metric(device, "word", BARRIER, since=mark, timeout=60)
             live, history, births = values()
             live = [v for v in live if v != BARRIER]
             counted = live + history

@@ -19,6 +19,7 @@
 #include <map>
 #include <optional>
 #include <regex>
+#include <sstream>
 #include <thread>
 
 #include <fmt/format.h>
@@ -298,7 +299,11 @@ class Contract : public ::testing::Test {
                                milliseconds deadline = 5s) {
         return register_becomes(client, 1100 + slot, static_cast<std::uint16_t>(status), deadline);
     }
-    static bool all_online(ModbusClient& client) { return register_becomes(client, 1000, 1); }
+    // A hang's bound: on a busy machine the simulator can answer late for seconds, and modules
+    // go offline and come back meanwhile.
+    static bool all_online(ModbusClient& client) {
+        return register_becomes(client, 1000, 1, 30s * slowdown);
+    }
     static std::uint32_t read_u32(ModbusClient& client, int address) {
         const auto words = client.read_input_registers(address, 2);
         EXPECT_TRUE(words);
@@ -1081,13 +1086,18 @@ TEST_F(ContractTest, ModuleStatusTellsTheKindOfFailure) {
 
 TEST_F(ContractTest, AgeOfTheLastGoodTransaction) {
     ASSERT_TRUE(all_online(client));
-    EXPECT_LT(read_register(client, 1200 + slot_dim16_0), 200);
+    // Recent: polled every cycle, a few tens of ms here, but a busy machine's cycle can take
+    // hundreds (295 ms beside two busy loops). What this tells apart is a fresh age, a
+    // refresh's (under 1.2 s), "never" and one that grows once the module falls silent.
+    constexpr std::uint16_t recent = 1000;
+    EXPECT_LT(read_register(client, 1200 + slot_dim16_0), recent);
     EXPECT_LT(read_register(client, 1200 + slot_dom16_0), 1200);  // refreshed every 1 s
     for (const int slot : {1, 10, 71})
         EXPECT_EQ(read_register(client, 1200 + slot), never) << "slot " << slot;
     hub.ctl("fault dim16:0 silent");
-    EXPECT_TRUE(eventually([&] { return read_register(client, 1200 + slot_dim16_0) >= 300; }));
-    EXPECT_LT(read_register(client, 1200 + slot_lim16_1), 200);
+    EXPECT_TRUE(
+        eventually([&] { return read_register(client, 1200 + slot_dim16_0) > 2 * recent; }));
+    EXPECT_LT(read_register(client, 1200 + slot_lim16_1), recent);
 }
 
 TEST_F(ContractTest, TheId2UnitUsesSlot0AndHasNoOtherSlots) {
@@ -1817,34 +1827,37 @@ TEST(ContractPolling, AFailingModuleIsRetriedOnBackOffWhileOthersKeepBeingPolled
     SimProcess hub("--hub", sim_modules(modules), {"--no-line-timing"});
     GatewayProcess gateway(config(hub_link(hub.link(), modules)));  // timeout 30 ms, 1 retry
     ModbusClient client(gateway.port());
-    const auto median_cycle = [&] {
-        std::vector<std::uint16_t> samples;
-        eventually([&] {
-            if (const auto cycle = client.read_input_registers(1001, 1))
-                samples.push_back((*cycle)[0]);
-            return samples.size() >= 40;
-        });
-        std::sort(samples.begin(), samples.end());
-        return milliseconds(samples[samples.size() / 2] / 10);
-    };
     ASSERT_TRUE(eventually([&] {
         const auto state = client.read_input_registers(1000, 1);
         return state && (*state)[0] == 1;
     }));
-    const auto healthy = median_cycle();
     hub.ctl("fault dccim:0 silent");
     ASSERT_TRUE(eventually([&] { return (ir_values(client, 1148, 1))[0] == 2; }));
-    // Each try of the dead module costs two timeouts (60 ms); most cycles skip it.
-    const auto with_dead_module = median_cycle();
-    EXPECT_LT(with_dead_module, healthy + 20ms) << "healthy " << healthy.count() << " ms";
-    // The others are polled all along: a change shows within a few cycles.
+    // Counted, not timed: how often the line carried the dead module's request (g0) beside a
+    // healthy one's (a0), over 60 of the healthy one's. Without the back-off it is tried every
+    // cycle, each try two timeouts; with it, most cycles skip it.
+    hub.ctl("log clear");
+    int dead_tries = 0;
+    int healthy_reads = 0;
+    ASSERT_TRUE(eventually(
+        [&] {
+            std::istringstream log(hub.ctl("log take"));
+            std::string at, request, answer;
+            while (log >> at >> request >> answer) {
+                dead_tries += request == "g0";
+                healthy_reads += request == "a0";
+            }
+            return healthy_reads >= 60;
+        },
+        30s * slowdown));
+    EXPECT_LE(dead_tries * 4, healthy_reads)
+        << dead_tries << " tries of the dead module over " << healthy_reads << " polls";
+    // The others are polled all along: a change shows.
     hub.ctl("set dim16:1 0x4242");
-    const auto changed = Clock::now();
     EXPECT_TRUE(eventually([&] {
         const auto value = client.read_input_registers(1, 1);
         return value && (*value)[0] == 0x4242;
     }));
-    EXPECT_LT(since(changed), 150ms);
     // And the dead module is still tried: it is found again when it answers.
     hub.ctl("fault dccim:0 none");
     EXPECT_TRUE(eventually([&] { return (ir_values(client, 1148, 1))[0] == 1; }, 6s));

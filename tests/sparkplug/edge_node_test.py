@@ -1158,8 +1158,12 @@ class StoreAndForward(OwnDaemon):
         try:
             for word in words:
                 self.rig.ctl(f"set dim16:0 {word:#06x}")
-                eventually(lambda: client.read_input_registers(0, 1, slave=1).registers[0] == word,
-                           5, f"dim16:0 read as {word:#06x}")
+
+                def read_back():
+                    # an exception while dim16 0 is briefly offline on a busy machine: not yet
+                    regs = client.read_input_registers(0, 1, slave=1)
+                    return not regs.isError() and regs.registers[0] == word
+                eventually(read_back, 30, f"dim16:0 read as {word:#06x}")
         finally:
             client.close()
 

@@ -127,7 +127,9 @@ def _session_pids(sid):
 
 
 def _kill_session(sid, deadline):
-    """SIGKILL every process of session `sid`, and wait until none is left."""
+    """SIGKILL every process of session `sid`, and wait until none is left. `deadline` is a
+    hang's: a killed Erlang VM of a few hundred MB took more than 10 s to be gone beside two busy
+    loops."""
     until = time.monotonic() + deadline
     while True:
         pids = _session_pids(sid)
@@ -282,11 +284,11 @@ class _ErlangCluster:
         try:
             out, err = proc.communicate(timeout=timeout * SLOWDOWN)
         except subprocess.TimeoutExpired:
-            _kill_session(proc.pid, 10)
+            _kill_session(proc.pid, 60 * SLOWDOWN)
             out, err = proc.communicate()
             raise ClusterError(f"{self.kind}: {what} took more than {timeout * SLOWDOWN} s: "
                                f"{out}{err}") from None
-        _kill_session(proc.pid, 10)
+        _kill_session(proc.pid, 60 * SLOWDOWN)
         return subprocess.CompletedProcess(argv, proc.returncode, out, err)
 
     def _ctl_ok(self, node, *args, timeout=30.0):
@@ -427,7 +429,7 @@ class _ErlangCluster:
             raise ClusterError(f"{self.kind}: {node.name} still runs {deadline} s after "
                                f"its stop command ({out.returncode}: {out.stdout}"
                                f"{out.stderr})\n{node.log_tail()}") from None
-        _kill_session(node.pid, 10)             # epmd-starter or inet_gethost leftovers
+        _kill_session(node.pid, 60 * SLOWDOWN)             # epmd-starter or inet_gethost leftovers
         return time.monotonic() - began
 
     def kill_node(self, index):
@@ -436,7 +438,7 @@ class _ErlangCluster:
         began = time.monotonic()
         node.process.send_signal(signal.SIGKILL)
         node.process.wait(10)
-        _kill_session(node.pid, 10)
+        _kill_session(node.pid, 60 * SLOWDOWN)
         return time.monotonic() - began
 
     def memory(self):
@@ -462,7 +464,7 @@ class _ErlangCluster:
                 if proc.poll() is None:
                     proc.kill()
                 proc.wait(10)
-                _kill_session(proc.pid, 10)
+                _kill_session(proc.pid, 60 * SLOWDOWN)
             except (ClusterError, subprocess.TimeoutExpired) as e:
                 errors.append(str(e))
         for node in self.nodes:
