@@ -75,6 +75,7 @@ HA_TOPICS = (STATUS, DIM_STATE, f"{PREFIX}/hub0/dim16_0/availability",
              f"{PREFIX}/hub0/dom16_0/state")
 
 FIGURES = []  # one row per failover run, printed at the end
+WILLS = []  # per clean stop of a bridged Mosquitto: (the NDEATH crossed, the JSON will crossed)
 DEFAULT_MAX_MESSAGE_SIZE = 134217728  # RabbitMQ 3.10's max_message_size: 128 MiB
 
 
@@ -419,13 +420,18 @@ class FleetCase(unittest.TestCase):
             self.assertEqual(lost, in_flight[:1], "changes lost, beyond the one in flight")
             self.assertEqual(duplicated, [], "changes twice at the host")
             # the will of the session on node 1: never from a cluster's dead node; from a
-            # bridged Mosquitto stopped cleanly, which publishes its clients' wills as it stops
-            will = mode == "stop" and self.WILL_AT_STOP
-            self.assertEqual(figures["ndeath"], [born] if will else [],
-                             "the will of the session on node 1, at the host on node 2")
-            if not blocked_for:
-                self.assertEqual(figures["json offline"], 1 if will else 0,
-                                 "the JSON output's will (status offline) on node 2")
+            # bridged Mosquitto stopped cleanly, which publishes its clients' wills as it stops,
+            # those that cross the bridge before it closes (a race: the JSON output's did not,
+            # once in six runs), the old session's, never a later one
+            if mode == "stop" and self.WILL_AT_STOP:
+                self.assertIn(figures["ndeath"], ([born], []), "the old session's will at most")
+                self.assertLessEqual(figures["json offline"], 1)
+                WILLS.append((figures["ndeath"] == [born], figures["json offline"] == 1))
+            else:
+                self.assertEqual(figures["ndeath"], [], "the will of a session of a dead node")
+                if not blocked_for:
+                    self.assertEqual(figures["json offline"], 0,
+                                     "the JSON output's will (status offline) on node 2")
             # the JSON side on node 2: the state current, live and retained
             ha.wait(DIM_STATE, lambda m: json.loads(m[1]).get("word") == BARRIER, ha_mark)
             last = ha.since(ha_mark, DIM_STATE)[-1]
@@ -774,6 +780,9 @@ def print_figures():
         print(f"| {f['broker']} | {f['mode']} | {f['sparkplug']:.2f} | {f['json']:.2f} | "
               f"{f['changes']} | {f['live']} | {f['historical']} | {f['lost']} | "
               f"{f['duplicated']} |", file=sys.stderr)
+    for ndeath, offline in WILLS:
+        print(f"Mosquitto bridge, clean stop of node 1: the Sparkplug will crossed the bridge: "
+              f"{ndeath}; the JSON output's: {offline}", file=sys.stderr)
 
 
 def tearDownModule():
