@@ -83,7 +83,7 @@ class FleetRig(Rig):
     """ioport-sim with dim16 0 and dom16 0, and ioportd on it with both MQTT outputs on the
     cluster's nodes in order, the Sparkplug store in the rig's directory."""
 
-    def __init__(self, directory, cluster, separator="."):
+    def __init__(self, directory, cluster, separator=".", primary_host=None):
         super().__init__(directory, IOPORTD, IOPORT_SIM, preexec_fn=die_with_parent)
         self.urls = [f"mqtt://127.0.0.1:{node.mqtt_port}" for node in cluster.nodes]
         self.store = os.path.join(directory, "store")
@@ -120,7 +120,7 @@ mqtt:
   keepalive: 5s
   device_id_separator: "{separator}"
   store: {{ path: {self.store} }}
-{login}mqtt_json:
+{f"  primary_host_id: {primary_host}{chr(10)}" if primary_host else ""}{login}mqtt_json:
   brokers: {brokers}
   topic_prefix: "{PREFIX}"
   keepalive: 5s
@@ -489,6 +489,62 @@ class Ejabberd(FleetCase):
 
     def test_a_kill_of_node_1(self):
         self.failover("kill")
+
+    def test_a_primary_host_must_publish_its_state_on_every_node(self):
+        # The host's STATE is retained on node 2 only: the daemon on node 1 gets none within
+        # keepalive, leaves node 1 and is born on node 2. With the STATE on node 1 as well, it
+        # is born on node 1 at once.
+        host_id = "fleet-scada"
+        topic = f"spBv1.0/STATE/{host_id}"
+        try:
+            self.host.state(host_id, True)
+            self.rig = FleetRig(tempfile.mkdtemp(dir=self.dir), self.cluster,
+                                primary_host=host_id)
+            mark = self.host.mark()
+            began = time.monotonic()
+            self.rig.start_daemon()
+            self.rig.wait_connected("mqtt", self.url(0))
+            nbirth = self.host.wait_message("NBIRTH", node=NODE, since=mark, timeout=30)
+            seconds = nbirth.received - began
+            nbirth_bdseq = nbirth.metric("bdSeq").value
+            self.assertEqual(self.rig.state()["sparkplug"]["broker"], self.url(1))
+            self.assertEqual(self.host.since(mark, "NBIRTH", node=NODE), [nbirth],
+                             "births on node 1")
+            # the session left on node 1 ended with NDEATH, then (MQTT 5) its will: both reach
+            # the host on node 2, with the bdSeq before the NBIRTH's
+            ndeaths = [m.metric("bdSeq").value for m in self.host.since(mark, "NDEATH", node=NODE)
+                       if m.index < nbirth.index]
+            self.assertEqual(ndeaths, [nbirth_bdseq - 1] * 2)
+            # the STATE on node 1 too: a new daemon is born there
+            mark = self.host.mark()
+            self.rig.stop_daemon(signal.SIGTERM)
+            self.host.wait_message("NDEATH", node=NODE, since=mark, timeout=10)
+            watcher = Watcher(self.cluster, 0, ())
+            try:
+                watcher.publish(topic, json.dumps({"online": True,
+                                                   "timestamp": int(time.time() * 1000)}),
+                                retain=True)
+            finally:
+                watcher.close()
+            mark = self.host.mark()
+            began = time.monotonic()
+            self.rig.start_daemon()
+            nbirth = self.host.wait_message("NBIRTH", node=NODE, since=mark, timeout=30)
+            both_seconds = nbirth.received - began
+            self.assertEqual(self.rig.state()["sparkplug"]["broker"], self.url(0))
+            self.assertNotIn(f"connected to {self.url(1)}", self.rig.log_text())
+            print(f"\n  ejabberd, primary host's STATE on node 2 only: the daemon born on node 2 "
+                  f"{seconds:.2f} s after its start (keepalive 5 s on node 1; NDEATH of the session "
+                  f"left there at the host: {ndeaths}, the NBIRTH's bdSeq "
+                  f"{nbirth_bdseq}); on both nodes: "
+                  f"born on node 1 after {both_seconds:.2f} s", file=sys.stderr)
+        finally:
+            for index in range(len(self.cluster.nodes)):
+                watcher = Watcher(self.cluster, index, ())
+                try:
+                    watcher.publish(topic, "", retain=True)
+                finally:
+                    watcher.close()
 
 
 class RabbitMQ(FleetCase):
