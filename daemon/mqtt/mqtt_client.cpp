@@ -335,6 +335,11 @@ void MqttClient::lost(const std::string& why, bool same_broker) {
     if (std::exchange(attempt_ended_, true) && !stopping_) return;
     const bool was_connected = connected_;
     connected_ = false;
+    // A connection that lasted, or whose session the broker took, starts the back-off again;
+    // one the broker ended at once does not (steady_connection).
+    if (was_connected &&
+        (established_ || std::chrono::steady_clock::now() - connected_at_ >= steady_connection))
+        reconnect_delay_ = first_reconnect_delay;
     queued_.clear();
     queued_bytes_ = 0;
     forget_socket();
@@ -409,6 +414,10 @@ bool MqttClient::publish(std::string_view topic, std::span<const std::uint8_t> p
         return false;
     }
     ++published_;
+    if (payload.size() > largest_bytes_) {
+        largest_bytes_ = payload.size();
+        largest_topic_ = topic;
+    }
     // on_publish may have run within mosquitto_publish (written at once, QoS 0): then the id is
     // not queued any more.
     if (!written_now_) {
@@ -478,7 +487,10 @@ void MqttClient::on_connect(mosquitto* /*client*/, void* self, int rc) {
         return;
     }
     me.connected_ = true;
-    me.reconnect_delay_ = first_reconnect_delay;
+    me.connected_at_ = std::chrono::steady_clock::now();
+    me.established_ = false;
+    me.largest_bytes_ = 0;
+    me.largest_topic_.clear();
     me.last_errors_[me.current_].clear();
     me.log_.info({}, "{}: connected to {} as {} (MQTT {})", me.section_, me.broker(),
                  me.settings_.client_id, me.mqtt5() ? "5" : "3.1.1");
@@ -535,6 +547,11 @@ std::string MqttClient::disconnect_reason(int rc) const {
         if (rc == MQTT_RC_SESSION_TAKEN_OVER)
             why += fmt::format("; another client connected as {}: give each its own client_id",
                                settings_.client_id);
+        if (rc == MQTT_RC_PACKET_TOO_LARGE && largest_bytes_ > 0)
+            why += fmt::format(
+                "; the largest message of this session had {} bytes ({}): raise the broker's "
+                "limit on a message's size above it (ejabberd: max_payload_size)",
+                largest_bytes_, printable(largest_topic_));
         return why;
     }
     return fmt::format("connection to {} lost: {}", broker(), mosquitto_error(rc));

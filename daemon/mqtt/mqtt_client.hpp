@@ -22,6 +22,7 @@
 // Owned through a shared_ptr: its completions keep it alive.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -45,6 +46,12 @@ namespace ioport::daemon {
 inline constexpr std::size_t max_queued_bytes = std::size_t{4} << 20;
 inline constexpr std::chrono::seconds first_reconnect_delay{1};
 inline constexpr std::chrono::seconds max_reconnect_delay{30};
+// A connection lost after lasting this long since its CONNACK, or after its output said the
+// broker took what the session begins with (session_established), begins the back-off again
+// at first_reconnect_delay; one lost sooner goes on doubling it. A broker that ends every session
+// at once (a birth over its size limit, a subscription queue it cannot declare) was otherwise
+// tried again every second for as long as that lasted, each session a new bdSeq and births.
+inline constexpr std::chrono::seconds steady_connection{10};
 
 class MqttClient : public std::enable_shared_from_this<MqttClient> {
   public:
@@ -92,9 +99,15 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     MqttClient(const MqttClient&) = delete;
     MqttClient& operator=(const MqttClient&) = delete;
 
-    // Connects, and reconnects whenever the connection is lost (1 s doubling to 30 s); with
-    // several brokers, to the next in the list each time.
+    // Connects, and reconnects whenever the connection is lost (1 s doubling to 30 s, back to
+    // 1 s after a connection that lasted steady_connection); with several brokers, to the
+    // next in the list each time.
     void start();
+    // The output's word that the broker read what followed the start of this connection's
+    // session (with a Sparkplug store: a SUBACK proving live data or forwarded records after the
+    // births): losing it later starts the back-off again, as a broker that ends every session
+    // at once (at its first birth) does not.
+    void session_established() { established_ = true; }
     // Leaves this broker for the next (gateway.md §6.2): DISCONNECT now (Protocol::disconnect
     // says what becomes of the will), the next one in 1 s.
     void walk();
@@ -192,6 +205,12 @@ class MqttClient : public std::enable_shared_from_this<MqttClient> {
     std::vector<bool> mqtt311_only_;        // by broker: it refused MQTT 5
     bool connack_ = false;                  // the current connection had its CONNACK
     bool written_ = false;                  // libmosquitto wrote on the current connection
+    // The current connection's CONNACK, and the largest message published on it (for a broker
+    // that ends it as too large: MQTT 5's DISCONNECT 0x95).
+    std::chrono::steady_clock::time_point connected_at_;
+    bool established_ = false;  // session_established() on the current connection
+    std::size_t largest_bytes_ = 0;
+    std::string largest_topic_;
     // MQTT 3.1.1: the path to the current broker, and its TLS context (made at configure_for,
     // so that a CA file that cannot be loaded is found at once).
     std::shared_ptr<BrokerRelay> relay_;

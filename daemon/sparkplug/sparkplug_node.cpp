@@ -664,10 +664,12 @@ void SparkplugNode::subscribed(int mid) {
     if (const auto live = live_proofs_.find(mid); live != live_proofs_.end()) {
         unproven_.proven(live->second);
         live_proofs_.erase(live);
+        client_->session_established();  // the broker read what followed the births
         prove_live();
     }
     const auto proof = proofs_.find(mid);
     if (proof == proofs_.end()) return;
+    client_->session_established();
     store_->deliver(proof->second.through, proof->second.records);
     forwarded_in_run_ += proof->second.records;
     proofs_.erase(proof);

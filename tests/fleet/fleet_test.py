@@ -23,6 +23,14 @@ a DCMD act, and one whose device id the broker cut into levels, or that names no
 counted in ioportd_sparkplug_commands_total{result="unknown_device"}. A kill of node 1 is
 survived only with the mirrored-queue policy on the MQTT plugin's queues.
 
+Mosquitto 2.0 besides (MosquittoBridge): two brokers, node 1 bridged to node 2 by a `connection`
+carrying spBv1.0/#, ioportd/# and homeassistant/# both ways, the same failovers; retained messages
+cross the bridge, and a clean stop of node 1 publishes the wills of its sessions, which cross it
+before it closes. The bounds on a message's size: ejabberd's max_payload_size (EjabberdSizes, on
+one-node ejabberds of their own: by default ejabberd sends the daemon a DCMD over its MQTT 5
+Maximum Packet Size; 65536 keeps it away; a limit under a DBIRTH ends every session the daemon
+begins, with its will) and RabbitMQ's max_message_size (likewise, set on the running nodes).
+
 A cluster that cannot start here is a failure, with the reason (ClusterError): nothing is skipped.
 Deadlines are upper bounds at native speed, stretched by IOPORT_TEST_SLOWDOWN.
 
@@ -49,6 +57,7 @@ import paho.mqtt.client as mqtt  # noqa: E402
 from pymodbus.client import ModbusTcpClient  # noqa: E402
 
 import sparkplug_b_pb2 as pb  # noqa: E402
+from broker import BridgedMosquitto  # noqa: E402
 from cluster import EjabberdCluster, RabbitCluster  # noqa: E402
 from host_app import HostApp, encode_value  # noqa: E402
 from rig import SLOWDOWN, Rig, die_with_parent, eventually  # noqa: E402
@@ -66,13 +75,15 @@ HA_TOPICS = (STATUS, DIM_STATE, f"{PREFIX}/hub0/dim16_0/availability",
              f"{PREFIX}/hub0/dom16_0/state")
 
 FIGURES = []  # one row per failover run, printed at the end
+WILLS = []  # per clean stop of a bridged Mosquitto: (the NDEATH crossed, the JSON will crossed)
+DEFAULT_MAX_MESSAGE_SIZE = 134217728  # RabbitMQ 3.10's max_message_size: 128 MiB
 
 
 class FleetRig(Rig):
     """ioport-sim with dim16 0 and dom16 0, and ioportd on it with both MQTT outputs on the
     cluster's nodes in order, the Sparkplug store in the rig's directory."""
 
-    def __init__(self, directory, cluster, separator="."):
+    def __init__(self, directory, cluster, separator=".", primary_host=None):
         super().__init__(directory, IOPORTD, IOPORT_SIM, preexec_fn=die_with_parent)
         self.urls = [f"mqtt://127.0.0.1:{node.mqtt_port}" for node in cluster.nodes]
         self.store = os.path.join(directory, "store")
@@ -109,7 +120,7 @@ mqtt:
   keepalive: 5s
   device_id_separator: "{separator}"
   store: {{ path: {self.store} }}
-{login}mqtt_json:
+{f"  primary_host_id: {primary_host}{chr(10)}" if primary_host else ""}{login}mqtt_json:
   brokers: {brokers}
   topic_prefix: "{PREFIX}"
   keepalive: 5s
@@ -199,6 +210,7 @@ def command_payload(metrics):
 class FleetCase(unittest.TestCase):
     """One cluster for the class, a Sparkplug host application on node 2 throughout."""
     SEPARATOR = "."
+    WILL_AT_STOP = False  # the wills of node 1's sessions reach node 2 when it stops cleanly
 
     @classmethod
     def make_cluster(cls, directory):
@@ -291,7 +303,7 @@ class FleetCase(unittest.TestCase):
         of the daemon reaches the host, and node 2 closes every connection the daemon makes;
         then node 1 is started again, and the session may be on either node."""
         cluster, host = self.cluster, self.host
-        self.start_rig()
+        born = self.start_rig().metric("bdSeq").value
         ha = Watcher(cluster, 1)
         client = ModbusTcpClient("127.0.0.1", port=self.rig.modbus_port, timeout=3)
         self.assertTrue(client.connect())
@@ -339,8 +351,13 @@ class FleetCase(unittest.TestCase):
             # the new sessions (on node 2)
             nbirth = host.wait_message("NBIRTH", node=NODE, since=mark, timeout=60)
             spb_seconds = nbirth.received - began
-            online = ha.wait(STATUS, lambda m: m[1] == "online", ha_mark, timeout=60)
+            # live, not a retained copy (through a bridge, node 2 has node 1's: the watcher's
+            # subscription may get it just after the mark)
+            online = ha.wait(STATUS, lambda m: m[1] == "online" and not m[2] and m[3] > began,
+                             ha_mark, timeout=60)
             json_seconds = online[3] - began
+            json_offline = [m[1] for m in ha.since(ha_mark, STATUS)
+                            if m[1] == "offline" and m[3] < online[3]]
             if not blocked_for:
                 for section in ("mqtt", "mqtt_json"):
                     self.assertEqual(self.rig.wait_connected(section, self.url(1), log),
@@ -387,6 +404,7 @@ class FleetCase(unittest.TestCase):
                 "lost": len(lost), "duplicated": len(duplicated), "closed": closed,
                 "ndeath": [m.metric("bdSeq").value for m in host.since(mark, "NDEATH", node=NODE)
                            if m.index < nbirth.index],
+                "json offline": len(json_offline),
             }
             FIGURES.append(figures)
             print(f"\n  {cluster.kind}, node 1 {figures['mode']}: node 1 gone after "
@@ -395,7 +413,8 @@ class FleetCase(unittest.TestCase):
                   f"(Sparkplug NBIRTH) and {json_seconds:.2f} s (JSON status online); values "
                   f"live {figures['live']}, historical {figures['historical']}, lost {len(lost)} "
                   f"{lost[:10]}, duplicated {len(duplicated)} {duplicated[:10]}; the old "
-                  f"session's NDEATH at the host: {figures['ndeath'] or 'none'}", file=sys.stderr)
+                  f"session's NDEATH at the host: {figures['ndeath'] or 'none'}, its JSON status offline "
+                  f"on node 2: {figures['json offline']}", file=sys.stderr)
             self.assertEqual(lost, [], "changes lost")
             # Live DDATA goes at QoS 0 (Sparkplug 3.0): what node 1 may not have read when it
             # went away (sent since the broker last proved it read everything before) is stored
@@ -409,7 +428,19 @@ class FleetCase(unittest.TestCase):
             self.assertEqual(duplicated, list(range(first_stored - len(duplicated), first_stored)),
                              "changes twice at the host, not those just before the loss")
             figures["unproven read twice"] = len(duplicated)
-            self.assertEqual(figures["ndeath"], [], "the will of a session of a dead node")
+            # the will of the session on node 1: never from a cluster's dead node; from a
+            # bridged Mosquitto stopped cleanly, which publishes its clients' wills as it stops,
+            # those that cross the bridge before it closes (a race: the JSON output's did not,
+            # once in six runs), the old session's, never a later one
+            if mode == "stop" and self.WILL_AT_STOP:
+                self.assertIn(figures["ndeath"], ([born], []), "the old session's will at most")
+                self.assertLessEqual(figures["json offline"], 1)
+                WILLS.append((figures["ndeath"] == [born], figures["json offline"] == 1))
+            else:
+                self.assertEqual(figures["ndeath"], [], "the will of a session of a dead node")
+                if not blocked_for:
+                    self.assertEqual(figures["json offline"], 0,
+                                     "the JSON output's will (status offline) on node 2")
             # the JSON side on node 2: the state current, live and retained
             ha.wait(DIM_STATE, lambda m: json.loads(m[1]).get("word") == BARRIER, ha_mark)
             last = ha.since(ha_mark, DIM_STATE)[-1]
@@ -468,6 +499,62 @@ class Ejabberd(FleetCase):
     def test_a_kill_of_node_1(self):
         self.failover("kill")
 
+    def test_a_primary_host_must_publish_its_state_on_every_node(self):
+        # The host's STATE is retained on node 2 only: the daemon on node 1 gets none within
+        # keepalive, leaves node 1 and is born on node 2. With the STATE on node 1 as well, it
+        # is born on node 1 at once.
+        host_id = "fleet-scada"
+        topic = f"spBv1.0/STATE/{host_id}"
+        try:
+            self.host.state(host_id, True)
+            self.rig = FleetRig(tempfile.mkdtemp(dir=self.dir), self.cluster,
+                                primary_host=host_id)
+            mark = self.host.mark()
+            began = time.monotonic()
+            self.rig.start_daemon()
+            self.rig.wait_connected("mqtt", self.url(0))
+            nbirth = self.host.wait_message("NBIRTH", node=NODE, since=mark, timeout=30)
+            seconds = nbirth.received - began
+            nbirth_bdseq = nbirth.metric("bdSeq").value
+            self.assertEqual(self.rig.state()["sparkplug"]["broker"], self.url(1))
+            self.assertEqual(self.host.since(mark, "NBIRTH", node=NODE), [nbirth],
+                             "births on node 1")
+            # the session left on node 1 ended with NDEATH, then (MQTT 5) its will: both reach
+            # the host on node 2, with the bdSeq before the NBIRTH's
+            ndeaths = [m.metric("bdSeq").value for m in self.host.since(mark, "NDEATH", node=NODE)
+                       if m.index < nbirth.index]
+            self.assertEqual(ndeaths, [nbirth_bdseq - 1] * 2)
+            # the STATE on node 1 too: a new daemon is born there
+            mark = self.host.mark()
+            self.rig.stop_daemon(signal.SIGTERM)
+            self.host.wait_message("NDEATH", node=NODE, since=mark, timeout=60)
+            watcher = Watcher(self.cluster, 0, ())
+            try:
+                watcher.publish(topic, json.dumps({"online": True,
+                                                   "timestamp": int(time.time() * 1000)}),
+                                retain=True)
+            finally:
+                watcher.close()
+            mark = self.host.mark()
+            began = time.monotonic()
+            self.rig.start_daemon()
+            nbirth = self.host.wait_message("NBIRTH", node=NODE, since=mark, timeout=30)
+            both_seconds = nbirth.received - began
+            self.assertEqual(self.rig.state()["sparkplug"]["broker"], self.url(0))
+            self.assertNotIn(f"connected to {self.url(1)}", self.rig.log_text())
+            print(f"\n  ejabberd, primary host's STATE on node 2 only: the daemon born on node 2 "
+                  f"{seconds:.2f} s after its start (keepalive 5 s on node 1; NDEATH of the session "
+                  f"left there at the host: {ndeaths}, the NBIRTH's bdSeq "
+                  f"{nbirth_bdseq}); on both nodes: "
+                  f"born on node 1 after {both_seconds:.2f} s", file=sys.stderr)
+        finally:
+            for index in range(len(self.cluster.nodes)):
+                watcher = Watcher(self.cluster, index, ())
+                try:
+                    watcher.publish(topic, "", retain=True)
+                finally:
+                    watcher.close()
+
 
 class RabbitMQ(FleetCase):
     """RabbitMQ 3.10 with `mqtt.sparkplug = true`, and the mirrored-queue policy (ha-mode all)
@@ -482,6 +569,10 @@ class RabbitMQ(FleetCase):
 
     def test_both_outputs_fall_back_to_3_1_1_and_a_dcmd_acts(self):
         self.start_rig()
+        # what the daemon retains through node 1 stays on node 1
+        self.assertEqual(retained(self.cluster, 0, (STATUS,)), {STATUS: "online"})
+        self.assertEqual(retained(self.cluster, 1, (STATUS, DIM_STATE)), {},
+                         "node 1's retained messages on node 2")
         for section in ("mqtt", "mqtt_json"):
             self.rig.wait_log(rf"{section}: {re.escape(self.url(0))} closed the connection after "
                               r"an MQTT 5 CONNECT, without a CONNACK, so MQTT 3\.1\.1 with it "
@@ -533,10 +624,213 @@ class RabbitMQ(FleetCase):
         self.policy(True)
         self.failover("kill", "kill (ha-mode all)")
 
+    def set_max_message_size(self, size):
+        """RabbitMQ's max_message_size (rabbitmq.conf), on both nodes: a channel reads it when
+        it opens, so it holds for the MQTT connections made from now on."""
+        for node in self.cluster.nodes:
+            self.cluster._ctl_ok(node, "eval",
+                                 f"application:set_env(rabbit, max_message_size, {size}).")
+
+    def test_max_message_size_65536_keeps_a_dcmd_over_64_kib_from_the_daemon(self):
+        self.set_max_message_size(65536)
+        try:
+            self.start_rig()
+            log = self.rig.log_mark()
+            # RabbitMQ 3.10 fails the publish on the connection's channel: no PUBACK, and the
+            # connection stays open
+            self.assertEqual(publish_once(self.cluster, 1, f"spBv1.0/{GROUP}/DCMD/{NODE}/"
+                                          "hub0_dom16_0", big_dcmd()), "unanswered")
+            self.host.dcmd(GROUP, NODE, "hub0_dom16_0", [{"name": "out/2", "value": True}])
+            eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0004, 10, "out/2 on")
+            self.assertNotIn("refused", self.rig.log_text()[log:])
+        finally:
+            self.set_max_message_size(DEFAULT_MAX_MESSAGE_SIZE)
+
+    def test_a_birth_over_max_message_size_ends_the_session_each_time(self):
+        # 320 bytes: the NBIRTH passes, a DBIRTH (about 400 bytes) not
+        self.host_violations_allowed.append(
+            r"^\[nbirth\] .*NBIRTH bdSeq \d+ while the session of bdSeq \d+ had no NDEATH$")
+        self.set_max_message_size(320)
+        try:
+            self.rig = FleetRig(tempfile.mkdtemp(dir=self.dir), self.cluster, self.SEPARATOR)
+            mark = self.host.mark()
+            self.rig.start_daemon()
+            # each session ends at once: the back-off goes on doubling (1 s each time before)
+            closed = r"(?m)^.* mqtt: .*; reconnecting within (\d+) s$"
+            began = time.monotonic()
+            eventually(lambda: len(re.findall(closed, self.rig.log_text())) >= 3, 30,
+                       lambda: self.rig.log_text()[-3000:])
+            seconds = time.monotonic() - began
+            delays = [int(delay) for delay in re.findall(closed, self.rig.log_text())]
+            self.assertEqual(delays[:3], [1, 2, 4], self.rig.log_text()[-3000:])
+            nbirths = self.host.since(mark, "NBIRTH", node=NODE)
+            print(f"\n  RabbitMQ, max_message_size 320: {len(delays)} sessions closed in "
+                  f"{seconds:.1f} s, each followed by a reconnect within {delays} s; at the host "
+                  f"{len(nbirths)} NBIRTH (bdSeq {[m.metric('bdSeq').value for m in nbirths]}), "
+                  f"{len(self.host.since(mark, 'NDEATH', node=NODE))} NDEATH, "
+                  f"{len(self.host.since(mark, 'DBIRTH'))} DBIRTH", file=sys.stderr)
+            self.assertEqual(self.host.since(mark, "DBIRTH"), [], "a DBIRTH through the limit")
+            self.assertEqual(self.host.since(mark, "NDEATH", node=NODE), [],
+                             "the will of a session RabbitMQ closed")
+        finally:
+            self.set_max_message_size(DEFAULT_MAX_MESSAGE_SIZE)
+        # the limit raised: the next session's births go through (the next try within 8 s)
+        nbirth = self.host.wait_message("NBIRTH", node=NODE, since=mark, timeout=30,
+                                        where=lambda m: self.host.since(m.index, "DBIRTH"))
+        self.assertIsNotNone(nbirth)
+
     def policy(self, mirrored):
         if mirrored != self.mirrored:
             self.cluster.set_policy() if mirrored else self.cluster.clear_policy()
             type(self).mirrored = mirrored
+
+
+def big_dcmd():
+    """A DCMD to dom16 0 of 8000 `out/0` metrics: about 88 KB, beyond the 64 KiB the daemon
+    takes (its MQTT 5 Maximum Packet Size, its MQTT 3.1.1 relay's bound)."""
+    payload = command_payload([("out/0", "Boolean", True)] * 8000)
+    assert len(payload) > 65536, len(payload)
+    return payload
+
+
+def publish_once(cluster, index, topic, payload):
+    """`payload` published at QoS 1 by a new MQTT 3.1.1 client on node `index`: "acked" when
+    the node acknowledged it, "closed" when the node closed the connection instead, and
+    "unanswered" when neither came within 5 s (a PUBACK takes milliseconds here)."""
+    client = mqtt.Client(f"big-{time.monotonic_ns()}", clean_session=True,
+                         protocol=mqtt.MQTTv311)
+    if cluster.credentials:
+        client.username_pw_set(*cluster.credentials)
+    connected, closed, acked = threading.Event(), threading.Event(), threading.Event()
+    client.on_connect = lambda _c, _u, _f, rc: rc == 0 and connected.set()
+    client.on_disconnect = lambda *_: closed.set()
+    client.on_publish = lambda *_: acked.set()
+    client.connect("127.0.0.1", cluster.nodes[index].mqtt_port, keepalive=30)
+    client.loop_start()
+    try:
+        eventually(connected.is_set, 10, f"CONNACK from node {index + 1}")
+        client.publish(topic, payload, qos=1)
+        try:
+            eventually(lambda: acked.is_set() or closed.is_set(), 5,
+                       f"PUBACK or a close from node {index + 1}")
+        except AssertionError:
+            return "unanswered"
+        return "acked" if acked.is_set() else "closed"
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
+class EjabberdSizes(unittest.TestCase):
+    """ejabberd's bound on a PUBLISH (mod_mqtt's listener option max_payload_size), each test
+    on a one-node ejabberd of its own: what the daemon's messages meet over it, and what it
+    keeps from the daemon under it."""
+    DCMD = f"spBv1.0/{GROUP}/DCMD/{NODE}/hub0.dom16.0"
+
+    def start(self, max_payload_size=None):
+        self.dir = tempfile.mkdtemp(prefix="ioportd-fleet-size-")
+        options = {"max_payload_size": max_payload_size} if max_payload_size else {}
+        self.cluster = EjabberdCluster(os.path.join(self.dir, "cluster"), size=1,
+                                       listener_options=options)
+        self.cluster.start()  # ClusterError: a failure, never a skip
+        self.host = HostApp(self.cluster.nodes[0].mqtt_port, client_id="size-host",
+                            credentials=self.cluster.credentials)
+        self.rig = FleetRig(tempfile.mkdtemp(dir=self.dir), self.cluster)
+        self.rig.start_daemon()
+
+    def tearDown(self):
+        for name in ("rig", "host", "cluster"):
+            if hasattr(self, name):
+                getattr(self, name).close()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def born(self):
+        nbirth = self.host.wait_message("NBIRTH", node=NODE, timeout=60)
+        self.host.wait_message("DBIRTH", "hub0.dom16.0", since=nbirth.index, timeout=60)
+
+    def refused_commands(self):
+        found = re.search(r'(?m)^ioportd_sparkplug_commands_total\{result="refused"\} (\d+)$',
+                          self.rig.metrics())
+        return int(found.group(1)) if found else 0
+
+    def test_by_default_a_dcmd_over_64_kib_reaches_the_daemon(self):
+        # The daemon's CONNECT asks for packets of 64 KiB at most (MQTT 5's Maximum Packet
+        # Size): ejabberd 23.01 sends it a larger one all the same.
+        self.start()
+        self.born()
+        self.assertEqual(publish_once(self.cluster, 0, self.DCMD, big_dcmd()), "acked")
+        self.rig.wait_log(r"Sparkplug DCMD to hub0\.dom16\.0 refused: ", 10)
+        self.assertEqual(self.refused_commands(), 1)
+
+    def test_max_payload_size_65536_keeps_it_from_the_daemon(self):
+        self.start(65536)
+        self.born()
+        log = self.rig.log_mark()
+        self.assertEqual(publish_once(self.cluster, 0, self.DCMD, big_dcmd()), "closed")
+        # the daemon goes on, and a DCMD after it acts
+        self.host.dcmd(GROUP, NODE, "hub0.dom16.0", [{"name": "out/1", "value": True}])
+        eventually(lambda: int(self.rig.ctl("get dom16:0"), 0) & 0x0002, 10, "out/1 on")
+        self.assertNotIn("refused", self.rig.log_text()[log:])
+        self.assertEqual(self.refused_commands(), 0)
+        self.assertNotIn("closed the connection", self.rig.log_text())
+        self.assertNotIn("sent DISCONNECT", self.rig.log_text())
+
+    def test_a_birth_over_max_payload_size_ends_the_session_each_time(self):
+        # 320 bytes: the NBIRTH (about 280 with its topic) passes, a DBIRTH (about 400) not.
+        # Each session ends at once, so the daemon's back-off goes on doubling (it was 1 s
+        # each time, for ever), and the journal names the message that was too large.
+        self.start(320)
+        disconnect = rf"(?m)^.* mqtt: {re.escape(self.rig.urls[0])} sent DISCONNECT: Packet " \
+                     r"too large \(reason code 0x95\); the largest message of this session " \
+                     r"had (\d+) bytes \((\S+)\): raise the broker's limit on a message's " \
+                     r"size above it \(ejabberd: max_payload_size\); reconnecting within " \
+                     r"(\d+) s$"
+        began = time.monotonic()
+        eventually(lambda: len(re.findall(disconnect, self.rig.log_text())) >= 3, 30,
+                   lambda: self.rig.log_text()[-3000:])
+        seconds = time.monotonic() - began
+        ends = re.findall(disconnect, self.rig.log_text())
+        delays = [int(delay) for _, _, delay in ends]
+        self.assertEqual(delays[:3], [1, 2, 4], ends)
+        for size, topic, _ in ends:
+            self.assertGreater(int(size), 320, ends)
+            self.assertRegex(topic, rf"^spBv1\.0/{GROUP}/DBIRTH/{NODE}/", ends)
+        nbirths = self.host.since(0, "NBIRTH", node=NODE)
+        ndeaths = self.host.since(0, "NDEATH", node=NODE)
+        print(f"\n  ejabberd, max_payload_size 320: {len(delays)} sessions ended by DISCONNECT "
+              f"0x95 in {seconds:.1f} s, each followed by a reconnect within {delays} s; at the "
+              f"host {len(nbirths)} NBIRTH (bdSeq {[m.metric('bdSeq').value for m in nbirths]}), "
+              f"{len(ndeaths)} NDEATH, {len(self.host.since(0, 'DBIRTH'))} DBIRTH",
+              file=sys.stderr)
+        self.assertEqual(self.host.since(0, "DBIRTH"), [], "a DBIRTH through the limit")
+        # each session's will published: the host sees the node die each time
+        eventually(lambda: len(self.host.since(0, "NDEATH", node=NODE)) >= len(delays) - 1, 5,
+                   "an NDEATH per session")
+
+
+class MosquittoBridge(FleetCase):
+    """Two Mosquitto 2.0 brokers, node 1 bridged to node 2 (a `connection` on node 1 carrying
+    spBv1.0/#, the JSON output's ioportd/# and homeassistant/# both ways): the daemon on node 1,
+    the host on node 2 gets it through the bridge."""
+
+    WILL_AT_STOP = True
+
+    @classmethod
+    def make_cluster(cls, directory):
+        return BridgedMosquitto(directory)
+
+    def test_retained_messages_cross_the_bridge(self):
+        self.start_rig()
+        kept = eventually(lambda: retained(self.cluster, 1, (STATUS, DIM_STATE)), 10,
+                          "node 1's retained messages on node 2")
+        self.assertEqual(kept.get(STATUS), "online", kept)
+        self.ha_birth_on_node2()
+
+    def test_a_clean_stop_of_node_1(self):
+        self.failover("stop")
+
+    def test_a_kill_of_node_1(self):
+        self.failover("kill")
 
 
 def print_figures():
@@ -551,6 +845,9 @@ def print_figures():
         print(f"| {f['broker']} | {f['mode']} | {f['sparkplug']:.2f} | {f['json']:.2f} | "
               f"{f['changes']} | {f['live']} | {f['historical']} | {f['lost']} | "
               f"{f['duplicated']} |", file=sys.stderr)
+    for ndeath, offline in WILLS:
+        print(f"Mosquitto bridge, clean stop of node 1: the Sparkplug will crossed the bridge: "
+              f"{ndeath}; the JSON output's: {offline}", file=sys.stderr)
 
 
 def tearDownModule():
