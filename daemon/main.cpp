@@ -159,8 +159,9 @@ class Daemon {
     Log& log_;
     // One thread does all the I/O, so Asio need not lock its reactor. The scheduler keeps its
     // lock: the serial ports' readers post their input here, the store's disk thread its
-    // results, and Asio's resolver thread its answers. (Without it, such a post raced the loop: a lost handler left forwarding
-    // unfinished and the loop's work count wrong, so that ioportd never exited; benchmark 7f.)
+    // results, and Asio's resolver thread its answers. (Without it, such a post raced the loop: a
+    // lost handler left forwarding unfinished and the loop's work count wrong, so that ioportd
+    // never exited; benchmark 7f.)
     asio::io_context io_{BOOST_ASIO_CONCURRENCY_HINT_UNSAFE_IO};
     // Destroyed after the gateway, before the loop: the disk's finishes the stores' last syncs
     // (worker_thread.hpp).
