@@ -1151,6 +1151,13 @@ class StoreAndForward(OwnDaemon):
         eventually(lambda: not self.rig.state()["sparkplug"]["connected"], 15,
                    "the node notices the broker is gone")
 
+    @staticmethod
+    def word_is(client, word):
+        """dim16:0 reads as `word`; an exception (dim16 0 briefly offline on a busy machine) is
+        not yet."""
+        regs = client.read_input_registers(0, 1, slave=1)
+        return not regs.isError() and regs.registers[0] == word
+
     def change_while_away(self, words):
         """Sets dim16:0 to each word in turn, each read back over Modbus (so polled) before the
         next."""
@@ -1158,12 +1165,7 @@ class StoreAndForward(OwnDaemon):
         try:
             for word in words:
                 self.rig.ctl(f"set dim16:0 {word:#06x}")
-
-                def read_back():
-                    # an exception while dim16 0 is briefly offline on a busy machine: not yet
-                    regs = client.read_input_registers(0, 1, slave=1)
-                    return not regs.isError() and regs.registers[0] == word
-                eventually(read_back, 30, f"dim16:0 read as {word:#06x}")
+                eventually(lambda: self.word_is(client, word), 30, f"dim16:0 read as {word:#06x}")
         finally:
             client.close()
 
@@ -1362,8 +1364,8 @@ class StoreAndForward(OwnDaemon):
                 os.kill(pid, signal.SIGSTOP)
                 try:
                     self.rig.ctl(f"set dim16:0 {in_flight:#06x}")
-                    eventually(lambda: client.read_input_registers(0, 1, slave=1).registers[0]
-                               == in_flight, 5, f"dim16:0 read as {in_flight:#06x}")
+                    eventually(lambda: self.word_is(client, in_flight), 30,
+                               f"dim16:0 read as {in_flight:#06x}")
                     eventually(lambda: self.published() > before, 5,
                                f"the DDATA of {in_flight:#06x} published")
                     os.kill(pid, signal.SIGTERM)
