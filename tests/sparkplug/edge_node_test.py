@@ -27,6 +27,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
 
 from pymodbus.client import ModbusTcpClient  # noqa: E402
+from pymodbus.exceptions import ModbusIOException  # noqa: E402
 
 import sparkplug_b_pb2 as pb  # noqa: E402
 from host_app import BrokerLog, HostApp, encode_value  # noqa: E402
@@ -927,9 +928,12 @@ class Lifecycle(OwnDaemon):
                         asked = time.monotonic()
                         regs = client.read_input_registers(0, 1, slave=1)
                         slowest = max(slowest, time.monotonic() - asked)
-                        self.assertFalse(regs.isError(), "Modbus waited for the broker")
-                        return regs.registers[0] == word
-                    eventually(polled, 2, f"dim16 0 word {word} polled with the broker stopped")
+                        # No answer is Modbus waiting for the broker; an exception is an answer
+                        # (dim16 0 briefly offline on a busy machine): not yet.
+                        self.assertNotIsInstance(regs, ModbusIOException,
+                                                 "Modbus waited for the broker")
+                        return not regs.isError() and regs.registers[0] == word
+                    eventually(polled, 10, f"dim16 0 word {word} polled with the broker stopped")
                     latest = max(latest, time.monotonic() - set_at)
                 print(f"\n  broker stalled: slowest Modbus read {slowest * 1000:.1f} ms, a set "
                       f"polled and read back within {latest * 1000:.0f} ms", file=sys.stderr)
