@@ -488,7 +488,9 @@ class Ejabberd(FleetCase):
         # The daemon on node 1: what it retains stays on node 1, and a Home Assistant that
         # starts on node 2 learns the gateway's status only from its answer to the birth.
         self.start_rig()
-        self.assertEqual(retained(self.cluster, 0, (STATUS,)), {STATUS: "online"})
+        # the status is retained once the JSON output published it, a moment after it connected
+        eventually(lambda: retained(self.cluster, 0, (STATUS,)) == {STATUS: "online"}, 30,
+                   "the gateway's status retained on node 1")
         self.assertEqual(retained(self.cluster, 1, (STATUS, DIM_STATE)), {},
                          "node 1's retained messages on node 2")
         self.ha_birth_on_node2()
